@@ -1,0 +1,13 @@
+"""sbagents: the book's environments and agents as registered, trainable software on Stable-Baselines3.
+
+Importing the package registers the Gymnasium IDs (``sbagents/GridWorld-v0``, ...), so
+``gym.make("sbagents:sbagents/GridWorld-v0")`` works in a fresh interpreter.
+"""
+
+from sbagents.registration import GYM_ENVS, register_envs
+
+__version__ = "0.1.0"
+
+register_envs()
+
+__all__ = ["GYM_ENVS", "__version__", "register_envs"]

@@ -1,0 +1,18 @@
+"""Gymnasium registration of the sbagents environment IDs (done once, on ``import sbagents``)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+#: Gymnasium ID -> entry point. Multi-agent PettingZoo envs are listed in
+#: :data:`sbagents.multiagent.PETTINGZOO_ENVS` instead.
+GYM_ENVS: dict[str, str] = {
+    "sbagents/GridWorld-v0": "sbagents.envs.gridworld:GridWorldEnv",
+}
+
+
+def register_envs() -> None:
+    """Register every ID in :data:`GYM_ENVS` that is not registered yet (idempotent)."""
+    for env_id, entry_point in GYM_ENVS.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry_point)

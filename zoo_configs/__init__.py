@@ -1,0 +1,1 @@
+"""RL Zoo format hyperparameter files shipped with sbagents (one YAML file per algorithm)."""

@@ -1,0 +1,38 @@
+"""Shared pieces of the argparse shells: error handling, ``key:value`` flags, signals."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Callable
+from types import FrameType
+from typing import NoReturn
+
+from sbagents.errors import UsageError
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error and exit code 2 (no usage dump)."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def run(prog: str, body: Callable[[], int | None]) -> NoReturn:
+    """Run a CLI body: SIGTERM acts like Ctrl-C; :class:`UsageError` becomes one line and exit code 2."""
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        code = body() or 0
+    except UsageError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        code = 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        code = 130
+    raise SystemExit(code)

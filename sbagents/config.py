@@ -1,0 +1,118 @@
+"""Reading RL Zoo format hyperparameter files safely.
+
+A zoo file maps env ids (then ``atari``, then ``default``) to hyperparameters. Unlike RL Zoo nothing is
+``eval``'d: values are YAML data, classes are named by import path, and CLI overrides ``key:value`` are
+parsed as YAML scalars, lists or mappings with a safe loader.
+"""
+
+from __future__ import annotations
+
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sbagents.errors import UsageError
+
+#: Keys of a zoo entry that configure the experiment rather than the algorithm constructor.
+ZOO_KEYS: frozenset[str] = frozenset(
+    {
+        "n_timesteps",
+        "n_envs",
+        "policy",
+        "normalize",
+        "frame_stack",
+        "env_wrapper",
+        "vec_env_wrapper",
+        "env_kwargs",
+        "monitor_kwargs",
+        "callback",
+        "noise_type",
+        "noise_std",
+    }
+)
+
+_FLOAT = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)$")
+
+
+class ZooLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader that also reads ``1e6`` / ``3e-4`` as floats (YAML 1.2 style)."""
+
+
+ZooLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)[eE][-+]?\d+$"), list("-+0123456789.")
+)
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Parse a YAML file safely; malformed YAML raises :class:`UsageError` naming the file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise UsageError(f"cannot read config file {path}: {exc.strerror}") from None
+    try:
+        return yaml.load(text, Loader=ZooLoader)  # noqa: S506 - ZooLoader is a SafeLoader
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise UsageError(f"malformed YAML in {path}{where}: {problem}") from None
+
+
+def default_config_path(algo: str) -> Path:
+    """The shipped ``zoo_configs/<algo>.yml``."""
+    return Path(str(resources.files("sbagents.zoo_configs").joinpath(f"{algo}.yml")))
+
+
+def lookup_entry(path: str | Path, env_id: str, atari: bool = False) -> dict[str, Any]:
+    """The hyperparameters for ``env_id`` in the zoo file ``path``.
+
+    Lookup order as RL Zoo: the exact env id, then ``atari`` for Atari ids, then ``default``.
+    A missing file counts as an empty one (every key then comes from the CLI and the defaults).
+    """
+    path = Path(path)
+    data = load_yaml(path) if path.exists() else {}
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise UsageError(f"{path} must map env ids to hyperparameters, got a {type(data).__name__}")
+    for key in (env_id, "atari" if atari else None, "default"):
+        if key is not None and key in data:
+            entry = data[key] or {}
+            if not isinstance(entry, dict):
+                raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
+            return dict(entry)
+    if not path.exists():
+        return {}
+    known = ", ".join(str(k) for k in data) or "none"
+    raise UsageError(f"{path} has no entry for {env_id!r} and no 'default' (entries: {known})")
+
+
+def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str, Any]:
+    """Parse ``key:value`` pairs; each value is read as a YAML scalar, list or mapping (never executed).
+
+    >>> parse_overrides(["learning_rate:3e-4", "policy_kwargs:{net_arch: [64, 64]}"])
+    {'learning_rate': 0.0003, 'policy_kwargs': {'net_arch': [64, 64]}}
+    """
+    result: dict[str, Any] = {}
+    for pair in pairs or []:
+        key, sep, raw = pair.partition(":")
+        key = key.strip()
+        if not sep or not key:
+            raise UsageError(f"{flag} expects key:value pairs, got {pair!r}")
+        try:
+            value = yaml.load(raw, Loader=ZooLoader) if raw.strip() else None  # noqa: S506 - safe loader
+        except yaml.YAMLError:
+            raise UsageError(
+                f"{flag} {key}: value {raw!r} is not a YAML scalar, list or mapping"
+            ) from None
+        result[key] = value
+    return result
+
+
+def is_float_string(value: Any) -> bool:
+    """Whether ``value`` is a string such as ``"1e6"`` that names a number."""
+    return isinstance(value, str) and bool(_FLOAT.match(value.strip()))

@@ -1,0 +1,136 @@
+"""Building the vectorised training and evaluation envs of an :class:`~sbagents.hyperparams.Experiment`."""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import (
+    DummyVecEnv,
+    SubprocVecEnv,
+    VecEnv,
+    VecFrameStack,
+    VecNormalize,
+)
+
+from sbagents.env_ids import EnvRef
+from sbagents.errors import UsageError
+from sbagents.hyperparams import Experiment
+
+VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
+    "dummy": DummyVecEnv,
+    "subproc": SubprocVecEnv,
+}
+
+
+def env_constructor(ref: EnvRef) -> Callable[..., Any]:
+    """The class or function that builds one env of ``ref`` (for keyword checks)."""
+    if ref.multi_agent:
+        return ref.pettingzoo_module().parallel_env
+    entry_point = gym.spec(ref.env_id).entry_point
+    if callable(entry_point):
+        return entry_point
+    return gym.envs.registration.load_env_creator(str(entry_point))
+
+
+def check_env_kwargs(ref: EnvRef, env_kwargs: dict[str, Any]) -> None:
+    """Raise :class:`UsageError` listing the accepted keys if ``env_kwargs`` has a key the env does not take."""
+    if not env_kwargs:
+        return
+    target = env_constructor(ref)
+    if ref.multi_agent:
+        target = getattr(ref.pettingzoo_module(), "raw_env", target)
+    params = inspect.signature(target).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    accepted = sorted(k for k in params if k not in ("self", "render_mode"))
+    unknown = sorted(set(env_kwargs) - set(params))
+    if unknown:
+        raise UsageError(
+            f"unknown env kwarg(s) {', '.join(unknown)} for {ref.env_id}; accepted: {', '.join(accepted)}"
+        )
+
+
+def _chain(wrappers: list[tuple[Any, dict[str, Any]]]) -> Callable[[gym.Env], gym.Env] | None:
+    if not wrappers:
+        return None
+
+    def wrap(env: gym.Env) -> gym.Env:
+        for wrapper, kwargs in wrappers:
+            env = wrapper(env, **kwargs)
+        return env
+
+    return wrap
+
+
+def make_vec(
+    exp: Experiment,
+    ref: EnvRef,
+    n_envs: int,
+    seed: int | None,
+    monitor_dir: str | Path | None = None,
+    vec_env: str = "dummy",
+    env_kwargs: dict[str, Any] | None = None,
+) -> VecEnv:
+    """The vectorised env with wrappers and frame stacking, before normalisation.
+
+    :param n_envs: number of copies (for multi-agent envs: copies of the whole team).
+    :param env_kwargs: extra env kwargs on top of the experiment's (e.g. ``render_mode``).
+    """
+    kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
+    check_env_kwargs(ref, {k: v for k, v in kwargs.items() if k != "render_mode"})
+    monitor = str(monitor_dir) if monitor_dir is not None else None
+    if ref.multi_agent:
+        from sbagents.multiagent import make_parameter_sharing_vec_env
+
+        venv: VecEnv = make_parameter_sharing_vec_env(
+            ref.pettingzoo_module().parallel_env, n_envs=n_envs, seed=seed, env_kwargs=kwargs, monitor_dir=monitor
+        )
+    else:
+        if vec_env not in VEC_ENV_CLASSES:
+            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_CLASSES)}, got {vec_env!r}")
+        venv = make_vec_env(
+            ref.env_id,
+            n_envs=n_envs,
+            seed=seed,
+            monitor_dir=monitor,
+            wrapper_class=_chain(exp.env_wrapper),
+            env_kwargs=kwargs,
+            vec_env_cls=VEC_ENV_CLASSES[vec_env],
+            monitor_kwargs=exp.monitor_kwargs or None,
+        )
+    for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
+        venv = wrapper(venv, **wrapper_kwargs)
+    if exp.frame_stack:
+        venv = VecFrameStack(venv, exp.frame_stack)
+    return venv
+
+
+def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | None = None) -> VecEnv:
+    """Wrap ``venv`` in :class:`VecNormalize` when the experiment asks for it (or resume saved statistics)."""
+    if stats_path is not None and stats_path.exists():
+        loaded = VecNormalize.load(str(stats_path), venv)
+        loaded.training = True
+        return loaded
+    if not exp.normalize:
+        return venv
+    kwargs = exp.normalize if isinstance(exp.normalize, dict) else {}
+    return VecNormalize(venv, **kwargs)
+
+
+def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = None) -> VecEnv:
+    """Frozen normalisation for evaluation: saved statistics if given, never reward normalisation."""
+    if stats_path is not None and stats_path.exists():
+        loaded = VecNormalize.load(str(stats_path), venv)
+    elif exp.normalize:
+        kwargs = dict(exp.normalize) if isinstance(exp.normalize, dict) else {}
+        loaded = VecNormalize(venv, **kwargs)
+    else:
+        return venv
+    loaded.training = False
+    loaded.norm_reward = False
+    return loaded

@@ -1,0 +1,54 @@
+"""``python -m sbagents.evaluate``: a thin argparse shell over :func:`sbagents.evaluation.evaluate` (RL Zoo's enjoy)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import torch
+
+from sbagents.cli import ArgumentParser, run
+from sbagents.evaluation import evaluate
+
+
+def build_parser() -> ArgumentParser:
+    """The ``evaluate`` argument parser."""
+    p = ArgumentParser(prog="python -m sbagents.evaluate", description="Evaluate a trained run.")
+    p.add_argument("--algo", required=True, help="algorithm of the run")
+    p.add_argument("--env", required=True, help="env id of the run")
+    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
+    p.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
+    p.add_argument("--load-best", action="store_true", help="load best_model.zip instead of the final model")
+    p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to run (default 10)")
+    p.add_argument("--render", action="store_true", help="render in 'human' mode while evaluating")
+    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the greedy policy")
+    p.add_argument("--seed", type=int, default=0, help="seed of the evaluation env")
+    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object (last line)")
+    return p
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    """A small two-column text table of an evaluation summary."""
+    rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
+                                      "success_rate")]
+    rows += [(f"metrics.{k}", v) for k, v in summary["metrics"].items()]
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, evaluate the run, print a table or JSON."""
+    args = build_parser().parse_args(argv)
+    torch.set_num_threads(1)
+    summary = evaluate(
+        args.algo, args.env, log_folder=args.log_folder, exp_id=args.exp_id, load_best=args.load_best,
+        n_episodes=args.n_episodes, deterministic=not args.stochastic, seed=args.seed, render=args.render,
+        gym_packages=tuple(args.gym_packages),
+    )
+    print(json.dumps(summary) if args.json else format_table(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    run("python -m sbagents.evaluate", main)

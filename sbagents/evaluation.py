@@ -1,0 +1,142 @@
+"""Evaluating a trained model: mean/std return, success rate and env-specific episode metrics."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecEnv
+
+from sbagents.algos import ALGOS
+from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_ids import EnvRef, resolve_env
+from sbagents.errors import UsageError
+from sbagents.hyperparams import Experiment
+from sbagents.run_dir import VECNORMALIZE_FILE, find_run_dir, model_path
+from sbagents.run_loading import load_experiment
+
+
+def _episode_metrics_fn(venv: VecEnv) -> Any:
+    """The env's ``episode_metrics(step_infos) -> dict`` hook, if it has one."""
+    try:
+        return venv.get_attr("episode_metrics", [0])[0]
+    except AttributeError:
+        return None
+
+
+def summarize(
+    env_id: str,
+    algo: str,
+    returns: list[float],
+    lengths: list[int],
+    successes: list[bool],
+    metrics: dict[str, list[float]],
+) -> dict[str, Any]:
+    """The evaluation summary dict (the ``evaluate --json`` contract of DESIGN.md)."""
+    return {
+        "env": env_id,
+        "algo": algo,
+        "n_episodes": len(returns),
+        "mean_return": float(np.mean(returns)),
+        "std_return": float(np.std(returns)),
+        "mean_length": float(np.mean(lengths)),
+        "success_rate": float(np.mean(successes)) if successes else None,
+        "metrics": {k: float(np.mean(v)) for k, v in metrics.items()},
+    }
+
+
+def evaluate_model(
+    model: BaseAlgorithm,
+    exp: Experiment,
+    ref: EnvRef,
+    n_episodes: int = 10,
+    deterministic: bool = True,
+    seed: int | None = 0,
+    stats_path: Path | None = None,
+    render: bool = False,
+) -> dict[str, Any]:
+    """Run ``n_episodes`` with ``model`` on a fresh env wrapped exactly as in training.
+
+    :param stats_path: saved ``VecNormalize`` statistics of the run (frozen during evaluation).
+    :return: the summary of :func:`summarize`.
+    """
+    if n_episodes < 1:
+        raise UsageError(f"the number of evaluation episodes must be >= 1, got {n_episodes}")
+    if ref.multi_agent:
+        from sbagents.multiagent import evaluate_team
+
+        vec_normalize = None
+        if stats_path is not None and stats_path.exists():
+            from stable_baselines3.common.vec_env import VecNormalize
+
+            vec_normalize = VecNormalize.load(str(stats_path), make_vec(exp, ref, 1, seed))
+        result = evaluate_team(
+            model,
+            lambda **kw: ref.pettingzoo_module().parallel_env(**{**exp.env_kwargs, **kw}),
+            n_episodes=n_episodes,
+            deterministic=deterministic,
+            seed=seed,
+            render=render,
+            vec_normalize=vec_normalize,
+        )
+        return {"env": ref.env_id, "algo": exp.algo, **result}
+    extra = {"render_mode": "human"} if render else None
+    venv = normalize_for_eval(make_vec(exp, ref, 1, seed, env_kwargs=extra), exp, stats_path)
+    metrics_fn = _episode_metrics_fn(venv)
+    step_infos: list[dict[str, Any]] = []
+    successes: list[bool] = []
+    metrics: dict[str, list[float]] = defaultdict(list)
+
+    def on_step(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
+        info = locals_["info"]
+        step_infos.append(info)
+        if locals_["done"]:
+            if "is_success" in info:
+                successes.append(bool(info["is_success"]))
+            if metrics_fn is not None:
+                for key, value in metrics_fn(step_infos).items():
+                    metrics[key].append(value)
+            step_infos.clear()
+
+    try:
+        returns, lengths = evaluate_policy(
+            model,
+            venv,
+            n_eval_episodes=n_episodes,
+            deterministic=deterministic,
+            return_episode_rewards=True,
+            callback=on_step,
+            warn=False,
+        )
+    finally:
+        venv.close()
+    return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics)  # type: ignore[arg-type]
+
+
+def evaluate(
+    algo: str,
+    env: str,
+    log_folder: str | Path = "logs",
+    exp_id: int = 0,
+    load_best: bool = False,
+    n_episodes: int = 10,
+    deterministic: bool = True,
+    seed: int | None = 0,
+    render: bool = False,
+    gym_packages: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """Evaluate a finished run of ``python -m sbagents.train`` (RL Zoo's ``enjoy``)."""
+    if algo not in ALGOS:
+        raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
+    ref = resolve_env(env, gym_packages)
+    run_dir = find_run_dir(log_folder, algo, ref.env_id, exp_id)
+    path = model_path(run_dir, ref.env_id, load_best)
+    exp = load_experiment(run_dir, algo, ref.env_id)
+    model = ALGOS[algo].cls.load(str(path), device="cpu")
+    return evaluate_model(
+        model, exp, ref, n_episodes, deterministic, seed, run_dir / VECNORMALIZE_FILE, render=render
+    )

@@ -1,0 +1,215 @@
+"""Turning a raw zoo entry (plain YAML data) into a validated experiment description.
+
+Classes and functions are named by import path (``package.module.Name`` or ``package.module:Name``) or by a
+short name from a fixed table; nothing is ``eval``'d.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch.nn as nn
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.utils import LinearSchedule
+
+from sbagents.algos import ALGOS
+from sbagents.config import ZOO_KEYS
+from sbagents.errors import UsageError
+
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "tanh": nn.Tanh,
+    "relu": nn.ReLU,
+    "elu": nn.ELU,
+    "leaky_relu": nn.LeakyReLU,
+    "gelu": nn.GELU,
+    "silu": nn.SiLU,
+    "selu": nn.SELU,
+    "sigmoid": nn.Sigmoid,
+}
+
+#: Short names usable in configs for classes RL Zoo configs mention by bare name.
+KNOWN_CLASSES: dict[str, str] = {
+    "HerReplayBuffer": "stable_baselines3.HerReplayBuffer",
+    "AtariWrapper": "stable_baselines3.common.atari_wrappers.AtariWrapper",
+    "TimeLimit": "gymnasium.wrappers.TimeLimit",
+    "Adam": "torch.optim.Adam",
+    "AdamW": "torch.optim.AdamW",
+    "RMSprop": "torch.optim.RMSprop",
+    "RMSpropTFLike": "stable_baselines3.common.sb2_compat.rmsprop_tf_like.RMSpropTFLike",
+    "NatureCNN": "stable_baselines3.common.torch_layers.NatureCNN",
+}
+
+_SCHEDULABLE = ("learning_rate", "clip_range", "clip_range_vf")
+_CLASS_KWARGS = ("replay_buffer_class", "features_extractor_class", "optimizer_class")
+_RUNTIME_KWARGS = {"policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model"}
+
+
+def import_object(path: str, what: str = "object") -> Any:
+    """Import ``package.module.Name`` or ``package.module:Name`` (or a short name of :data:`KNOWN_CLASSES`)."""
+    path = KNOWN_CLASSES.get(path, path)
+    module_name, sep, attr = path.partition(":")
+    if not sep:
+        module_name, _, attr = path.rpartition(".")
+    if not module_name or not attr:
+        raise UsageError(f"{what} {path!r} must be an import path like 'package.module.Name'")
+    try:
+        module = importlib.import_module(module_name)
+        return getattr(module, attr)
+    except (ImportError, AttributeError) as exc:
+        raise UsageError(f"cannot import {what} {path!r}: {exc}") from None
+
+
+@dataclass
+class Experiment:
+    """A resolved experiment: what to build and how to train it.
+
+    ``hyperparams`` keeps the plain-data entry (after overrides) as written to ``config.yml``.
+    """
+
+    algo: str
+    env_id: str
+    n_timesteps: int  # 0 when neither the config nor the CLI set it
+    n_envs: int = 1
+    policy: str = "MlpPolicy"
+    normalize: bool | dict[str, Any] = False
+    frame_stack: int | None = None
+    env_wrapper: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
+    vec_env_wrapper: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    monitor_kwargs: dict[str, Any] = field(default_factory=dict)
+    callbacks: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
+    noise_type: str | None = None
+    noise_std: float = 0.1
+    algo_kwargs: dict[str, Any] = field(default_factory=dict)
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+
+    def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
+        """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
+        if self.noise_type is None:
+            return None
+        mean, sigma = np.zeros(n_actions), self.noise_std * np.ones(n_actions)
+        if self.noise_type == "normal":
+            return NormalActionNoise(mean, sigma)
+        return OrnsteinUhlenbeckActionNoise(mean, sigma)
+
+
+def accepted_algo_kwargs(algo: str) -> list[str]:
+    """Constructor keywords of ``algo`` that a config may set."""
+    params = inspect.signature(ALGOS[algo].cls.__init__).parameters
+    return sorted(k for k in params if k not in _RUNTIME_KWARGS and k != "self" and not k.startswith("_"))
+
+
+def _wrapper_list(value: Any, key: str) -> list[tuple[Any, dict[str, Any]]]:
+    """``env_wrapper``/``callback`` values: a path, a list of paths, or ``{path: kwargs}`` items."""
+    items = value if isinstance(value, list) else [value]
+    result = []
+    for item in items:
+        if isinstance(item, str):
+            result.append((import_object(item, key), {}))
+        elif isinstance(item, dict) and len(item) == 1:
+            (path, kwargs), = item.items()
+            result.append((import_object(str(path), key), dict(kwargs or {})))
+        else:
+            raise UsageError(f"{key} entries must be import paths or {{path: kwargs}} mappings, got {item!r}")
+    return result
+
+
+def _schedule(key: str, value: Any) -> Any:
+    if isinstance(value, str) and value.startswith("lin_"):
+        try:
+            start = float(value[4:])
+        except ValueError:
+            raise UsageError(f"{key}: {value!r} is not a linear schedule like 'lin_3e-4'") from None
+        return LinearSchedule(start, 0.0, 1.0)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise UsageError(f"{key} must be a number or a schedule 'lin_<start>', got {value!r}")
+    return float(value)
+
+
+def _policy_kwargs(value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise UsageError(f"policy_kwargs must be a mapping such as {{net_arch: [64, 64]}}, got {value!r}")
+    kwargs = dict(value)
+    act = kwargs.get("activation_fn")
+    if isinstance(act, str):
+        name = act.removeprefix("nn.").lower()
+        if name in ACTIVATIONS:
+            kwargs["activation_fn"] = ACTIVATIONS[name]
+        else:
+            kwargs["activation_fn"] = import_object(act, "activation_fn")
+    for key in _CLASS_KWARGS:
+        if isinstance(kwargs.get(key), str):
+            kwargs[key] = import_object(kwargs[key], key)
+    return kwargs
+
+
+def _positive_int(entry: dict[str, Any], key: str, default: int | None) -> int | None:
+    value = entry.get(key, default)
+    if value is None:
+        return None
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise UsageError(f"{key} must be a positive integer, got {value!r}")
+    return value
+
+
+def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str) -> Experiment:
+    """Validate a zoo entry (after CLI overrides) and build the :class:`Experiment`.
+
+    :param source: where the entry came from, for error messages (file and env id).
+    """
+    accepted = accepted_algo_kwargs(algo)
+    unknown = sorted(k for k in entry if k not in ZOO_KEYS and k not in accepted)
+    if unknown:
+        raise UsageError(
+            f"unknown hyperparameter(s) {', '.join(unknown)} for {algo} ({source}); "
+            f"accepted: {', '.join(sorted(ZOO_KEYS | set(accepted)))}"
+        )
+    n_timesteps = _positive_int(entry, "n_timesteps", None) or 0
+    algo_kwargs: dict[str, Any] = {}
+    for key, value in entry.items():
+        if key in ZOO_KEYS:
+            continue
+        if key in _SCHEDULABLE:
+            value = _schedule(key, value)
+        elif key == "policy_kwargs":
+            value = _policy_kwargs(value)
+        elif key in _CLASS_KWARGS and isinstance(value, str):
+            value = import_object(value, key)
+        elif key == "train_freq" and isinstance(value, list):
+            value = tuple(value)
+        algo_kwargs[key] = value
+    noise_type = entry.get("noise_type")
+    if noise_type not in (None, "normal", "ornstein-uhlenbeck"):
+        raise UsageError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {noise_type!r}")
+    for key in ("env_kwargs", "monitor_kwargs"):
+        if not isinstance(entry.get(key, {}), dict):
+            raise UsageError(f"{key} must be a mapping, got {entry[key]!r} ({source})")
+    normalize = entry.get("normalize", False)
+    if not isinstance(normalize, bool | dict):
+        raise UsageError(f"normalize must be true/false or a VecNormalize kwargs mapping, got {normalize!r}")
+    return Experiment(
+        algo=algo,
+        env_id=env_id,
+        n_timesteps=n_timesteps,
+        n_envs=_positive_int(entry, "n_envs", 1) or 1,
+        policy=str(entry.get("policy", "MlpPolicy")),
+        normalize=normalize,
+        frame_stack=_positive_int(entry, "frame_stack", None),
+        env_wrapper=_wrapper_list(entry["env_wrapper"], "env_wrapper") if entry.get("env_wrapper") else [],
+        vec_env_wrapper=(
+            _wrapper_list(entry["vec_env_wrapper"], "vec_env_wrapper") if entry.get("vec_env_wrapper") else []
+        ),
+        env_kwargs=dict(entry.get("env_kwargs") or {}),
+        monitor_kwargs=dict(entry.get("monitor_kwargs") or {}),
+        callbacks=_wrapper_list(entry["callback"], "callback") if entry.get("callback") else [],
+        noise_type=noise_type,
+        noise_std=float(entry.get("noise_std", 0.1)),
+        algo_kwargs=algo_kwargs,
+        hyperparams=dict(entry),
+    )

@@ -1,0 +1,51 @@
+"""Saving and reloading what a run needs to be evaluated, exported or continued."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sbagents.config import load_yaml
+from sbagents.errors import UsageError
+from sbagents.hyperparams import Experiment, resolve
+from sbagents.run_dir import env_stem
+
+
+def config_path(run_dir: Path, env_id: str) -> Path:
+    """``<run dir>/<EnvId>/config.yml`` (RL Zoo layout)."""
+    return run_dir / env_stem(env_id) / "config.yml"
+
+
+def save_experiment(run_dir: Path, exp: Experiment, args: dict[str, Any], command: str) -> None:
+    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt``."""
+    folder = config_path(run_dir, exp.env_id).parent
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.yml").write_text(yaml.safe_dump(exp.hyperparams, sort_keys=True))
+    (folder / "args.yml").write_text(yaml.safe_dump(args, sort_keys=True))
+    (run_dir / "command.txt").write_text(command + "\n")
+
+
+def load_experiment(run_dir: Path, algo: str, env_id: str) -> Experiment:
+    """The :class:`Experiment` a run was trained with (so evaluation wraps the env identically)."""
+    path = config_path(run_dir, env_id)
+    if not path.exists():
+        raise UsageError(f"{run_dir} has no {path.relative_to(run_dir)}; is it a sbagents run dir?")
+    entry = load_yaml(path) or {}
+    return resolve(algo, env_id, entry, str(path))
+
+
+def check_model_file(path: str | Path) -> Path:
+    """Raise :class:`UsageError` unless ``path`` is an SB3 model zip (a zip holding ``data``)."""
+    path = Path(path)
+    if not path.exists():
+        raise UsageError(f"--trained-agent {path} does not exist")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if "data" not in archive.namelist():
+                raise UsageError(f"--trained-agent {path} is a zip file but not an SB3 model (no 'data' entry)")
+    except zipfile.BadZipFile:
+        raise UsageError(f"--trained-agent {path} is not an SB3 model file (not a zip archive)") from None
+    return path

@@ -1,0 +1,84 @@
+"""``python -m sbagents.train``: a thin argparse shell over :func:`sbagents.training.train`.
+
+Flag names follow RL Zoo's ``train.py`` where they overlap. With no arguments it trains the book's first
+agent (tabular Q-learning) on GridWorld and prints the learned path.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+
+from sbagents.algos import ALGOS
+from sbagents.cli import ArgumentParser, run
+from sbagents.config import parse_overrides
+from sbagents.env_ids import sbagents_env_ids
+from sbagents.showcase import describe_policy
+from sbagents.training import train
+
+
+def build_parser() -> ArgumentParser:
+    """The ``train`` argument parser."""
+    p = ArgumentParser(prog="python -m sbagents.train", description="Train an agent with a zoo config.")
+    p.add_argument("--algo", default="qlearning", help="algorithm (see --list); default: qlearning")
+    p.add_argument("--env", default="sbagents/GridWorld-v0", help="env id (see --list)")
+    p.add_argument("-n", "--n-timesteps", type=int, default=None, help="override the config's n_timesteps")
+    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
+    p.add_argument("--seed", type=int, default=-1, help="random seed (-1: draw one, recorded in summary.json)")
+    p.add_argument("--eval-freq", type=int, default=None,
+                   help="env steps between evaluations (default: n_timesteps/10, at most 25000; <=0 disables)")
+    p.add_argument("--eval-episodes", type=int, default=5, help="episodes per periodic evaluation")
+    p.add_argument("--n-eval-envs", type=int, default=1, help="envs for periodic evaluation")
+    p.add_argument("--final-eval-episodes", type=int, default=10, help="episodes of the final evaluation")
+    p.add_argument("--save-freq", type=int, default=-1, help="checkpoint every N env steps (-1: never)")
+    p.add_argument("-params", "--hyperparams", nargs="+", metavar="KEY:VALUE", help="override hyperparameters")
+    p.add_argument("-conf", "--conf-file", default=None, help="zoo config file (default: zoo_configs/<algo>.yml)")
+    p.add_argument("--env-kwargs", nargs="+", metavar="KEY:VALUE", help="env constructor keyword arguments")
+    p.add_argument("--vec-env", default="dummy", choices=["dummy", "subproc"], help="vectorised env type")
+    p.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
+    p.add_argument("--num-threads", type=int, default=1, help="torch threads (default 1; <=0 keeps torch's)")
+    p.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
+    p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
+    p.add_argument("-i", "--trained-agent", default=None, help="continue training this model .zip")
+    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
+    p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 info, 2 debug")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, train, print where the run went and its evaluation."""
+    args = build_parser().parse_args(argv)
+    if args.list:
+        print("envs:  " + "  ".join(sbagents_env_ids()))
+        print("algos: " + "  ".join(ALGOS))
+        return 0
+    command = "python -m sbagents.train " + shlex.join(sys.argv[1:] if argv is None else argv)
+    result = train(
+        args.algo, args.env, n_timesteps=args.n_timesteps, log_folder=args.log_folder, seed=args.seed,
+        hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,
+        env_kwargs=parse_overrides(args.env_kwargs, "--env-kwargs"), eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes, n_eval_envs=args.n_eval_envs,
+        final_eval_episodes=args.final_eval_episodes, save_freq=args.save_freq, vec_env=args.vec_env,
+        device=args.device, progress=args.progress, tensorboard_log=args.tensorboard_log,
+        trained_agent=args.trained_agent, verbose=args.verbose, num_threads=args.num_threads,
+        gym_packages=args.gym_packages, command=command,
+    )
+    summary = result.summary
+    if result.interrupted:
+        print(f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {result.run_dir}")
+        return 130
+    print(f"run dir: {result.run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)")
+    text = describe_policy(result.model, result.experiment)
+    if text:
+        print(text)
+    if summary["eval"]:
+        ev = summary["eval"]
+        success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
+        print(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
+              f"{ev['n_episodes']} episodes{success}")
+    return 0
+
+
+if __name__ == "__main__":
+    run("python -m sbagents.train", main)

@@ -42,6 +42,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("-i", "--trained-agent", default=None, help="continue training this model .zip")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
+    p.add_argument("--log-interval", type=int, default=-1,
+                   help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
     p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 info, 2 debug")
     return p
 
@@ -62,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         final_eval_episodes=args.final_eval_episodes, save_freq=args.save_freq, vec_env=args.vec_env,
         device=args.device, progress=args.progress, tensorboard_log=args.tensorboard_log,
         trained_agent=args.trained_agent, verbose=args.verbose, num_threads=args.num_threads,
+        log_interval=args.log_interval,
         gym_packages=args.gym_packages, command=command,
     )
     summary = result.summary

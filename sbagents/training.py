@@ -158,6 +158,7 @@ def train(
     trained_agent: str | Path | None = None,
     verbose: int = 1,
     num_threads: int = 1,
+    log_interval: int = -1,
     gym_packages: Sequence[str] = (),
     callbacks: Sequence[BaseCallback] = (),
     command: str = "",
@@ -168,6 +169,8 @@ def train(
         <= 0 disables periodic evaluation).
     :param final_eval_episodes: episodes of the final evaluation stored in ``summary.json`` (0 skips it).
     :param num_threads: torch threads (1 is far faster for small networks on few cores).
+    :param log_interval: episodes (off-policy/tabular) or rollouts (on-policy) between log dumps;
+        -1 picks 100 episodes or 1 rollout.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
     if num_threads > 0:
@@ -196,18 +199,22 @@ def train(
     except BaseException:
         shutil.rmtree(run_dir, ignore_errors=True)
         raise
+    if log_interval < 0:
+        log_interval = 1 if hasattr(model, "n_steps") else 100
     return _learn_and_save(model, exp, ref, run_dir, train_env, [*cbs, *callbacks], seed, progress,
-                           agent_path is not None, final_eval_episodes)
+                           agent_path is not None, final_eval_episodes, log_interval)
 
 
 def _learn_and_save(
     model: BaseAlgorithm, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv,
     callbacks: list[BaseCallback], seed: int, progress: bool, resume: bool, final_eval_episodes: int,
+    log_interval: int,
 ) -> TrainResult:
     interrupted = False
     start, steps_before = time.perf_counter(), model.num_timesteps if resume else 0
     try:
-        model.learn(exp.n_timesteps, callback=callbacks, progress_bar=progress, reset_num_timesteps=not resume)
+        model.learn(exp.n_timesteps, callback=callbacks, progress_bar=progress, reset_num_timesteps=not resume,
+                    log_interval=log_interval)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -1,0 +1,145 @@
+"""A scripted inverse-kinematics controller that pushes the block onto the target.
+
+It proves the Kuka tasks feasible (tests require >= 90% success with no safety violation) and is a
+baseline for learned agents. It reads the block and target positions from the *observation* only
+(so it sees the robust variant's sensor noise) and uses the env's arm model for kinematics only
+(forward kinematics of the observed joint angles, inverse kinematics of its waypoints).
+
+Plan: while the block rests, average its noisy observed position; move the tool above a start point
+behind the block on the block->target line, lower it to pushing height, then push along the line and
+stop where the block, in contact with the tool, sits on the target. The stopping point depends on the
+target (exact) and not on the block estimate, so the noise only shifts the contact point sideways.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from sbagents.envs.kuka.envs import KukaPushEnv
+from sbagents.envs.kuka.robot import N_CONTROLLED, PUSHER_RADIUS
+
+
+class ScriptedPusher:
+    """Waypoint controller for :class:`~sbagents.envs.kuka.envs.KukaPushEnv` and its subclasses.
+
+    :param env: the environment (wrappers allowed); its ``control`` ("joints" or "ee") is honoured.
+    :param push_speed: tool speed along the push line (m per step).
+    :param approach_height: tool height (m, end-effector frame) while travelling above the block.
+    :param push_height: height of the pusher's tip while pushing (m).
+    :param contact_offset: distance from the pusher's axis to the block centre when they touch
+        along the push direction (rod radius + block half width at scale 1).
+    :param standoff: extra distance behind the block where the tool is lowered.
+    :param min_samples: observations of the resting block to average before pushing (the tool waits
+        behind the block until it has them; noise std / sqrt(40) = 8 mm for the robust default).
+    :param overshoot: how far past the planned end point the tool may push (success ends the episode).
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[Any, Any],
+        push_speed: float = 0.02,
+        approach_height: float = 0.15,
+        push_height: float = 0.004,
+        contact_offset: float = PUSHER_RADIUS + 0.009,
+        standoff: float = 0.05,
+        min_samples: int = 40,
+        overshoot: float = 0.03,
+    ) -> None:
+        base = env.unwrapped
+        if not isinstance(base, KukaPushEnv):
+            raise TypeError(f"ScriptedPusher needs a KukaPushEnv, got {type(base).__name__}")
+        self.env = base
+        self.push_speed = push_speed
+        self.approach_height = approach_height
+        self.push_height = push_height
+        self.contact_offset = contact_offset
+        self.standoff = standoff
+        self.min_samples = min_samples
+        self.overshoot = overshoot
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the episode (call after every ``env.reset``)."""
+        self.phase = "approach"
+        self._sum = np.zeros(3)
+        self._count = 0
+        self._line: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _parse(self, obs: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint angles (6,), observed block position (3,), target (3,) from either observation layout."""
+        if isinstance(obs, dict):
+            flat = np.asarray(obs["observation"], dtype=np.float64)
+            return flat[:N_CONTROLLED], flat[N_CONTROLLED + 3 : N_CONTROLLED + 6], np.asarray(obs["desired_goal"])
+        flat = np.asarray(obs, dtype=np.float64)
+        return flat[:N_CONTROLLED], flat[N_CONTROLLED : N_CONTROLLED + 3], flat[N_CONTROLLED + 3 : N_CONTROLLED + 6]
+
+    def _plan(self, block: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start and end points ``(3,)`` of the tool's push line for a block estimate and a target."""
+        delta = target[:2] - block[:2]
+        u = delta / max(float(np.linalg.norm(delta)), 1e-6)
+        start = block[:2] - u * (self.contact_offset + self.standoff)
+        end = target[:2] - u * self.contact_offset
+        return np.array([*start, self.push_height]), np.array([*end, self.push_height])
+
+    def act(self, obs: Any) -> np.ndarray:
+        """Action for ``obs`` in the env's action space (joint deltas or end-effector deltas)."""
+        q6, block_obs, target = self._parse(obs)
+        q = np.zeros(self.env.robot.n_joints)
+        q[:N_CONTROLLED] = q6
+        ee = self.env.robot.forward_kinematics(q)
+        if self.phase != "push":
+            self._sum += block_obs
+            self._count += 1
+            start, end = self._plan(self._sum / self._count, target)
+            self._line = (start, end)
+        assert self._line is not None
+        start, end = self._line
+        above = start + np.array([0.0, 0.0, self.approach_height - self.push_height])
+        if self.phase == "approach":
+            goal = above
+            if np.linalg.norm(ee - above) < 0.03:
+                self.phase = "descend"
+        if self.phase == "descend":
+            goal = start
+            if np.linalg.norm(ee - start) < 0.01 and self._count >= self.min_samples:
+                self.phase = "push"
+        if self.phase == "push":
+            line = end - start
+            length = max(float(np.linalg.norm(line)), 1e-6)
+            progress = float(np.dot(ee - start, line) / length**2)
+            goal = start + line * min(1.0 + self.overshoot / length, max(progress, 0.0) + self.push_speed / length)
+        return self._command(ee, goal, q)
+
+    def _command(self, ee: np.ndarray, goal: np.ndarray, q: np.ndarray) -> np.ndarray:
+        space = self.env.action_space
+        assert isinstance(space, gym.spaces.Box)
+        if self.env.control == "ee":
+            action = (goal - ee) / self.env.ee_step
+        else:
+            action = (self.env.robot.inverse_kinematics(goal) - q)[:N_CONTROLLED]
+        return np.clip(action, space.low, space.high).astype(np.float32)
+
+    def predict(
+        self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, None]:
+        """SB3-style ``predict`` for a single (non-vectorised) env: ``(action, None)``."""
+        return self.act(obs), None
+
+
+def run_episode(env: gym.Env[Any, Any], controller: ScriptedPusher, seed: int | None = None) -> dict[str, Any]:
+    """Run one episode with ``controller``; return ``return``, ``length``, ``is_success``, ``cost``."""
+    obs, _ = env.reset(seed=seed)
+    controller.reset()
+    total, cost, length = 0.0, 0.0, 0
+    info: dict[str, Any] = {}
+    done = False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(controller.act(obs))
+        total += float(reward)
+        cost += float(info.get("cost", 0.0))
+        length += 1
+        done = terminated or truncated
+    return {"return": total, "length": length, "is_success": bool(info.get("is_success")), "cost": cost}

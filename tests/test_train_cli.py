@@ -1,0 +1,123 @@
+"""The train/evaluate CLIs end to end: learning, run dirs, determinism, concurrency, interruption."""
+
+from __future__ import annotations
+
+import csv
+import signal
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from cli_helpers import cli, last_json, popen, summary
+from stable_baselines3 import PPO
+
+GRID = "sbagents/GridWorld-v0"
+RUN = "sbagents_GridWorld-v0"
+
+
+def test_default_run_prints_path_and_93(tmp_path: Path) -> None:
+    result = cli("train", "--verbose", "0", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "learned path (8 moves):" in result.stdout
+    assert "return: 93" in result.stdout
+    run_dir = tmp_path / "logs" / "qlearning" / f"{RUN}_1"
+    for name in (f"{RUN}.zip", "summary.json", "0.monitor.csv", "command.txt", "evaluations.npz",
+                 "best_model.zip", f"{RUN}/config.yml", f"{RUN}/args.yml"):
+        assert (run_dir / name).exists(), name
+    s = summary(run_dir)
+    assert set(s) >= {"algo", "env", "seed", "n_timesteps", "train_seconds", "fps", "eval"}
+    assert s["eval"]["mean_return"] == 93 and s["eval"]["success_rate"] == 1.0
+    assert s["train_seconds"] < 60
+
+
+@pytest.mark.parametrize("algo", ["qlearning", "sarsa", "dqn", "ppo", "a2c"])
+def test_zoo_config_reaches_optimal_return(tmp_path: Path, algo: str) -> None:
+    result = cli("train", "--algo", algo, "--env", GRID, "-f", str(tmp_path), "--seed", "3", "--verbose", "0")
+    assert result.returncode == 0, result.stderr
+    ev = summary(tmp_path / algo / f"{RUN}_1")["eval"]
+    assert ev["mean_return"] == 93.0 and ev["mean_length"] == 8
+
+
+def test_evaluate_json_and_table(tmp_path: Path) -> None:
+    assert cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "1", "--verbose", "0").returncode == 0
+    result = cli("evaluate", "--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp_path), "-n", "3", "--json")
+    assert result.returncode == 0, result.stderr
+    report = last_json(result.stdout)
+    assert report == {"env": GRID, "algo": "ppo", "n_episodes": 3, "mean_return": 93.0, "std_return": 0.0,
+                      "mean_length": 8.0, "success_rate": 1.0, "metrics": {}}
+    table = cli("evaluate", "--algo", "ppo", "--env", GRID, "-f", str(tmp_path), "--load-best", "--exp-id", "1")
+    assert table.returncode == 0 and "mean_return" in table.stdout
+    rendered = cli("evaluate", "--algo", "ppo", "--env", GRID, "-f", str(tmp_path), "-n", "1", "--render")
+    assert "A . . . ." in rendered.stdout
+
+
+def test_overrides_and_env_kwargs_reach_the_run(tmp_path: Path) -> None:
+    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "2048", "--verbose", "0",
+                 "-params", "learning_rate:1e-3", "n_envs:2", "--env-kwargs", "max_steps:20", "--eval-freq", "-1")
+    assert result.returncode == 0, result.stderr
+    run_dir = tmp_path / "ppo" / f"{RUN}_1"
+    config = yaml.safe_load((run_dir / RUN / "config.yml").read_text())
+    assert config["learning_rate"] == 1e-3 and config["n_envs"] == 2 and config["env_kwargs"] == {"max_steps": 20}
+    assert not (run_dir / "evaluations.npz").exists()
+    assert {p.name for p in run_dir.glob("*.monitor.csv")} == {"0.monitor.csv", "1.monitor.csv"}
+    assert max(summary(run_dir)["eval"]["mean_length"], 0) <= 20
+
+
+def test_continue_training(tmp_path: Path) -> None:
+    assert cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "1024", "--verbose", "0").returncode == 0
+    first = tmp_path / "ppo" / f"{RUN}_1" / f"{RUN}.zip"
+    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "1024", "-i", str(first),
+                 "--verbose", "0")
+    assert result.returncode == 0, result.stderr
+    assert PPO.load(tmp_path / "ppo" / f"{RUN}_2" / f"{RUN}.zip").num_timesteps >= 2048
+
+
+def monitor_rows(run_dir: Path) -> list[tuple[str, str]]:
+    with open(run_dir / "0.monitor.csv") as handle:
+        next(handle)  # '#{"t_start": ...}' header line holds a wall-clock timestamp
+        return [(row["r"], row["l"]) for row in csv.DictReader(handle)]
+
+
+def test_same_seed_same_results(tmp_path: Path) -> None:
+    for _ in range(2):
+        result = cli("train", "--algo", "dqn", "-f", str(tmp_path), "--seed", "5", "-n", "3000", "--verbose", "0")
+        assert result.returncode == 0, result.stderr
+    a, b = tmp_path / "dqn" / f"{RUN}_1", tmp_path / "dqn" / f"{RUN}_2"
+    assert summary(a)["eval"] == summary(b)["eval"]
+    assert monitor_rows(a) == monitor_rows(b) and len(monitor_rows(a)) > 10
+    evals = [cli("evaluate", "--algo", "dqn", "--env", GRID, "-f", str(tmp_path), "--exp-id", str(k), "--json",
+                 "--stochastic", "--seed", "9") for k in (1, 2)]
+    assert last_json(evals[0].stdout) == last_json(evals[1].stdout)
+
+
+def test_concurrent_runs_get_distinct_dirs(tmp_path: Path) -> None:
+    procs = [popen("train", "--algo", "ppo", "-f", str(tmp_path), "-n", "2048", "--verbose", "0") for _ in range(2)]
+    for proc in procs:
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+    dirs = sorted(p.name for p in (tmp_path / "ppo").iterdir())
+    assert dirs == [f"{RUN}_1", f"{RUN}_2"]
+    for d in dirs:
+        assert (tmp_path / "ppo" / d / f"{RUN}.zip").exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupt_keeps_model_and_logs(tmp_path: Path, sig: signal.Signals) -> None:
+    proc = popen("train", "--algo", "ppo", "-f", str(tmp_path), "-n", "10000000", "--seed", "0", "--verbose", "0")
+    run_dir = tmp_path / "ppo" / f"{RUN}_1"
+    deadline = time.time() + 120
+    while not (run_dir / "evaluations.npz").exists():  # training is under way once an evaluation ran
+        assert proc.poll() is None and time.time() < deadline, proc.communicate()
+        time.sleep(0.2)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert f"model and logs saved in {run_dir}" in out
+    s = summary(run_dir)
+    assert s["interrupted"] is True and s["n_timesteps"] > 0
+    model = PPO.load(run_dir / f"{RUN}.zip")
+    assert model.num_timesteps == s["n_timesteps"]
+    lines = (run_dir / "0.monitor.csv").read_text().splitlines()
+    assert len(lines) > 2 and all(len(line.split(",")) == 3 for line in lines[1:])

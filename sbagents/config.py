@@ -34,8 +34,6 @@ ZOO_KEYS: frozenset[str] = frozenset(
     }
 )
 
-_FLOAT = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)$")
-
 
 class ZooLoader(yaml.SafeLoader):
     """PyYAML's SafeLoader that also reads ``1e6`` / ``3e-4`` as floats (YAML 1.2 style)."""
@@ -111,8 +109,3 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
             ) from None
         result[key] = value
     return result
-
-
-def is_float_string(value: Any) -> bool:
-    """Whether ``value`` is a string such as ``"1e6"`` that names a number."""
-    return isinstance(value, str) and bool(_FLOAT.match(value.strip()))

@@ -106,7 +106,7 @@ def accepted_algo_kwargs(algo: str) -> list[str]:
 def _wrapper_list(value: Any, key: str) -> list[tuple[Any, dict[str, Any]]]:
     """``env_wrapper``/``callback`` values: a path, a list of paths, or ``{path: kwargs}`` items."""
     items = value if isinstance(value, list) else [value]
-    result = []
+    result: list[tuple[Any, dict[str, Any]]] = []
     for item in items:
         if isinstance(item, str):
             result.append((import_object(item, key), {}))

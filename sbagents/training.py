@@ -7,6 +7,7 @@ removes the half-made run dir; an interrupted run (Ctrl-C, SIGTERM) still saves 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import time
@@ -222,10 +223,8 @@ def _learn_and_save(
         model.save(str(run_dir / f"{env_stem(ref.env_id)}.zip"))
         if isinstance(train_env, VecNormalize):
             train_env.save(str(run_dir / VECNORMALIZE_FILE))
-        try:
-            train_env.close()
-        except (EOFError, BrokenPipeError, ConnectionResetError):
-            pass
+        with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+            train_env.close()  # SubprocVecEnv workers may already be gone after Ctrl-C
     steps = model.num_timesteps - steps_before
     summary: dict[str, Any] = {
         "algo": exp.algo, "env": ref.env_id, "seed": seed, "n_timesteps": int(model.num_timesteps),

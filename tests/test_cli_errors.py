@@ -10,7 +10,8 @@ from cli_helpers import cli
 CASES = [
     (["--env", "GridWrld-v0"], "unknown env id 'GridWrld-v0'; did you mean sbagents/GridWorld-v0"),
     (["--algo", "foo"], "unknown algo 'foo'; available: a2c, ppo"),
-    (["--algo", "sac"], "sac cannot learn sbagents/GridWorld-v0 (observation Discrete, action Discrete); algos that can: a2c"),
+    (["--algo", "sac"],
+     "sac cannot learn sbagents/GridWorld-v0 (observation Discrete, action Discrete); algos that can: a2c"),
     (["--algo", "qlearning", "--env", "Pendulum-v1"], "qlearning cannot learn Pendulum-v1"),
     (["-n", "0"], "-n/--n-timesteps must be a positive integer, got 0"),
     (["-n", "-5"], "-n/--n-timesteps must be a positive integer, got -5"),

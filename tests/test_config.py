@@ -64,7 +64,8 @@ def test_scientific_notation_without_dot(tmp_path: Path) -> None:
 
 
 def test_lookup_order(tmp_path: Path) -> None:
-    path = write(tmp_path, "atari:\n  n_timesteps: 2\ndefault:\n  n_timesteps: 3\nsbagents/GridWorld-v0:\n  n_timesteps: 1\n")
+    text = "atari:\n  n_timesteps: 2\ndefault:\n  n_timesteps: 3\nsbagents/GridWorld-v0:\n  n_timesteps: 1\n"
+    path = write(tmp_path, text)
     assert lookup_entry(path, GRID)["n_timesteps"] == 1
     assert lookup_entry(path, "PongNoFrameskip-v4", atari=True)["n_timesteps"] == 2
     assert lookup_entry(path, "CartPole-v1")["n_timesteps"] == 3

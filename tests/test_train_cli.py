@@ -65,7 +65,8 @@ def test_overrides_and_env_kwargs_reach_the_run(tmp_path: Path) -> None:
 
 
 def test_continue_training(tmp_path: Path) -> None:
-    assert cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "1024", "--verbose", "0").returncode == 0
+    first_run = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "1024", "--verbose", "0")
+    assert first_run.returncode == 0, first_run.stderr
     first = tmp_path / "ppo" / f"{RUN}_1" / f"{RUN}.zip"
     result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "1024", "-i", str(first),
                  "--verbose", "0")

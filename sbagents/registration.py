@@ -8,6 +8,9 @@ import gymnasium as gym
 #: :data:`sbagents.multiagent.PETTINGZOO_ENVS` instead.
 GYM_ENVS: dict[str, str] = {
     "sbagents/GridWorld-v0": "sbagents.envs.gridworld:GridWorldEnv",
+    "sbagents/PickAndPlace-v0": "sbagents.envs.kuka:PickAndPlaceEnv",
+    "sbagents/RobustPickAndPlace-v0": "sbagents.envs.kuka:RobustPickAndPlaceEnv",
+    "sbagents/PickAndPlaceGoal-v0": "sbagents.envs.kuka:PickAndPlaceGoalEnv",
 }
 
 

@@ -33,19 +33,20 @@ class ScriptedPusher:
         along the push direction (rod radius + block half width at scale 1).
     :param standoff: extra distance behind the block where the tool is lowered.
     :param min_samples: observations of the resting block to average before pushing (the tool waits
-        behind the block until it has them; noise std / sqrt(40) = 8 mm for the robust default).
+        behind the block until it has them). Default: 55 when the env's ``noise_level`` is positive
+        (0.05 / sqrt(55) = 7 mm), else 1.
     :param overshoot: how far past the planned end point the tool may push (success ends the episode).
     """
 
     def __init__(
         self,
         env: gym.Env[Any, Any],
-        push_speed: float = 0.02,
+        push_speed: float = 0.03,
         approach_height: float = 0.15,
         push_height: float = 0.004,
         contact_offset: float = PUSHER_RADIUS + 0.009,
         standoff: float = 0.05,
-        min_samples: int = 40,
+        min_samples: int | None = None,
         overshoot: float = 0.03,
     ) -> None:
         base = env.unwrapped
@@ -57,6 +58,8 @@ class ScriptedPusher:
         self.push_height = push_height
         self.contact_offset = contact_offset
         self.standoff = standoff
+        if min_samples is None:
+            min_samples = 55 if base.task.noise_level > 0 else 1
         self.min_samples = min_samples
         self.overshoot = overshoot
         self.reset()
@@ -72,9 +75,17 @@ class ScriptedPusher:
         """Joint angles (6,), observed block position (3,), target (3,) from either observation layout."""
         if isinstance(obs, dict):
             flat = np.asarray(obs["observation"], dtype=np.float64)
-            return flat[:N_CONTROLLED], flat[N_CONTROLLED + 3 : N_CONTROLLED + 6], np.asarray(obs["desired_goal"])
+            return (
+                flat[:N_CONTROLLED],
+                flat[N_CONTROLLED + 3 : N_CONTROLLED + 6],
+                np.asarray(obs["desired_goal"]),
+            )
         flat = np.asarray(obs, dtype=np.float64)
-        return flat[:N_CONTROLLED], flat[N_CONTROLLED : N_CONTROLLED + 3], flat[N_CONTROLLED + 3 : N_CONTROLLED + 6]
+        return (
+            flat[:N_CONTROLLED],
+            flat[N_CONTROLLED : N_CONTROLLED + 3],
+            flat[N_CONTROLLED + 3 : N_CONTROLLED + 6],
+        )
 
     def _plan(self, block: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start and end points ``(3,)`` of the tool's push line for a block estimate and a target."""
@@ -110,7 +121,9 @@ class ScriptedPusher:
             line = end - start
             length = max(float(np.linalg.norm(line)), 1e-6)
             progress = float(np.dot(ee - start, line) / length**2)
-            goal = start + line * min(1.0 + self.overshoot / length, max(progress, 0.0) + self.push_speed / length)
+            goal = start + line * min(
+                1.0 + self.overshoot / length, max(progress, 0.0) + self.push_speed / length
+            )
         return self._command(ee, goal, q)
 
     def _command(self, ee: np.ndarray, goal: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -129,7 +142,9 @@ class ScriptedPusher:
         return self.act(obs), None
 
 
-def run_episode(env: gym.Env[Any, Any], controller: ScriptedPusher, seed: int | None = None) -> dict[str, Any]:
+def run_episode(
+    env: gym.Env[Any, Any], controller: ScriptedPusher, seed: int | None = None
+) -> dict[str, Any]:
     """Run one episode with ``controller``; return ``return``, ``length``, ``is_success``, ``cost``."""
     obs, _ = env.reset(seed=seed)
     controller.reset()

@@ -1,0 +1,268 @@
+"""Gymnasium environments of chapters 5 and 6: Kuka iiwa pushes a block onto a target.
+
+``PickAndPlaceEnv`` (``sbagents/PickAndPlace-v0``), ``RobustPickAndPlaceEnv``
+(``sbagents/RobustPickAndPlace-v0``) and the goal-conditioned ``PickAndPlaceGoalEnv``
+(``sbagents/PickAndPlaceGoal-v0``, for HER). Spec: ``SPECS.md`` sections 3 and 4.
+
+Book behaviour kept: gravity -9.81, plane, fixed-base iiwa at the origin with joints reset to 0,
+``block.urdf`` at (0.5, 0), target (0.5, 0.5), observation Box(12) = 6 joint angles + block position +
+target position, action Box(-0.1, 0.1, (6,)) joint deltas in position control (targets = measured
+angles + action, clipped to [-pi, pi] and the joint limits), rewards -1 per step, +100 and termination
+within 0.05 of the target, -10 and termination on a drop, 100 steps; robust variant: observation noise
+(std 0.05), block scale U(0.5, 1.5), mass U(0.1, 1.0), -50 for a step into the safety zone.
+
+Deviations (book defects), all documented in the README table:
+
+- ``n_substeps`` (default 10) physics steps of 1/240 s per action instead of one (24 Hz control).
+- The target sits at the block's resting height (the arm has no gripper: the task is a push), and the
+  block starts at rest on the plane instead of being dropped from z = 0.1.
+- One physics client per env; URDFs are loaded once and episodes reset softly (teleports); only the
+  robust block is reloaded when its scale changes.
+- "Drop" for a push: the block falls below z = -0.05 or leaves the arm's reach (horizontal distance
+  to the base > 1 m).
+- The 7th joint (flange rotation) is held at 0; it does not move the end-effector point.
+- The default safety zone does not contain the target (the book's zone does; ``safety_zone="book"``).
+  A step whose commanded pose, or any physics substep of it, puts the end effector in the zone is
+  undone (state restored): reward -50, ``info["violation"] = "safety_zone"``, ``info["cost"] = 1``.
+- Options: ``reward_type="dense"`` (see :meth:`PushTask.dense_reward`) and ``control="ee"``:
+  Box(-1, 1, (3,)) Cartesian end-effector deltas of up to ``ee_step`` m per step through inverse
+  kinematics with the tool pointing down (as panda-gym and PyBullet's KukaGymEnv).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, TypeAlias
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sbagents.envs.kuka.robot import N_CONTROLLED, KukaIiwa
+from sbagents.envs.kuka.sim import BulletSim
+from sbagents.envs.kuka.tasks import VIOLATION_REWARD, PushTask, SafetyZone, make_safety_zone
+
+#: Bound of every observed position coordinate (m); observations are clipped to it.
+POS_BOUND = 5.0
+JOINT_NAMES = tuple(f"joint_{i + 1}" for i in range(N_CONTROLLED))
+XYZ = ("x", "y", "z")
+
+ZoneSpec: TypeAlias = str | SafetyZone | Sequence[Sequence[float]] | None
+
+
+class KukaPushEnv(gym.Env[Any, np.ndarray]):
+    """Base class: a Kuka iiwa pushes ``block.urdf`` onto a target (book observation and rewards).
+
+    :param control: ``"joints"`` (book: Box(-0.1, 0.1, (6,)) joint deltas in rad) or ``"ee"``
+        (Box(-1, 1, (3,)) end-effector deltas, times ``ee_step`` m, through inverse kinematics).
+    :param reward_type: ``"book"`` (-1 / +100 / -10) or ``"dense"`` (distances, see ``PushTask``).
+    :param max_steps: steps before truncation.
+    :param n_substeps: physics steps (1/240 s each) per action.
+    :param noise_level: std (m) of Gaussian noise on the observed block position.
+    :param scale_range: per-episode uniform block scale range, ``None`` for 1.
+    :param mass_range: per-episode uniform block mass range (kg), ``None`` for the URDF's 0.02 kg.
+    :param safety_zone: ``None``, ``"default"``, ``"book"`` or ``(low, high)`` corners of a box the end
+        effector must not enter.
+    :param object_range: half width (m) of a uniform random offset of the block's start.
+    :param target_box: ``((x_lo, y_lo), (x_hi, y_hi))`` to draw a random target per episode.
+    :param ee_step: metres per unit action in ``"ee"`` control.
+    :param ee_low: lower corner of the box end-effector targets are clipped to (``"ee"`` control); its
+        z keeps the pusher's tip 3 mm above the plane.
+    :param ee_high: upper corner of that box.
+    :param initial_joints: joint angles at reset (book: all 0, the arm stretched up).
+    :param render_mode: ``"rgb_array"`` (headless TinyRenderer, ``(240, 320, 3)`` uint8) or ``"human"``.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
+
+    def __init__(
+        self,
+        control: str = "joints",
+        reward_type: str = "book",
+        max_steps: int = 100,
+        n_substeps: int = 10,
+        noise_level: float = 0.0,
+        scale_range: Sequence[float] | None = None,
+        mass_range: Sequence[float] | None = None,
+        safety_zone: ZoneSpec = None,
+        object_range: float = 0.0,
+        target_box: Sequence[Sequence[float]] | None = None,
+        ee_step: float = 0.05,
+        ee_low: Sequence[float] = (-0.9, -0.9, 0.003),
+        ee_high: Sequence[float] = (0.9, 0.9, 1.0),
+        initial_joints: Sequence[float] = (0.0,) * N_CONTROLLED,
+        render_mode: str | None = None,
+    ) -> None:
+        if control not in ("joints", "ee"):
+            raise ValueError(f"control must be 'joints' or 'ee', got {control!r}")
+        if reward_type not in self._reward_types():
+            raise ValueError(f"reward_type must be one of {self._reward_types()}, got {reward_type!r}")
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}"
+            )
+        if len(initial_joints) != N_CONTROLLED:
+            raise ValueError(f"initial_joints needs {N_CONTROLLED} angles, got {len(initial_joints)}")
+        self.control = control
+        self.reward_type = reward_type
+        self.max_steps = max_steps
+        self.render_mode = render_mode
+        self.safety_zone = make_safety_zone(safety_zone)
+        self.ee_step = float(ee_step)
+        self.ee_low = np.asarray(ee_low, dtype=np.float64)
+        self.ee_high = np.asarray(ee_high, dtype=np.float64)
+        self.initial_joints = np.asarray(initial_joints, dtype=np.float64)
+        self.sim = BulletSim(render_mode=render_mode, n_substeps=n_substeps)
+        self.plane = self.sim.load_urdf("plane.urdf")
+        self.robot = KukaIiwa(self.sim)
+        self.task = PushTask(
+            self.sim,
+            object_range=object_range,
+            target_box=target_box,
+            scale_range=scale_range,
+            mass_range=mass_range,
+            noise_level=noise_level,
+        )
+        if control == "joints":
+            self.action_space = spaces.Box(-0.1, 0.1, (N_CONTROLLED,), dtype=np.float32)
+            self.action_names: tuple[str, ...] = tuple(f"d_{n}" for n in JOINT_NAMES)
+        else:
+            self.action_space = spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+            self.action_names = tuple(f"d_ee_{a}" for a in XYZ)
+        self.observation_space = self._make_observation_space()
+        self.steps = 0
+
+    # ----------------------------------------------------------- subclassing
+    @staticmethod
+    def _reward_types() -> tuple[str, ...]:
+        return ("book", "dense")
+
+    def _make_observation_space(self) -> spaces.Space[Any]:
+        lows = np.concatenate([np.full(N_CONTROLLED, -np.pi), np.full(6, -POS_BOUND)]).astype(np.float32)
+        self.obs_names: tuple[str, ...] = (
+            JOINT_NAMES + tuple(f"object_{a}" for a in XYZ) + tuple(f"target_{a}" for a in XYZ)
+        )
+        return spaces.Box(lows, -lows, dtype=np.float32)
+
+    def _get_obs(self) -> Any:
+        q = self.robot.joint_angles()[:N_CONTROLLED]
+        obj = self.task.observed_object_position(self.np_random)
+        obs = np.concatenate(
+            [np.clip(q, -np.pi, np.pi), np.clip(obj, -POS_BOUND, POS_BOUND), self.task.target]
+        )
+        return obs.astype(np.float32)
+
+    def _reward(self, success: bool, dropped: bool, obj: np.ndarray, violation: str | None) -> float:
+        if violation:
+            return VIOLATION_REWARD
+        if self.reward_type == "dense":
+            return self.task.dense_reward(success, dropped, self.robot.ee_position(), obj)
+        return self.task.book_reward(success, dropped)
+
+    def _terminates_on(self, success: bool, dropped: bool) -> bool:
+        return success or dropped
+
+    # ------------------------------------------------------------- gym API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Soft reset: joints to ``initial_joints``; block scale/mass/start and target from ``np_random``."""
+        super().reset(seed=seed)
+        self.steps = 0
+        self.robot.reset(self.initial_joints)
+        self.task.reset(self.np_random)
+        return self._get_obs(), self._info(violation=None, success=False)
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        """Apply one action for ``n_substeps`` physics steps (or reject it if it enters the safety zone)."""
+        space = self.action_space
+        assert isinstance(space, spaces.Box)
+        action = np.clip(np.asarray(action, dtype=np.float64), space.low, space.high)
+        if self.control == "joints":
+            targets = self.robot.joint_delta_targets(action)
+        else:
+            ee_target = np.clip(self.robot.ee_position() + action * self.ee_step, self.ee_low, self.ee_high)
+            targets = self.robot.inverse_kinematics(ee_target)
+        violation = None if self._apply(targets) else "safety_zone"
+        self.steps += 1
+        obj = self.task.object_position()
+        success = bool(self.task.is_success(obj, self.task.target))
+        dropped = self.task.is_dropped(obj)
+        reward = self._reward(success, dropped, obj, violation)
+        terminated = self._terminates_on(success, dropped)
+        truncated = self.steps >= self.max_steps and not terminated
+        if self.render_mode == "human":
+            self.render()
+        return self._get_obs(), float(reward), terminated, truncated, self._info(violation, success)
+
+    def _apply(self, targets: np.ndarray) -> bool:
+        """Command ``targets`` ``(7,)`` and simulate; False (state unchanged) if the zone is entered."""
+        zone = self.safety_zone
+        if zone is None:
+            self.robot.set_joint_targets(targets)
+            self.sim.step()
+            return True
+        if zone.contains(self.robot.forward_kinematics(targets)):
+            return False
+        previous_targets = self.robot.joint_targets
+        joints = self.robot.joint_state()
+        block = self.sim.get_base_state(self.task.block)
+        self.robot.set_joint_targets(targets)
+        for _ in range(self.sim.n_substeps):
+            self.sim.step(1)
+            if zone.contains(self.robot.ee_position()):
+                self.robot.set_joint_state(*joints)
+                self.robot.set_joint_targets(previous_targets)
+                self.sim.set_base_state(self.task.block, block)
+                return False
+        return True
+
+    def _info(self, violation: str | None, success: bool) -> dict[str, Any]:
+        return {
+            "is_success": success,
+            "violation": violation,
+            "cost": 1.0 if violation else 0.0,
+            "object_scale": self.task.scale,
+            "object_mass": self.task.mass,
+            "distance": float(np.linalg.norm(self.task.object_position() - self.task.target)),
+        }
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        """``rgb_array``: an ``(H, W, 3)`` uint8 frame; ``human``: the GUI shows the scene, returns None."""
+        if self.render_mode == "rgb_array":
+            return self.sim.render()
+        return None
+
+    def close(self) -> None:
+        """Disconnect this env's physics client."""
+        self.sim.close()
+
+
+class PickAndPlaceEnv(KukaPushEnv):
+    """Chapter 5's task with the book's spaces and rewards (see the module docstring for the fixes)."""
+
+
+class RobustPickAndPlaceEnv(KukaPushEnv):
+    """Chapter 6: observation noise, random block scale and mass, and a safety zone.
+
+    Same parameters as :class:`KukaPushEnv`, with the chapter's defaults: ``noise_level=0.05``,
+    ``scale_range=(0.5, 1.5)``, ``mass_range=(0.1, 1.0)``, ``safety_zone="default"``.
+    """
+
+    def __init__(
+        self,
+        noise_level: float = 0.05,
+        scale_range: Sequence[float] | None = (0.5, 1.5),
+        mass_range: Sequence[float] | None = (0.1, 1.0),
+        safety_zone: ZoneSpec = "default",
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            noise_level=noise_level,
+            scale_range=scale_range,
+            mass_range=mass_range,
+            safety_zone=safety_zone,
+            **kwargs,
+        )

@@ -9,10 +9,7 @@ from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-try:  # TEMP until tabular lands
-    from sbagents.algos.tabular import SARSA, QLearning
-except ImportError:  # pragma: no cover
-    SARSA = QLearning = None  # type: ignore
+from sbagents.algos.tabular import SARSA, QLearning
 
 _ANY_ACTION = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
 _ANY_OBS = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary, spaces.Dict)
@@ -52,8 +49,8 @@ ALGOS: dict[str, AlgoSpec] = {
     "sac": AlgoSpec(SAC, (spaces.Box,), off_policy=True),
     "tqc": AlgoSpec(TQC, (spaces.Box,), off_policy=True),
     "crossq": AlgoSpec(CrossQ, (spaces.Box,), off_policy=True),
-    **({} if QLearning is None else {"qlearning": AlgoSpec(QLearning, (spaces.Discrete,), (spaces.Discrete,)),
-    "sarsa": AlgoSpec(SARSA, (spaces.Discrete,), (spaces.Discrete,))}),
+    "qlearning": AlgoSpec(QLearning, (spaces.Discrete,), (spaces.Discrete,)),
+    "sarsa": AlgoSpec(SARSA, (spaces.Discrete,), (spaces.Discrete,)),
 }
 
 

@@ -41,14 +41,16 @@ def check_env_kwargs(ref: EnvRef, env_kwargs: dict[str, Any]) -> None:
     """Raise :class:`UsageError` listing the accepted keys if ``env_kwargs`` has a key the env does not take."""
     if not env_kwargs:
         return
-    target = env_constructor(ref)
-    if ref.multi_agent:
-        target = getattr(ref.pettingzoo_module(), "raw_env", target)
-    params = inspect.signature(target).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    accepted = sorted(k for k in params if k not in ("self", "render_mode"))
-    unknown = sorted(set(env_kwargs) - set(params))
+    declared = getattr(ref.pettingzoo_module(), "ACCEPTED_KWARGS", None) if ref.multi_agent else None
+    if declared is not None:
+        names = set(declared)
+    else:
+        params = inspect.signature(env_constructor(ref)).parameters
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            return
+        names = set(params)
+    accepted = sorted(names - {"self", "render_mode"})
+    unknown = sorted(set(env_kwargs) - names)
     if unknown:
         raise UsageError(
             f"unknown env kwarg(s) {', '.join(unknown)} for {ref.env_id}; accepted: {', '.join(accepted)}"

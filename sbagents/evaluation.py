@@ -11,13 +11,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.algos import ALGOS
 from sbagents.env_factory import make_vec, normalize_for_eval
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment
-from sbagents.run_dir import VECNORMALIZE_FILE, find_run_dir, model_path
-from sbagents.run_loading import load_experiment
+from sbagents.run_loading import load_run
 
 
 def _episode_metrics_fn(venv: VecEnv) -> Any:
@@ -74,9 +72,10 @@ def evaluate_model(
             from stable_baselines3.common.vec_env import VecNormalize
 
             vec_normalize = VecNormalize.load(str(stats_path), make_vec(exp, ref, 1, seed))
+        render_kwargs = {"render_mode": "human"} if render else {}
         result = evaluate_team(
             model,
-            lambda **kw: ref.pettingzoo_module().parallel_env(**{**exp.env_kwargs, **kw}),
+            lambda: ref.pettingzoo_module().parallel_env(**{**exp.env_kwargs, **render_kwargs}),
             n_episodes=n_episodes,
             deterministic=deterministic,
             seed=seed,
@@ -130,13 +129,7 @@ def evaluate(
     gym_packages: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Evaluate a finished run of ``python -m sbagents.train`` (RL Zoo's ``enjoy``)."""
-    if algo not in ALGOS:
-        raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
     ref = resolve_env(env, gym_packages)
-    run_dir = find_run_dir(log_folder, algo, ref.env_id, exp_id)
-    path = model_path(run_dir, ref.env_id, load_best)
-    exp = load_experiment(run_dir, algo, ref.env_id)
-    model = ALGOS[algo].cls.load(str(path), device="cpu")
-    return evaluate_model(
-        model, exp, ref, n_episodes, deterministic, seed, run_dir / VECNORMALIZE_FILE, render=render
-    )
+    run = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
+    exp, stats = run.experiment, run.stats_path
+    return evaluate_model(run.model, exp, ref, n_episodes, deterministic, seed, stats, render=render)

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sbagents.config import load_yaml
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment, resolve
-from sbagents.run_dir import env_stem
+from sbagents.run_dir import VECNORMALIZE_FILE, env_stem, find_run_dir, model_path
 
 
 def config_path(run_dir: Path, env_id: str) -> Path:
@@ -49,3 +51,32 @@ def check_model_file(path: str | Path) -> Path:
     except zipfile.BadZipFile:
         raise UsageError(f"--trained-agent {path} is not an SB3 model file (not a zip archive)") from None
     return path
+
+
+@dataclass
+class LoadedRun:
+    """A finished run, ready to evaluate or export."""
+
+    run_dir: Path
+    model_path: Path
+    experiment: Experiment
+    model: BaseAlgorithm
+
+    @property
+    def stats_path(self) -> Path:
+        """Where the run's ``VecNormalize`` statistics are (the file may not exist)."""
+        return self.run_dir / VECNORMALIZE_FILE
+
+
+def load_run(
+    algo: str, env_id: str, log_folder: str | Path = "logs", exp_id: int = 0, load_best: bool = False
+) -> LoadedRun:
+    """Find run ``exp_id`` (0 = latest) of ``algo`` on ``env_id`` and load its model and experiment."""
+    from sbagents.algos import ALGOS
+
+    if algo not in ALGOS:
+        raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
+    run_dir = find_run_dir(log_folder, algo, env_id, exp_id)
+    path = model_path(run_dir, env_id, load_best)
+    exp = load_experiment(run_dir, algo, env_id)
+    return LoadedRun(run_dir, path, exp, ALGOS[algo].cls.load(str(path), device="cpu"))

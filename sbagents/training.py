@@ -104,7 +104,7 @@ def _make_model(
 
 def _callbacks(
     exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int, eval_freq: int,
-    eval_episodes: int, n_eval_envs: int, save_freq: int,
+    eval_episodes: int, n_eval_envs: int, save_freq: int, verbose: int,
 ) -> list[BaseCallback]:
     callbacks: list[BaseCallback] = []
     n_vec = train_env.num_envs
@@ -115,9 +115,9 @@ def _callbacks(
 
             callbacks.append(
                 TeamEvalCallback(
-                    lambda **kw: ref.pettingzoo_module().parallel_env(**{**exp.env_kwargs, **kw}),
+                    lambda: ref.pettingzoo_module().parallel_env(**exp.env_kwargs),
                     n_eval_episodes=eval_episodes, eval_freq=freq, seed=seed + 10_000,
-                    best_model_save_path=str(run_dir), log_path=str(run_dir),
+                    best_model_save_path=str(run_dir), log_path=str(run_dir), verbose=verbose,
                 )
             )
         else:
@@ -196,7 +196,7 @@ def train(
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env), exp, stats)
         model = _make_model(exp, train_env, seed, device, tensorboard_log, verbose, agent_path)
-        cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq)
+        cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq, verbose)
     except BaseException:
         shutil.rmtree(run_dir, ignore_errors=True)
         raise

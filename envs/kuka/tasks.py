@@ -135,10 +135,7 @@ class PushTask:
         start = self.object_xy + rng.uniform(-self.object_range, self.object_range, 2) * (
             self.object_range > 0
         )
-        if self.target_box is None:
-            target_xy = self.target_xy
-        else:
-            target_xy = rng.uniform(self.target_box[0], self.target_box[1])
+        target_xy = self.target_xy if self.target_box is None else rng.uniform(self.target_box[0], self.target_box[1])
         rest_z = BLOCK_HALF_HEIGHT * scale
         if scale != self.scale:
             self.client.removeBody(self.block)

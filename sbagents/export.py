@@ -1,0 +1,100 @@
+"""``python -m sbagents.export``: a finished run -> ``policy.onnx`` (+ int8), parity and latency report.
+
+A thin shell over :func:`export`, which loads the run and calls :func:`sbagents.onnx_export.export_run`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sbagents.cli import ArgumentParser, run
+from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_ids import resolve_env
+from sbagents.errors import UsageError
+from sbagents.onnx_export import ExportReport, export_run
+from sbagents.run_loading import load_run
+
+
+def export(
+    algo: str,
+    env: str,
+    log_folder: str | Path = "logs",
+    exp_id: int = 0,
+    load_best: bool = False,
+    int8: bool = False,
+    out: str | Path | None = None,
+    n_observations: int = 1000,
+    gym_packages: tuple[str, ...] = (),
+) -> ExportReport:
+    """Export run ``exp_id`` of ``algo`` on ``env`` to ONNX in ``out`` (default: ``<run dir>/export``).
+
+    Parity is checked on ``n_observations`` observations recorded with the greedy policy on an env
+    built exactly as in training (same env kwargs and wrappers, frozen VecNormalize statistics).
+    """
+    ref = resolve_env(env, gym_packages)
+    loaded = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
+    exp = loaded.experiment
+    if exp.frame_stack or exp.env_wrapper:
+        raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
+    venv = normalize_for_eval(make_vec(exp, ref, 1, seed=0), exp, loaded.stats_path)
+    vec_normalize = venv if isinstance(venv, VecNormalize) else None
+    names = {k: tuple(venv.get_attr(k)[0]) if _has_attr(venv, k) else None for k in ("obs_names", "action_names")}
+    try:
+        return export_run(
+            loaded.model, vec_normalize, out or loaded.run_dir / "export", int8, ref.env_id,
+            obs_names=names["obs_names"], action_names=names["action_names"], env=venv,
+            n_observations=n_observations,
+        )
+    finally:
+        venv.close()
+
+
+def _has_attr(venv: object, name: str) -> bool:
+    try:
+        venv.get_attr(name)  # type: ignore[attr-defined]
+    except AttributeError:
+        return False
+    return True
+
+
+def build_parser() -> ArgumentParser:
+    """The ``export`` argument parser."""
+    p = ArgumentParser(prog="python -m sbagents.export", description="Export a trained policy to ONNX.")
+    p.add_argument("--algo", required=True, help="algorithm of the run")
+    p.add_argument("--env", required=True, help="env id of the run")
+    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
+    p.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
+    p.add_argument("--load-best", action="store_true", help="export best_model.zip instead of the final model")
+    p.add_argument("--int8", action="store_true", help="also write policy.int8.onnx (onnxruntime quantize_dynamic)")
+    p.add_argument("--out", default=None, help="output folder (default: <run dir>/export)")
+    p.add_argument("--n-observations", type=int, default=1000, help="observations for the parity check")
+    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, export, print the parity and latency report."""
+    args = build_parser().parse_args(argv)
+    torch.set_num_threads(1)
+    report = export(
+        args.algo, args.env, args.log_folder, args.exp_id, args.load_best, args.int8, args.out,
+        args.n_observations, tuple(args.gym_packages),
+    )
+    print(f"wrote {report.onnx_path} ({report.onnx_bytes} bytes) and {report.sidecar_path}")
+    print(f"parity fp32: max abs action difference {report.parity_fp32:.2e} over {report.n_parity_observations} obs")
+    if report.int8_path is not None:
+        print(f"int8: {report.int8_path} ({report.int8_bytes} bytes), "
+              f"max abs action difference {report.parity_int8:.2e}")
+    print("latency (single observation):")
+    for name, row in report.latency.items():
+        print(f"  {name:<12} p50 {row['p50_us']:8.1f} us   p99 {row['p99_us']:8.1f} us")
+    print(json.dumps(report.to_dict()))
+    return 0 if report.parity_fp32 <= 1e-4 else 1
+
+
+if __name__ == "__main__":
+    run("python -m sbagents.export", main)

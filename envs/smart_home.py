@@ -124,6 +124,8 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         self.init_light_range = _range(init_light_range, "init_light_range")
         self.pref_temp_range = _range(pref_temp_range, "pref_temp_range")
         self.pref_light_range = _range(pref_light_range, "pref_light_range")
+        #: Declared ranges of the per-episode user attributes in ``info`` (fairness buckets use them).
+        self.attribute_ranges = {"preferred_temp": self.pref_temp_range, "preferred_light": self.pref_light_range}
         _inside(self.init_temp_range, self.temp_range, "init_temp_range")
         _inside(self.init_light_range, self.light_range, "init_light_range")
         _inside(self.pref_temp_range, self.temp_range, "pref_temp_range")

@@ -24,6 +24,11 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the greedy policy")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation env")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    p.add_argument("--attack", default=None, metavar="SPEC",
+                   help='observation attacks, e.g. "gaussian:0.05,0.1 pgd:0.05" (adversarial.csv/.png in the run dir)')
+    p.add_argument("--fairness", default=None, metavar="KEYS",
+                   help="info keys to bucket episodes by, e.g. preferred_temp,preferred_light")
+    p.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object (last line)")
     return p
 
@@ -33,6 +38,11 @@ def format_table(summary: dict[str, Any]) -> str:
     rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
                                       "success_rate")]
     rows += [(f"metrics.{k}", v) for k, v in summary["metrics"].items()]
+    rows += [(f"attack.{r['label']}.mean_return", r["mean_return"]) for r in summary.get("adversarial", [])]
+    if "fairness" in summary:
+        fair = summary["fairness"]
+        rows += [("fairness.metric", fair["metric"]), ("fairness.worst_bucket_value", fair["worst"]["value"]),
+                 ("fairness.gap", fair["gap"])]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
 
@@ -44,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = evaluate(
         args.algo, args.env, log_folder=args.log_folder, exp_id=args.exp_id, load_best=args.load_best,
         n_episodes=args.n_episodes, deterministic=not args.stochastic, seed=args.seed, render=args.render,
-        gym_packages=tuple(args.gym_packages),
+        gym_packages=tuple(args.gym_packages), attacks=args.attack, fairness=args.fairness, bins=args.bins,
     )
     print(json.dumps(summary) if args.json else format_table(summary))
     return 0

@@ -127,9 +127,24 @@ def evaluate(
     seed: int | None = 0,
     render: bool = False,
     gym_packages: tuple[str, ...] = (),
+    attacks: str | None = None,
+    fairness: str | None = None,
+    bins: int = 3,
 ) -> dict[str, Any]:
-    """Evaluate a finished run of ``python -m sbagents.train`` (RL Zoo's ``enjoy``)."""
+    """Evaluate a finished run of ``python -m sbagents.train`` (RL Zoo's ``enjoy``).
+
+    :param attacks: attack spec (``"gaussian:0.05 pgd:0.1"``): adds ``adversarial`` rows to the summary and writes
+        ``adversarial.csv``/``.png`` into the run dir.
+    :param fairness: info keys to bucket episodes by: adds ``fairness`` and writes ``fairness.csv``/``.png``.
+    """
+    from sbagents.trust import parse_attacks, trust_report
+
+    parse_attacks(attacks, "--attack")
     ref = resolve_env(env, gym_packages)
     run = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
     exp, stats = run.experiment, run.stats_path
-    return evaluate_model(run.model, exp, ref, n_episodes, deterministic, seed, stats, render=render)
+    summary = evaluate_model(run.model, exp, ref, n_episodes, deterministic, seed, stats, render=render)
+    if attacks or fairness:
+        summary.update(trust_report(run.model, exp, ref, stats, run.run_dir, attacks, fairness, bins,
+                                    n_episodes, seed or 0))
+    return summary

@@ -15,6 +15,7 @@ from sbagents.config import parse_overrides
 from sbagents.env_ids import sbagents_env_ids
 from sbagents.showcase import describe_policy
 from sbagents.training import train
+from sbagents.trust import TrustOptions
 
 
 def build_parser() -> ArgumentParser:
@@ -41,6 +42,19 @@ def build_parser() -> ArgumentParser:
     p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
     p.add_argument("-i", "--trained-agent", default=None, help="continue training this model .zip")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    trust = p.add_argument_group("trust (sbagents.callbacks)")
+    trust.add_argument("--transparency-log", nargs="?", const="", default=None, metavar="PATH",
+                       help="CSV of every decision (default <run dir>/transparency.csv; .csv.gz compresses)")
+    trust.add_argument("--transparency-format", choices=["full", "book"], default="full",
+                       help="full: every obs/action/info column; book: the book's header (SmartHome)")
+    trust.add_argument("--safety", action="store_true", help="count safety violations (safety.json, TensorBoard)")
+    trust.add_argument("--cost-limit", type=float, default=None, help="stop when the mean episode cost passes X")
+    trust.add_argument("--max-violations", type=int, default=None, help="stop after N violations")
+    trust.add_argument("--adversarial-eval", default=None, metavar="SPEC",
+                       help='attacks evaluated during training, e.g. "gaussian:0.05,0.1 fgsm:0.01,0.05"')
+    trust.add_argument("--fairness", default=None, metavar="KEYS",
+                       help="info keys to bucket episodes by, e.g. object_scale,object_mass")
+    trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
     p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
     p.add_argument("--log-interval", type=int, default=-1,
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
@@ -66,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
         trained_agent=args.trained_agent, verbose=args.verbose, num_threads=args.num_threads,
         log_interval=args.log_interval,
         gym_packages=args.gym_packages, command=command,
+        trust=TrustOptions(args.transparency_log, args.safety, args.cost_limit, args.max_violations,
+                           args.adversarial_eval, args.fairness, args.bins,
+                           book_header=args.transparency_format == "book"),
     )
     summary = result.summary
     if result.interrupted:

@@ -33,6 +33,7 @@ from sbagents.evaluation import evaluate_model
 from sbagents.hyperparams import Experiment, resolve
 from sbagents.run_dir import SUMMARY_FILE, VECNORMALIZE_FILE, create_run_dir, env_stem
 from sbagents.run_loading import check_model_file, save_experiment
+from sbagents.trust import TrustOptions, trust_callbacks
 
 
 @dataclass
@@ -162,6 +163,7 @@ def train(
     log_interval: int = -1,
     gym_packages: Sequence[str] = (),
     callbacks: Sequence[BaseCallback] = (),
+    trust: TrustOptions | None = None,
     command: str = "",
 ) -> TrainResult:
     """Train ``algo`` on ``env`` with its zoo config and write a run directory.
@@ -170,6 +172,7 @@ def train(
         <= 0 disables periodic evaluation).
     :param final_eval_episodes: episodes of the final evaluation stored in ``summary.json`` (0 skips it).
     :param num_threads: torch threads (1 is far faster for small networks on few cores).
+    :param trust: transparency log, safety counting, adversarial and fairness evaluation to add.
     :param log_interval: episodes (off-policy/tabular) or rollouts (on-policy) between log dumps;
         -1 picks 100 episodes or 1 rollout.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
@@ -182,6 +185,8 @@ def train(
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {algo} on {ref.env_id} in its config; pass -n N")
     agent_path = check_model_file(trained_agent) if trained_agent is not None else None
+    trust = trust or TrustOptions()
+    trust.validate()
     if seed < 0:
         seed = int(np.random.default_rng().integers(2**31 - 1))
     if eval_freq is None:
@@ -197,6 +202,7 @@ def train(
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env), exp, stats)
         model = _make_model(exp, train_env, seed, device, tensorboard_log, verbose, agent_path)
         cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq, verbose)
+        cbs += trust_callbacks(trust, exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes)
     except BaseException:
         shutil.rmtree(run_dir, ignore_errors=True)
         raise

@@ -125,6 +125,12 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
             mass_range=mass_range,
             noise_level=noise_level,
         )
+        #: Declared ranges of the per-episode attributes in ``info`` (fairness buckets use them).
+        self.attribute_ranges: dict[str, tuple[float, float]] = {
+            key: (float(r[0]), float(r[1]))
+            for key, r in (("object_scale", scale_range), ("object_mass", mass_range))
+            if r is not None
+        }
         if control == "joints":
             self.action_space = spaces.Box(-0.1, 0.1, (N_CONTROLLED,), dtype=np.float32)
             self.action_names: tuple[str, ...] = tuple(f"d_{n}" for n in JOINT_NAMES)

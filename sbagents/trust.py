@@ -1,0 +1,126 @@
+"""Wiring the trust callbacks (transparency, safety, adversarial, fairness) into ``train`` and ``evaluate``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from sbagents.callbacks import (
+    AdversarialEvalCallback,
+    AttackSpec,
+    FairnessEvalCallback,
+    SafetyViolationCallback,
+    TransparencyCSVCallback,
+    adversarial_report,
+    fairness_report,
+    parse_attack_spec,
+)
+from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_ids import EnvRef
+from sbagents.errors import UsageError
+from sbagents.hyperparams import Experiment
+
+DEFAULT_TRANSPARENCY_FILE = "transparency.csv"
+
+
+def parse_attacks(spec: str | None, flag: str) -> list[AttackSpec]:
+    """``"gaussian:0.05,0.1 fgsm:0.01"`` -> attack specs, or :class:`UsageError` naming the flag."""
+    if not spec:
+        return []
+    try:
+        return parse_attack_spec(spec)
+    except ValueError as exc:
+        raise UsageError(f"{flag}: {exc}") from None
+
+
+def parse_keys(spec: str | None) -> list[str]:
+    """``"object_scale,object_mass"`` -> ``["object_scale", "object_mass"]``."""
+    return [k.strip() for k in (spec or "").split(",") if k.strip()]
+
+
+@dataclass
+class TrustOptions:
+    """What the ``train`` trust flags asked for.
+
+    :param transparency_log: CSV path (``""``: ``<run dir>/transparency.csv``; ``None``: off; ``.csv.gz`` compresses).
+    :param safety: count violations (``safety.json``), stopping at ``cost_limit``/``max_violations``.
+    :param adversarial: attack spec string evaluated every ``eval_freq`` (``adversarial.csv`` + ``.png``).
+    :param fairness: comma-separated info keys to bucket episodes by (``fairness.csv`` + ``.png``).
+    :param book_header: transparency CSV in the book's layout (SmartHome: ``Episode, Step, Temperature, ...``).
+    """
+
+    transparency_log: str | None = None
+    safety: bool = False
+    cost_limit: float | None = None
+    max_violations: int | None = None
+    adversarial: str | None = None
+    fairness: str | None = None
+    bins: int = 3
+    book_header: bool = False
+
+    def validate(self) -> None:
+        """Check the specs before a run dir exists."""
+        parse_attacks(self.adversarial, "--adversarial-eval")
+        if self.bins < 1:
+            raise UsageError(f"--bins must be >= 1, got {self.bins}")
+
+    @property
+    def count_violations(self) -> bool:
+        """Safety counting is on with ``--safety`` or any of its limits."""
+        return self.safety or self.cost_limit is not None or self.max_violations is not None
+
+
+def _eval_env(exp: Experiment, ref: EnvRef, seed: int, train_env: VecEnv) -> VecEnv:
+    venv = make_vec(exp, ref, 1, seed)
+    return normalize_for_eval(venv, exp) if isinstance(train_env, VecNormalize) else venv
+
+
+def trust_callbacks(
+    opts: TrustOptions, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int,
+    eval_freq: int, eval_episodes: int,
+) -> list[BaseCallback]:
+    """The callbacks the options ask for, writing into ``run_dir``."""
+    callbacks: list[BaseCallback] = []
+    if opts.transparency_log is not None:
+        path = Path(opts.transparency_log) if opts.transparency_log else run_dir / DEFAULT_TRANSPARENCY_FILE
+        callbacks.append(TransparencyCSVCallback(str(path), book_header=opts.book_header))
+    if opts.count_violations:
+        callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(run_dir)))
+    freq = max(eval_freq // train_env.num_envs, 1) if eval_freq > 0 else exp.n_timesteps
+    if opts.adversarial:
+        callbacks.append(AdversarialEvalCallback(
+            _eval_env(exp, ref, seed + 20_000, train_env), parse_attacks(opts.adversarial, "--adversarial-eval"),
+            eval_freq=freq, n_eval_episodes=eval_episodes, path=str(run_dir), seed=seed + 20_000))
+    if opts.fairness:
+        callbacks.append(FairnessEvalCallback(
+            _eval_env(exp, ref, seed + 30_000, train_env), parse_keys(opts.fairness), bins=opts.bins,
+            eval_freq=freq, n_eval_episodes=max(eval_episodes, 30), path=str(run_dir), seed=seed + 30_000))
+    return callbacks
+
+
+def trust_report(
+    model: BaseAlgorithm, exp: Experiment, ref: EnvRef, stats_path: Path | None, out_dir: Path,
+    attacks: str | None = None, fairness: str | None = None, bins: int = 3, n_episodes: int = 10, seed: int = 0,
+) -> dict[str, Any]:
+    """Adversarial and fairness evaluation of a finished run (the ``evaluate --attack/--fairness`` flags)."""
+    result: dict[str, Any] = {}
+    specs = parse_attacks(attacks, "--attack")
+    if specs:
+        venv = normalize_for_eval(make_vec(exp, ref, 1, seed), exp, stats_path)
+        result["adversarial"] = adversarial_report(model, venv, specs, n_episodes, out_dir, seed=seed)
+        venv.close()
+    keys = parse_keys(fairness)
+    if keys:
+        venv = normalize_for_eval(make_vec(exp, ref, 1, seed), exp, stats_path)
+        try:
+            result["fairness"] = fairness_report(model, venv, keys, bins, n_episodes, out_dir, seed=seed)
+        except (KeyError, ValueError) as exc:
+            raise UsageError(f"--fairness {fairness}: {exc}") from None
+        finally:
+            venv.close()
+    return result

@@ -218,14 +218,15 @@ def _learn_and_save(
     log_interval: int,
 ) -> TrainResult:
     interrupted = False
-    start, steps_before = time.perf_counter(), model.num_timesteps if resume else 0
+    start, cpu_start = time.perf_counter(), time.process_time()
+    steps_before = model.num_timesteps if resume else 0
     try:
         model.learn(exp.n_timesteps, callback=callbacks, progress_bar=progress, reset_num_timesteps=not resume,
                     log_interval=log_interval)
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        seconds = time.perf_counter() - start
+        seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
         model.save(str(run_dir / f"{env_stem(ref.env_id)}.zip"))
         if isinstance(train_env, VecNormalize):
             train_env.save(str(run_dir / VECNORMALIZE_FILE))
@@ -234,7 +235,8 @@ def _learn_and_save(
     steps = model.num_timesteps - steps_before
     summary: dict[str, Any] = {
         "algo": exp.algo, "env": ref.env_id, "seed": seed, "n_timesteps": int(model.num_timesteps),
-        "train_seconds": round(seconds, 3), "fps": round(steps / max(seconds, 1e-9), 1),
+        "train_seconds": round(seconds, 3), "train_cpu_seconds": round(cpu_seconds, 3),
+        "fps": round(steps / max(seconds, 1e-9), 1),
         "interrupted": interrupted, "eval": None,
     }
     (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")

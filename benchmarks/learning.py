@@ -36,13 +36,13 @@ def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, ext
 def table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of the runs."""
     metric_keys = sorted({k for r in rows for k in r["eval"]["metrics"]})
-    head = ["algo", "env", "seed", "n_timesteps", "train s", "mean return", "success", *metric_keys, "load"]
+    head = ["algo", "env", "seed", "n_timesteps", "train s", "cpu s", "mean return", "success", *metric_keys, "load"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         ev = r["eval"]
         success = "-" if ev["success_rate"] is None else f"{ev['success_rate']:.2f}"
         cells = [r["algo"], r["env"], str(r["seed"]), str(r["n_timesteps"]), f"{r['train_seconds']:.1f}",
-                 f"{ev['mean_return']:.1f}", success, *(f"{ev['metrics'].get(k, float('nan')):.3f}" for k in metric_keys),
+                 f"{r.get('train_cpu_seconds', float('nan')):.1f}", f"{ev['mean_return']:.1f}", success, *(f"{ev['metrics'].get(k, float('nan')):.3f}" for k in metric_keys),
                  f"{r['load_before']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

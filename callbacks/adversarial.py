@@ -11,11 +11,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker, parse_attack_spec
-from sbagents.callbacks.common import output_dir
+from sbagents.callbacks.common import PeriodicEvalCallback, output_dir
 from sbagents.callbacks.rollout import as_vec_env, run_episodes, summarize_episodes, sync_normalization
 
 ADVERSARIAL_CSV = "adversarial.csv"
@@ -137,7 +136,7 @@ def adversarial_report(
     return rows
 
 
-class AdversarialEvalCallback(BaseCallback):
+class AdversarialEvalCallback(PeriodicEvalCallback):
     """Evaluate the policy under observation attacks every ``eval_freq`` calls (vec steps) and at the end.
 
     Logs ``adversarial/<attack>_<eps>/mean_return`` and ``.../success_rate`` (when the env reports
@@ -167,16 +166,15 @@ class AdversarialEvalCallback(BaseCallback):
         eval_at_end: bool = True,
         verbose: int = 0,
     ) -> None:
-        super().__init__(verbose)
+        super().__init__(int(eval_freq), eval_at_end, verbose)
         self.eval_env = as_vec_env(eval_env)
         self.attacks = _attacks(attacks)
-        self.eval_freq, self.n_eval_episodes = int(eval_freq), int(n_eval_episodes)
+        self.n_eval_episodes = int(n_eval_episodes)
         self.path = None if path is None else Path(path)
         self.deterministic, self.seed = deterministic, 0 if seed is None else int(seed)
-        self.include_clean, self.eval_at_end = include_clean, eval_at_end
+        self.include_clean = include_clean
         self.history: list[dict[str, Any]] = []
         self.last_results: list[dict[str, Any]] = []
-        self._last_eval_step = -1
 
     def evaluate(self) -> list[dict[str, Any]]:
         """Run every attack now, log and write the results."""
@@ -201,11 +199,3 @@ class AdversarialEvalCallback(BaseCallback):
         plot_adversarial(rows, out / ADVERSARIAL_PNG, f"Return under attack at {self.num_timesteps} steps")
         return rows
 
-    def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
-            self.evaluate()
-        return True
-
-    def _on_training_end(self) -> None:
-        if self.eval_at_end and self._last_eval_step != self.num_timesteps:
-            self.evaluate()

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
 #: Keys that SB3 / Gymnasium wrappers put in ``info``: never treated as env data.
@@ -134,3 +135,26 @@ def split_keys(keys: str | Sequence[str]) -> list[str]:
     """``"a,b"`` or ``["a", "b"]`` -> ``["a", "b"]`` (blank entries dropped)."""
     items = keys.split(",") if isinstance(keys, str) else list(keys)
     return [k.strip() for k in items if k and k.strip()]
+
+
+class PeriodicEvalCallback(BaseCallback):
+    """Base of the evaluation callbacks: call :meth:`evaluate` every ``eval_freq`` calls and, with
+    ``eval_at_end``, once more when training ends unless it just ran."""
+
+    def __init__(self, eval_freq: int, eval_at_end: bool = True, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.eval_freq, self.eval_at_end = eval_freq, eval_at_end
+        self._last_eval_step = -1
+
+    def evaluate(self) -> Any:
+        """Run one evaluation; subclasses set ``self._last_eval_step = self.num_timesteps``."""
+        raise NotImplementedError
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            self.evaluate()
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.eval_at_end and self._last_eval_step != self.num_timesteps:
+            self.evaluate()

@@ -12,10 +12,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.callbacks.common import env_attr, output_dir, split_keys
+from sbagents.callbacks.common import PeriodicEvalCallback, env_attr, output_dir, split_keys
 from sbagents.callbacks.rollout import EpisodeResult, as_vec_env, run_episodes, sync_normalization
 
 FAIRNESS_CSV = "fairness.csv"
@@ -225,7 +224,7 @@ def fairness_report(
     return report
 
 
-class FairnessEvalCallback(BaseCallback):
+class FairnessEvalCallback(PeriodicEvalCallback):
     """Run :func:`fairness_report` every ``eval_freq`` calls (vec steps) and at training end.
 
     Logs ``fairness/worst`` (lowest bucket value), ``fairness/gap`` (max - min) and ``fairness/overall``;
@@ -254,18 +253,16 @@ class FairnessEvalCallback(BaseCallback):
         eval_at_end: bool = True,
         verbose: int = 0,
     ) -> None:
-        super().__init__(verbose)
+        super().__init__(int(eval_freq), eval_at_end, verbose)
         self.eval_env = as_vec_env(eval_env)
         self.keys = split_keys(keys)
         if not self.keys:
             raise ValueError("FairnessEvalCallback needs at least one attribute key")
-        self.bins, self.eval_freq, self.n_eval_episodes = int(bins), int(eval_freq), int(n_eval_episodes)
+        self.bins, self.n_eval_episodes = int(bins), int(n_eval_episodes)
         self.path = None if path is None else Path(path)
         self.ranges, self.deterministic = ranges, deterministic
         self.seed = 0 if seed is None else int(seed)
-        self.eval_at_end = eval_at_end
         self.last_report: dict[str, Any] | None = None
-        self._last_eval_step = -1
 
     def evaluate(self) -> dict[str, Any]:
         """Evaluate now, log and write the files."""
@@ -289,11 +286,3 @@ class FairnessEvalCallback(BaseCallback):
         self._last_eval_step = self.num_timesteps
         return report
 
-    def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
-            self.evaluate()
-        return True
-
-    def _on_training_end(self) -> None:
-        if self.eval_at_end and self._last_eval_step != self.num_timesteps:
-            self.evaluate()

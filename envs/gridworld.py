@@ -18,6 +18,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sbagents.envs.text_grid import TextGridRendering
+
 Cell = tuple[int, int]
 
 #: Row/column deltas of the four actions: 0 up, 1 down, 2 left, 3 right.
@@ -32,7 +34,7 @@ GOAL_REWARD = 100.0
 _COLOURS = {"A": (30, 110, 230), "G": (40, 170, 60), "X": (60, 60, 60), ".": (235, 235, 235)}
 
 
-class GridWorldEnv(gym.Env[np.int64, np.int64]):
+class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
     """Deterministic grid navigation with obstacles and a single goal.
 
     :param size: grid side length, or ``(n_rows, n_cols)``.
@@ -144,16 +146,6 @@ class GridWorldEnv(gym.Env[np.int64, np.int64]):
                     cells.append(".")
             rows.append(" ".join(cells))
         return "\n".join(rows)
-
-    def render(self) -> str | np.ndarray | None:
-        if self.render_mode == "ansi":
-            return self.grid_text()
-        if self.render_mode == "human":
-            print(self.grid_text() + "\n")
-            return None
-        if self.render_mode == "rgb_array":
-            return self._rgb()
-        return None
 
     def _rgb(self, cell_px: int = 32) -> np.ndarray:
         frame = np.full((self.n_rows * cell_px, self.n_cols * cell_px, 3), 255, dtype=np.uint8)

@@ -43,6 +43,8 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from sbagents.envs.text_grid import TextGridRendering
+
 Cell = tuple[int, int]
 
 #: Row/column deltas of the actions: 0 up, 1 down, 2 left, 3 right, 4 stay.
@@ -75,7 +77,7 @@ ACCEPTED_KWARGS: tuple[str, ...] = (
 _COLOURS = {"A": (30, 110, 230), "T": (230, 180, 20), "X": (60, 60, 60), ".": (235, 235, 235)}
 
 
-class CooperativeTreasureHunt(ParallelEnv):
+class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
     """Cooperative multi-agent treasure collection on a grid with obstacles.
 
     :param grid_size: side length of the square grid.
@@ -376,16 +378,6 @@ class CooperativeTreasureHunt(ParallelEnv):
         if any(self.present[k] and t == cell for k, t in enumerate(self.treasures)):
             return "T"
         return "X" if cell in self._blocked else "."
-
-    def render(self) -> str | np.ndarray | None:
-        if self.render_mode == "ansi":
-            return self.grid_text()
-        if self.render_mode == "human":
-            print(self.grid_text() + "\n")
-            return None
-        if self.render_mode == "rgb_array":
-            return self._rgb()
-        return None
 
     def _rgb(self, cell_px: int = 32) -> np.ndarray:
         n = self.grid_size

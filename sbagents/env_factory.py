@@ -25,6 +25,7 @@ VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
     "dummy": DummyVecEnv,
     "subproc": SubprocVecEnv,
 }
+VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched")
 
 
 def env_constructor(ref: EnvRef) -> Callable[..., Any]:
@@ -69,32 +70,53 @@ def _chain(wrappers: list[tuple[Any, dict[str, Any]]]) -> Callable[[gym.Env], gy
     return wrap
 
 
+def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef) -> str:
+    """Which VecEnv ``--vec-env`` means here: ``auto`` picks ``batched`` where a batched implementation exists
+    (GridWorld, TreasureHunt, with no Gymnasium wrappers), else ``dummy``."""
+    from sbagents.batched import BATCHED_ENV_IDS
+
+    if vec_env not in VEC_ENV_TYPES:
+        raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {vec_env!r}")
+    batchable = ref.env_id in BATCHED_ENV_IDS and not exp.env_wrapper and not exp.monitor_kwargs
+    if vec_env == "batched" and not batchable:
+        raise UsageError(f"--vec-env batched supports {', '.join(BATCHED_ENV_IDS)} without env_wrapper/monitor_kwargs")
+    if vec_env == "auto":
+        return "batched" if batchable else "dummy"
+    return vec_env
+
+
 def make_vec(
     exp: Experiment,
     ref: EnvRef,
     n_envs: int,
     seed: int | None,
     monitor_dir: str | Path | None = None,
-    vec_env: str = "dummy",
+    vec_env: str = "auto",
     env_kwargs: dict[str, Any] | None = None,
 ) -> VecEnv:
     """The vectorised env with wrappers and frame stacking, before normalisation.
 
     :param n_envs: number of copies (for multi-agent envs: copies of the whole team).
+    :param vec_env: ``auto``, ``dummy``, ``subproc`` or ``batched`` (see :func:`vec_env_kind`); multi-agent envs
+        use :class:`~sbagents.multiagent.ParameterSharingVecEnv` unless batched.
     :param env_kwargs: extra env kwargs on top of the experiment's (e.g. ``render_mode``).
     """
     kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
     check_env_kwargs(ref, {k: v for k, v in kwargs.items() if k != "render_mode"})
     monitor = str(monitor_dir) if monitor_dir is not None else None
-    if ref.multi_agent:
+    kind = vec_env_kind(vec_env, exp, ref)
+    venv: VecEnv
+    if kind == "batched":
+        from sbagents.batched import make_batched_vec_env
+
+        venv = make_batched_vec_env(ref.env_id, n_envs, seed, kwargs, monitor)
+    elif ref.multi_agent:
         from sbagents.multiagent import make_parameter_sharing_vec_env
 
-        venv: VecEnv = make_parameter_sharing_vec_env(
+        venv = make_parameter_sharing_vec_env(
             ref.pettingzoo_module().parallel_env, n_envs=n_envs, seed=seed, env_kwargs=kwargs, monitor_dir=monitor
         )
     else:
-        if vec_env not in VEC_ENV_CLASSES:
-            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_CLASSES)}, got {vec_env!r}")
         venv = make_vec_env(
             ref.env_id,
             n_envs=n_envs,
@@ -102,7 +124,7 @@ def make_vec(
             monitor_dir=monitor,
             wrapper_class=_chain(exp.env_wrapper),
             env_kwargs=kwargs,
-            vec_env_cls=VEC_ENV_CLASSES[vec_env],
+            vec_env_cls=VEC_ENV_CLASSES[kind],
             monitor_kwargs=exp.monitor_kwargs or None,
         )
     for wrapper, wrapper_kwargs in exp.vec_env_wrapper:

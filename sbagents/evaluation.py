@@ -84,7 +84,8 @@ def evaluate_model(
         )
         return {"env": ref.env_id, "algo": exp.algo, **result}
     extra = {"render_mode": "human"} if render else None
-    venv = normalize_for_eval(make_vec(exp, ref, 1, seed, env_kwargs=extra), exp, stats_path)
+    # the reference envs (not the batched ones): their human rendering prints every step
+    venv = normalize_for_eval(make_vec(exp, ref, 1, seed, vec_env="dummy", env_kwargs=extra), exp, stats_path)
     metrics_fn = _episode_metrics_fn(venv)
     step_infos: list[dict[str, Any]] = []
     successes: list[bool] = []

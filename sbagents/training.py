@@ -153,7 +153,7 @@ def train(
     n_eval_envs: int = 1,
     final_eval_episodes: int = 10,
     save_freq: int = -1,
-    vec_env: str = "dummy",
+    vec_env: str = "auto",
     device: str = "auto",
     progress: bool = False,
     tensorboard_log: str | None = None,

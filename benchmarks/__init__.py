@@ -1,0 +1,1 @@
+"""Benchmark suite of sbagents (``python -m benchmarks``): measured speed, written into ``BENCHMARKS.md``."""

@@ -1,0 +1,256 @@
+"""Env stepping and PPO training speed: reference VecEnvs vs the batched numpy VecEnvs (``sbagents.batched``).
+
+Measured for ``sbagents/GridWorld-v0`` and ``treasure_hunt_v0`` (the zoo config's env kwargs):
+
+- env steps/s with random actions, resets included: one plain env (Python loop), the reference VecEnv
+  of 64 copies (``make_vec_env`` DummyVecEnv / ``ParameterSharingVecEnv``) and the batched VecEnv of 64;
+- PPO training fps (``model.learn`` only, torch 1 thread) with the zoo config's hyperparameters, on the
+  reference and on the batched VecEnv, at the config's ``n_envs`` and at 64.
+
+Steps are counted as VecEnv transitions: for TreasureHunt one transition is one agent's step (an env
+step of the 3-agent team is 3 transitions), which is also what SB3's fps counts. Rounds are interleaved
+and medians reported, so a load spike on the shared machine hits every variant alike.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from functools import partial
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import stable_baselines3
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecEnv
+
+import sbagents  # noqa: F401  (registers the Gymnasium ids)
+from sbagents.batched import make_batched_vec_env
+from sbagents.env_ids import resolve_env
+from sbagents.envs.treasure_hunt_v0 import parallel_env
+from sbagents.multiagent import make_parameter_sharing_vec_env
+from sbagents.training import build_experiment
+
+ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0")
+N_ENVS = 64
+
+
+def reference_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]) -> VecEnv:
+    """The VecEnv the project used before the batched envs (DummyVecEnv / ParameterSharingVecEnv)."""
+    if env_id == "treasure_hunt_v0":
+        return make_parameter_sharing_vec_env(parallel_env, n_envs, seed, env_kwargs)
+    return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
+
+
+def zoo_env_kwargs(env_id: str) -> dict[str, Any]:
+    """``env_kwargs`` of the PPO zoo entry of ``env_id``."""
+    return dict(build_experiment("ppo", resolve_env(env_id)).env_kwargs)
+
+
+def single_env_rate(env_id: str, env_kwargs: dict[str, Any], n_steps: int, seed: int = 0) -> float:
+    """Transitions/s of one plain env stepped in a Python loop (reset at episode ends)."""
+    rng = np.random.default_rng(seed)
+    if env_id == "treasure_hunt_v0":
+        env = parallel_env(**env_kwargs)
+        env.reset(seed=seed)
+        agents = list(env.possible_agents)
+        actions = rng.integers(0, 5, size=(n_steps, len(agents))).tolist()
+        start = time.perf_counter()
+        for row in actions:
+            _, _, term, trunc, _ = env.step(dict(zip(agents, row, strict=True)))
+            if term[agents[0]] or trunc[agents[0]]:
+                env.reset()
+        return n_steps * len(agents) / (time.perf_counter() - start)
+    genv = gym.make(env_id, **env_kwargs)
+    genv.reset(seed=seed)
+    acts = rng.integers(0, 4, size=n_steps).tolist()
+    start = time.perf_counter()
+    for a in acts:
+        _, _, terminated, truncated, _ = genv.step(a)
+        if terminated or truncated:
+            genv.reset()
+    return n_steps / (time.perf_counter() - start)
+
+
+def vec_env_rate(vec: VecEnv, n_steps: int, seed: int = 0) -> float:
+    """Transitions/s of ``n_steps`` VecEnv steps with random actions (auto-resets included)."""
+    n_actions = int(vec.action_space.n)  # type: ignore[attr-defined]
+    actions = np.random.default_rng(seed).integers(0, n_actions, size=(n_steps, vec.num_envs))
+    vec.reset()
+    start = time.perf_counter()
+    for a in actions:
+        vec.step(a)
+    rate = n_steps * vec.num_envs / (time.perf_counter() - start)
+    vec.close()
+    return rate
+
+
+def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, seed: int = 0) -> float:
+    """PPO training fps (``learn`` only) with the zoo hyperparameters on ``n_envs`` env copies.
+
+    Trains whole rollouts, at least two and at least ``min_steps`` transitions.
+    """
+    torch.set_num_threads(1)
+    exp = build_experiment("ppo", resolve_env(env_id))
+    if vec_kind == "batched":
+        vec = make_batched_vec_env(env_id, n_envs, seed, exp.env_kwargs, None)
+    else:
+        vec = reference_vec_env(env_id, n_envs, seed, exp.env_kwargs)
+    model = PPO(exp.policy, vec, seed=seed, verbose=0, **exp.algo_kwargs)
+    rollout = model.n_steps * vec.num_envs
+    steps = max(2, -(-min_steps // rollout)) * rollout
+    start = time.perf_counter()
+    model.learn(steps)
+    fps = model.num_timesteps / (time.perf_counter() - start)
+    vec.close()
+    return fps
+
+
+def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, float]:
+    samples: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(rounds):
+        for key, fn in fns.items():
+            samples[key].append(fn())
+    return {k: statistics.median(v) for k, v in samples.items()}
+
+
+def run(rounds: int = 3, quick: bool = False) -> dict[str, Any]:
+    """Measure every figure; returns a JSON-able dict (``machine`` + one entry per env id)."""
+    torch.set_num_threads(1)
+    load_before = os.getloadavg()
+    started = time.perf_counter()
+    results: dict[str, Any] = {"machine": machine_info(), "envs": {}}
+    scale = 0.25 if quick else 1.0
+    for env_id in ENV_IDS:
+        kwargs = zoo_env_kwargs(env_id)
+        n_cfg = build_experiment("ppo", resolve_env(env_id)).n_envs
+        # vec steps per measurement: ~0.3-0.5 s each on this machine
+        ref_steps, batched_steps = (200, 3000) if env_id == "treasure_hunt_v0" else (1000, 20_000)
+        fns: dict[str, Callable[[], float]] = {
+            "single": partial(single_env_rate, env_id, kwargs, int(50_000 * scale)),
+            "reference": lambda e=env_id, k=kwargs, n=int(ref_steps * scale): vec_env_rate(  # type: ignore[misc]
+                reference_vec_env(e, N_ENVS, 0, k), n
+            ),
+            "batched": lambda e=env_id, k=kwargs, n=int(batched_steps * scale): vec_env_rate(  # type: ignore[misc]
+                make_batched_vec_env(e, N_ENVS, 0, k, None), n
+            ),
+        }
+        env_rates = _median_rounds(fns, rounds)
+        ppo: dict[str, float] = {}
+        for n_envs in sorted({n_cfg, N_ENVS}):
+            ppo_fns: dict[str, Callable[[], float]] = {
+                kind: partial(ppo_fps, env_id, kind, n_envs, 6_000 if quick else 24_000)
+                for kind in ("reference", "batched")
+            }
+            rates = _median_rounds(ppo_fns, 1 if quick else max(rounds - 1, 1))
+            ppo.update({f"{kind}_{n_envs}": v for kind, v in rates.items()})
+        results["envs"][env_id] = {"env_kwargs": kwargs, "config_n_envs": n_cfg, "steps_per_s": env_rates,
+                                   "ppo_fps": ppo}
+    results["machine"]["load_before"] = [round(x, 2) for x in load_before]
+    results["machine"]["load_after"] = [round(x, 2) for x in os.getloadavg()]
+    results["seconds"] = round(time.perf_counter() - started, 1)
+    return results
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU, cores, library versions and date of the run."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "torch": torch.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+    }
+
+
+def _fmt(x: float) -> str:
+    return f"{x:,.0f}"
+
+
+def markdown(results: dict[str, Any]) -> str:
+    """The Markdown section (tables + machine line) written between the speed markers."""
+    m = results["machine"]
+    lines = [
+        "## Batched VecEnvs: env and PPO speed",
+        "",
+        f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
+        f"torch {m['torch']} (1 thread), SB3 {m['stable_baselines3']}; {m['date']}; "
+        f"load average before/after {m['load_before'][0]} / {m['load_after'][0]} "
+        "(shared machine). Command: `python -m benchmarks`.",
+        "",
+        "Env transitions/s with random actions (resets included; TreasureHunt: one transition = one agent "
+        "step):",
+        "",
+        f"| env | single env | reference x{N_ENVS} | batched x{N_ENVS} | batched / reference |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for env_id, r in results["envs"].items():
+        s = r["steps_per_s"]
+        lines.append(f"| {env_id} | {_fmt(s['single'])} | {_fmt(s['reference'])} | {_fmt(s['batched'])} | "
+                     f"{s['batched'] / s['reference']:.1f}x |")
+    lines += [
+        "",
+        "PPO training fps (`model.learn` only, zoo hyperparameters, torch 1 thread):",
+        "",
+        "| env | n_envs | reference | batched | batched / reference |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for env_id, r in results["envs"].items():
+        for n in sorted({r["config_n_envs"], N_ENVS}):
+            ref, bat = r["ppo_fps"][f"reference_{n}"], r["ppo_fps"][f"batched_{n}"]
+            tag = " (config)" if n == r["config_n_envs"] else ""
+            lines.append(f"| {env_id} | {n}{tag} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.1f}x |")
+    lines += [
+        "",
+        "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "
+        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds.",
+    ]
+    return "\n".join(lines)
+
+
+def write_section(path: str, text: str, name: str = "speed") -> None:
+    """Replace the text between the markers ``<!-- name:start -->`` / ``<!-- name:end -->`` of ``path``.
+
+    The markers (and the file) are appended/created when missing; the rest of the file stays.
+    """
+    start_marker, end_marker = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    old = "# Benchmarks\n"
+    if os.path.exists(path):
+        with open(path) as fh:
+            old = fh.read()
+    block = f"{start_marker}\n{text}\n{end_marker}"
+    if start_marker in old and end_marker in old and old.index(start_marker) < old.index(end_marker):
+        new = old[: old.index(start_marker)] + block + old[old.index(end_marker) + len(end_marker) :]
+    else:
+        new = old.rstrip("\n") + "\n\n" + block + "\n"
+    with open(path, "w") as fh:
+        fh.write(new)
+
+
+def main(output: str = "BENCHMARKS.md", json_path: str | None = "benchmarks/results/speed.json",
+         rounds: int = 3, quick: bool = False) -> dict[str, Any]:
+    """Run the speed suite, print the table, write it into ``output`` (and the raw numbers as JSON)."""
+    results = run(rounds=rounds, quick=quick)
+    text = markdown(results)
+    print(text)
+    write_section(output, text)
+    if json_path:
+        os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
+        with open(json_path, "w") as fh:
+            json.dump(results, fh, indent=2)
+    return results

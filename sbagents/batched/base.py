@@ -1,0 +1,142 @@
+"""Shared machinery of the batched (numpy-array) vector envs: attribute access, rendering, monitor files.
+
+A batched VecEnv keeps the state of all its env copies in arrays and steps them with array operations.
+For everything that is not stepping (``get_attr``, ``env_method``, rendering) it keeps one *template*
+instance of the reference environment and copies env ``i``'s state into it before the call
+(:meth:`BatchedVecEnv._sync`), so attributes such as ``obs_names``, ``action_names``, methods such as
+``grid_text()`` and the reference renderers behave as on the reference VecEnvs.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.monitor import ResultsWriter
+from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
+
+#: Methods that would change the template's state without writing it back to the arrays.
+_STATEFUL_METHODS = frozenset({"reset", "step", "close"})
+
+
+class BatchedVecEnv(VecEnv):
+    """Base class: ``num_envs`` slots backed by ``n_envs`` array-stepped env copies.
+
+    :param num_envs: number of VecEnv slots (``n_envs * slots_per_env``).
+    :param slots_per_env: slots per env copy (1, or the number of agents for parameter sharing).
+    :param template: a reference env instance (for attributes, methods and rendering).
+    :param observation_space: per-slot observation space.
+    :param action_space: per-slot action space.
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        slots_per_env: int,
+        template: Any,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+    ) -> None:
+        self.template = template
+        self.slots_per_env = slots_per_env
+        self.n_envs = num_envs // slots_per_env
+        self._t_start = time.time()
+        self._actions: np.ndarray = np.zeros(num_envs, dtype=np.int64)
+        super().__init__(num_envs, observation_space, action_space)
+
+    # ------------------------------------------------------------------ to implement
+    def _sync(self, env_index: int) -> None:
+        """Copy env ``env_index``'s state from the arrays into :attr:`template`."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ VecEnv API
+    def step_async(self, actions: np.ndarray) -> None:
+        """Store the actions, shape ``(num_envs,)`` (any integer array of that size)."""
+        acts = np.asarray(actions).reshape(self.num_envs)
+        if acts.dtype != np.int64:
+            acts = acts.astype(np.int64)
+        self._actions = acts
+
+    def _check_actions(self, n_actions: int) -> None:
+        acts = self._actions
+        if acts.min() < 0 or acts.max() >= n_actions:
+            bad = acts[(acts < 0) | (acts >= n_actions)]
+            raise ValueError(f"actions must be ints in 0..{n_actions - 1}, got {bad.tolist()}")
+
+    def _episode_info(self, ep_return: float, ep_len: int) -> dict[str, Any]:
+        """SB3 Monitor's ``episode`` info: ``{"r": return, "l": length, "t": seconds since creation}``."""
+        return {"r": round(ep_return, 6), "l": ep_len, "t": round(time.time() - self._t_start, 6)}
+
+    def _env_indices(self, indices: VecEnvIndices) -> list[int]:
+        if indices is None:
+            slots: Sequence[int] = range(self.num_envs)
+        elif isinstance(indices, (int, np.integer)):
+            slots = [int(indices)]
+        else:
+            slots = list(indices)
+        return [int(k) // self.slots_per_env for k in slots]
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """Attribute of the env behind each slot (its state is copied into the template first)."""
+        out = []
+        for i in self._env_indices(indices):
+            self._sync(i)
+            out.append(getattr(self.template, attr_name))
+        return out
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Not supported: the env copies live in shared arrays, not in per-env objects."""
+        raise NotImplementedError(
+            f"{type(self).__name__} cannot set {attr_name!r}: env copies are stored as arrays; "
+            "pass settings as env kwargs instead"
+        )
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        """Call a read-only method on (a copy of) the env behind each slot; changes are not kept.
+
+        ``reset``, ``step`` and ``close`` are refused (use the VecEnv's own methods).
+        """
+        if method_name in _STATEFUL_METHODS:
+            raise NotImplementedError(
+                f"env_method({method_name!r}) is not supported by {type(self).__name__}; "
+                "use the VecEnv's own methods"
+            )
+        results: dict[int, Any] = {}
+        out = []
+        for i in self._env_indices(indices):
+            if i not in results:
+                self._sync(i)
+                results[i] = getattr(self.template, method_name)(*method_args, **method_kwargs)
+            out.append(results[i])
+        return out
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """One ``rgb_array`` frame per env copy (None unless ``render_mode="rgb_array"``)."""
+        images: list[np.ndarray | None] = []
+        for i in range(self.n_envs):
+            if self.render_mode != "rgb_array":
+                images.append(None)
+                continue
+            self._sync(i)
+            images.append(self.template.render())
+        return images
+
+
+def monitor_writer(monitor_dir: str | None, index: int, env_id: str, t_start: float,
+                   extra_keys: tuple[str, ...] = ()) -> ResultsWriter | None:
+    """SB3 monitor file ``<monitor_dir>/<index>.monitor.csv`` (None when ``monitor_dir`` is None)."""
+    if monitor_dir is None:
+        return None
+    os.makedirs(monitor_dir, exist_ok=True)
+    return ResultsWriter(
+        os.path.join(monitor_dir, str(index)),
+        header={"t_start": t_start, "env_id": env_id},
+        extra_keys=extra_keys,
+    )

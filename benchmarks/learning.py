@@ -6,8 +6,8 @@ library call), so ``train_seconds`` is the wall time of ``model.learn`` and the 
 
 Usage::
 
-    python benchmarks/learning.py --algo ppo --env treasure_hunt_v0 --seeds 0 1 2
-    python benchmarks/learning.py --algo ddpg td3 sac ppo --env sbagents/SmartHome-v0 --seeds 0 1 2
+    python -m benchmarks.learning --algo ppo --env treasure_hunt_v0 --seeds 0 1 2
+    python -m benchmarks.learning --algo ddpg td3 sac ppo --env sbagents/SmartHome-v0 --seeds 0 1 2
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from benchmarks.speed import write_section
 from sbagents.run_dir import env_stem
 from sbagents.training import train
 
@@ -41,8 +42,9 @@ def table(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         ev = r["eval"]
         success = "-" if ev["success_rate"] is None else f"{ev['success_rate']:.2f}"
+        metrics = [f"{ev['metrics'].get(k, float('nan')):.3f}" for k in metric_keys]
         cells = [r["algo"], r["env"], str(r["seed"]), str(r["n_timesteps"]), f"{r['train_seconds']:.1f}",
-                 f"{r.get('train_cpu_seconds', float('nan')):.1f}", f"{ev['mean_return']:.1f}", success, *(f"{ev['metrics'].get(k, float('nan')):.3f}" for k in metric_keys),
+                 f"{r.get('train_cpu_seconds', float('nan')):.1f}", f"{ev['mean_return']:.1f}", success, *metrics,
                  f"{r['load_before']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -54,16 +56,25 @@ def main() -> None:
     parser.add_argument("--env", required=True)
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="greedy evaluation episodes per seed")
+    parser.add_argument("--write", default="BENCHMARKS.md", help="Markdown file to update ('' to skip)")
     parser.add_argument("--vec-env", default=None, help="vec env type passed to train (default: train's)")
     args = parser.parse_args()
     extra = {"vec_env": args.vec_env} if args.vec_env else {}
     RESULTS.mkdir(exist_ok=True)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores")
+    tables = []
     with tempfile.TemporaryDirectory() as logs:
         for algo in args.algo:
             rows = [run_seed(algo, args.env, s, args.episodes, logs, extra) for s in args.seeds]
             (RESULTS / f"learning_{env_stem(args.env)}_{algo}.json").write_text(json.dumps(rows, indent=2) + "\n")
-            print(table(rows), flush=True)
+            tables.append(table(rows))
+            print(tables[-1], flush=True)
+    command = f"python -m benchmarks.learning --algo {' '.join(args.algo)} --env {args.env} --seeds " + " ".join(
+        map(str, args.seeds))
+    text = f"## Learning: {args.env}\n\nCommand: `{command}` ({args.episodes} greedy evaluation episodes per seed, " \
+        f"shipped zoo configs).\n\n" + "\n\n".join(tables)
+    if args.write:
+        write_section(args.write, text, f"learning-{env_stem(args.env)}-{'-'.join(args.algo)}")
 
 
 if __name__ == "__main__":

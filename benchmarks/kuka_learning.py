@@ -1,0 +1,241 @@
+"""Learning benchmark: an SB3 agent on the Kuka push task next to panda-gym's push, same algo and budget.
+
+``run`` trains both with ``python -m sbagents.train`` (same zoo file, same seed, same budget, same
+evaluation schedule) as two concurrent subprocesses, then ``report`` reads each run dir's
+``evaluations.npz`` (EvalCallback: returns and ``is_success`` per evaluation episode) and
+``summary.json`` and writes a learning-curve PNG and a Markdown table.
+
+panda-gym lives in a venv that sees the system packages (sbagents included)::
+
+    python -m venv --system-site-packages /tmp/pgvenv && /tmp/pgvenv/bin/pip install panda-gym
+    nohup python benchmarks/kuka_learning.py run --algo sac -n 300000 -f /tmp/kuka_bench \
+        > /tmp/kuka_bench.log 2>&1 &
+    python benchmarks/kuka_learning.py report --run ours=/tmp/kuka_bench/sac/sbagents_PickAndPlace-v0_1 \\
+        --run panda=/tmp/kuka_bench/sac/PandaPushDense-v3_1
+
+``run`` calls ``report`` itself when both trainings end. Timings depend on the machine's load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parent
+DEFAULT_CONF = ROOT / "configs" / "kuka.yml"
+DEFAULT_OUT = ROOT / "results" / "kuka_learning"
+OURS_ENV = "sbagents/PickAndPlace-v0"
+PANDA_ENV = "PandaPushDense-v3"
+PANDA_PYTHON = "/tmp/pgvenv/bin/python"
+
+
+@dataclass
+class Curve:
+    """One run's evaluation history.
+
+    :param label: legend label.
+    :param env_id: environment id.
+    :param steps: ``(n_evals,)`` env steps at each evaluation.
+    :param success: ``(n_evals,)`` success rate of each evaluation (NaN if the env reports none).
+    :param mean_return: ``(n_evals,)`` mean evaluation return.
+    :param n_episodes: evaluation episodes per point.
+    :param summary: the run's ``summary.json`` (empty if missing).
+    :param command: the training command (``command.txt``), if recorded.
+    """
+
+    label: str
+    env_id: str
+    steps: np.ndarray
+    success: np.ndarray
+    mean_return: np.ndarray
+    n_episodes: int
+    summary: dict[str, Any]
+    command: str
+
+
+def load_curve(label: str, run_dir: str | Path) -> Curve:
+    """Read ``evaluations.npz``, ``summary.json`` and ``command.txt`` of a ``sbagents.train`` run dir."""
+    run_dir = Path(run_dir)
+    data = np.load(run_dir / "evaluations.npz")
+    results = np.asarray(data["results"], dtype=np.float64)
+    if "successes" in data and np.asarray(data["successes"]).size:
+        success = np.asarray(data["successes"], dtype=np.float64).mean(axis=1)
+    else:
+        success = np.full(len(results), np.nan)
+    summary_path, command_path = run_dir / "summary.json", run_dir / "command.txt"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    if not summary:  # still running: algo and env from args.yml, wall time from the monitor file
+        for args_path in run_dir.glob("*/args.yml"):
+            args = yaml.safe_load(args_path.read_text()) or {}
+            summary = {"algo": args.get("algo"), "env": args.get("env")}
+        monitor = run_dir / "0.monitor.csv"
+        if monitor.exists():
+            rows = monitor.read_text().strip().splitlines()
+            if len(rows) > 2:
+                summary["train_seconds"] = float(rows[-1].split(",")[2])
+    command = command_path.read_text().strip() if command_path.exists() else ""
+    env_id = str(summary.get("env") or run_dir.name.rsplit("_", 1)[0])
+    return Curve(label, env_id, np.asarray(data["timesteps"]), success, results.mean(axis=1),
+                 results.shape[1], summary, command)
+
+
+def plot_curves(curves: list[Curve], path: Path, title: str) -> None:
+    """Success rate (left) and mean evaluation return (right) vs env steps, one line per run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_s, ax_r) = plt.subplots(1, 2, figsize=(11, 4))
+    for c in curves:
+        name = f"{c.label}: {c.env_id}"
+        ax_s.plot(c.steps, 100 * c.success, marker="o", ms=3, label=name)
+        ax_r.plot(c.steps, c.mean_return, marker="o", ms=3, label=name)
+    ax_s.set(xlabel="env steps", ylabel="success rate (%)", ylim=(-3, 103), title="deterministic evaluation")
+    ax_r.set(xlabel="env steps", ylabel="mean return", title="(returns are not comparable across envs)")
+    for ax in (ax_s, ax_r):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown_table(curves: list[Curve]) -> str:
+    """Markdown: one summary row per run, then success rate at every evaluation point."""
+    lines = [
+        "| run | env | algo | steps | best eval success | last eval success | final eval success "
+        "(episodes) | train time (s) | steps/s |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for c in curves:
+        s = c.summary
+        ev = s.get("eval") or {}
+        final = ev.get("success_rate")
+        final_txt = "n/a" if final is None else f"{100 * final:.0f}% ({ev.get('n_episodes', '?')})"
+        best = np.nanmax(c.success) if np.isfinite(c.success).any() else float("nan")
+        n_steps = int(s.get("n_timesteps", c.steps[-1]))
+        seconds = float(s.get("train_seconds", float("nan")))
+        fps = float(s.get("fps", n_steps / seconds if seconds > 0 else float("nan")))
+        lines.append(
+            f"| {c.label} | `{c.env_id}` | {s.get('algo', '?')} | {n_steps} "
+            f"| {100 * best:.0f}% | {100 * c.success[-1]:.0f}% | {final_txt} | {seconds:.0f} | {fps:.0f} |"
+        )
+    lines += ["", f"Success rate (%) at each evaluation ({curves[0].n_episodes} deterministic episodes):", ""]
+    steps = sorted({int(t) for c in curves for t in c.steps})
+    lines.append("| steps | " + " | ".join(c.label for c in curves) + " |")
+    lines.append("|---:|" + "---:|" * len(curves))
+    for t in steps:
+        cells = []
+        for c in curves:
+            hit = np.flatnonzero(c.steps == t)
+            cells.append(f"{100 * c.success[hit[0]]:.0f}" if hit.size else "")
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    lines += ["", "Commands:", ""] + [f"- {c.label}: `{c.command}`" for c in curves if c.command]
+    return "\n".join(lines) + "\n"
+
+
+def report(runs: list[tuple[str, str]], out: Path, title: str) -> str:
+    """Write ``<out>.png`` and ``<out>.md`` for ``(label, run_dir)`` pairs; return the Markdown."""
+    curves = [load_curve(label, run_dir) for label, run_dir in runs]
+    plot_curves(curves, out.with_suffix(".png"), title)
+    text = f"# {title}\n\n" + markdown_table(curves)
+    out.with_suffix(".md").write_text(text)
+    return text
+
+
+def _train_cmd(python: str, algo: str, env: str, args: argparse.Namespace, extra: list[str]) -> list[str]:
+    return [
+        python, "-m", "sbagents.train", "--algo", algo, "--env", env, "-conf", str(args.conf),
+        "-f", str(args.log_folder), "--seed", str(args.seed), "-n", str(args.n_timesteps),
+        "--eval-freq", str(args.eval_freq), "--eval-episodes", str(args.eval_episodes),
+        "--final-eval-episodes", str(args.final_eval_episodes), "--log-interval", "50", *extra,
+    ]
+
+
+def _newest_run(log_folder: Path, algo: str, env_id: str) -> Path:
+    runs = sorted((log_folder / algo).glob(env_id.replace("/", "_") + "_*"),
+                  key=lambda p: int(p.name.rsplit("_", 1)[1]))
+    if not runs:
+        raise FileNotFoundError(f"no run dir for {algo} {env_id} in {log_folder}")
+    return runs[-1]
+
+
+def run(args: argparse.Namespace) -> None:
+    """Train ours and panda-gym's env concurrently, then write the report."""
+    args.log_folder.mkdir(parents=True, exist_ok=True)
+    jobs = {
+        "ours": _train_cmd(sys.executable, args.algo, args.ours_env, args, []),
+        "panda-gym": _train_cmd(args.panda_python, args.algo, args.panda_env, args,
+                                ["--gym-packages", "panda_gym"]),
+    }
+    procs = {}
+    for label, cmd in jobs.items():
+        log = (args.log_folder / f"{label}.log").open("w")
+        print(f"[{label}] {shlex.join(cmd)}  (log: {log.name})", flush=True)
+        procs[label] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT.parent)
+        time.sleep(2)  # distinct run dirs are guaranteed anyway; this keeps the start order readable
+    codes = {label: p.wait() for label, p in procs.items()}
+    print(f"exit codes: {codes}", flush=True)
+    runs = [("ours", str(_newest_run(args.log_folder, args.algo, args.ours_env))),
+            ("panda-gym", str(_newest_run(args.log_folder, args.algo, args.panda_env)))]
+    print(report(runs, args.out, args.title or _title(args)))
+
+
+def _title(args: argparse.Namespace) -> str:
+    return f"{args.algo.upper()}, {args.n_timesteps} steps, seed {args.seed}: Kuka push vs panda-gym push"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """``run`` (train both, then report) and ``report`` (from existing run dirs)."""
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="train ours and panda-gym's env, then report")
+    r.add_argument("--algo", default="sac")
+    r.add_argument("--ours-env", default=OURS_ENV)
+    r.add_argument("--panda-env", default=PANDA_ENV)
+    r.add_argument("--panda-python", default=PANDA_PYTHON, help="a Python that can import panda_gym")
+    r.add_argument("-conf", "--conf", type=Path, default=DEFAULT_CONF)
+    r.add_argument("-n", "--n-timesteps", type=int, default=300_000)
+    r.add_argument("-f", "--log-folder", type=Path, default=Path("/tmp/kuka_bench"))
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--eval-freq", type=int, default=10_000)
+    r.add_argument("--eval-episodes", type=int, default=20)
+    r.add_argument("--final-eval-episodes", type=int, default=50)
+    rep = sub.add_parser("report", help="plot and tabulate existing run dirs")
+    rep.add_argument("--run", action="append", required=True, metavar="LABEL=RUN_DIR")
+    for q in (r, rep):
+        q.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output path without suffix")
+        q.add_argument("--title", default="")
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    """CLI entry point."""
+    args = build_parser().parse_args(argv)
+    if args.cmd == "run":
+        run(args)
+        return
+    runs = []
+    for item in args.run:
+        label, sep, path = item.partition("=")
+        if not sep:
+            raise SystemExit(f"--run expects LABEL=RUN_DIR, got {item!r}")
+        runs.append((label, path))
+    print(report(runs, args.out, args.title or "Kuka push vs panda-gym push"))
+
+
+if __name__ == "__main__":
+    main()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -26,8 +27,7 @@ from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-#: PettingZoo env name -> module exposing ``parallel_env(**kwargs)`` (the CLI's ``--env`` values).
-PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_hunt_v0"}
+from sbagents.env_ids import PETTINGZOO_ENVS  # noqa: F401  (re-exported: the CLI's multi-agent env names)
 
 
 class ParameterSharingVecEnv(VecEnv):
@@ -352,6 +352,11 @@ class TeamEvalCallback(EvalCallback):
         self.eval_seed = seed
         self.last_result: dict[str, Any] = {}
         self._returns: list[list[float]] = []
+
+    def _init_callback(self) -> None:
+        with warnings.catch_warnings():  # the eval env is the reference VecEnv; the training one may be batched
+            warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+            super()._init_callback()
 
     def _on_step(self) -> bool:
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:

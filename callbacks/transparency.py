@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import gzip
 import io
 import weakref
@@ -31,7 +32,9 @@ GZIP_LEVEL = 1
 MAX_OBS_COLUMNS = 512
 
 
+@functools.lru_cache(maxsize=4096)
 def _quote(text: str) -> str:
+    """CSV-quote ``text`` if needed (cached: info strings such as event names repeat every step)."""
     if any(c in text for c in ',"\n\r'):
         return '"' + text.replace('"', '""') + '"'
     return text

@@ -96,8 +96,8 @@ def install_exception_hook(model: BaseAlgorithm, owner: object, on_error: Callab
 
         model.__dict__["_excluded_save_params"] = excluded
     for name in _HOOK_METHODS:
-        if name in model.__dict__:
-            continue
+        if name in model.__dict__ or not hasattr(type(model), name):
+            continue  # already hooked, or an algorithm with its own loop (tabular): episode-end flushes and exit
         original = getattr(type(model), name).__get__(model)
 
         def wrapper(*args: Any, _original: Callable[..., Any] = original, **kwargs: Any) -> Any:

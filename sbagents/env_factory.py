@@ -118,7 +118,7 @@ def make_vec(
         )
     else:
         venv = make_vec_env(
-            ref.env_id,
+            ref.make_fn(),  # imports the env's modules first, also in SubprocVecEnv workers
             n_envs=n_envs,
             seed=seed,
             monitor_dir=monitor,

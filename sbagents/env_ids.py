@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import difflib
+import functools
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
+from typing import Any
 
 import gymnasium as gym
 
@@ -21,15 +24,26 @@ class EnvRef:
 
     :param env_id: canonical id (a Gymnasium ID, or the PettingZoo env name).
     :param multi_agent: True for PettingZoo parallel envs.
+    :param modules: modules to import before ``gym.make(env_id)`` in any process (``--gym-packages``, the
+        ``module`` of ``module:EnvId``, ``ale_py`` for Atari ids): a ``SubprocVecEnv`` worker starts with a
+        registry that has none of their envs.
     """
 
     env_id: str
     multi_agent: bool = False
+    modules: tuple[str, ...] = ()
 
     @property
     def is_atari(self) -> bool:
         """Whether this is an ALE id (RL Zoo's ``atari`` config entry applies)."""
         return "NoFrameskip" in self.env_id or self.env_id.startswith("ALE/")
+
+    def make_fn(self) -> str | Callable[..., gym.Env]:
+        """The ``env_id`` argument for SB3's ``make_vec_env``: the id itself, or (when :attr:`modules` is not
+        empty) a picklable callable that imports them first, so subprocess workers find the env."""
+        if not self.modules:
+            return self.env_id
+        return functools.partial(make_registered, self.env_id, self.modules)
 
     def pettingzoo_module(self) -> ModuleType:
         """The PettingZoo module of a multi-agent env."""
@@ -45,6 +59,16 @@ def import_packages(packages: list[str] | tuple[str, ...]) -> None:
             raise UsageError(f"--gym-packages: cannot import {name!r}: {exc}") from None
 
 
+def make_registered(env_id: str, modules: tuple[str, ...], **kwargs: Any) -> gym.Env:
+    """Import ``modules`` (which register ``env_id``), then ``gym.make`` it as SB3's ``make_vec_env`` does
+    for a string id (``render_mode="rgb_array"`` unless the env does not take it or kwargs say otherwise)."""
+    import_packages(modules)
+    try:
+        return gym.make(env_id, **{"render_mode": "rgb_array", **kwargs})
+    except TypeError:
+        return gym.make(env_id, **kwargs)
+
+
 def _register_atari() -> None:
     try:
         import ale_py
@@ -56,23 +80,25 @@ def _register_atari() -> None:
 def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
     """Resolve ``name`` to a registered env, or raise :class:`UsageError` suggesting close ids.
 
-    Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same without
-    the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make`` does) and
-    the PettingZoo names in :data:`PETTINGZOO_ENVS`.
+    Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same
+    without the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make``
+    does) and the PettingZoo names in :data:`PETTINGZOO_ENVS`.
     """
     import_packages(gym_packages)
     if name in PETTINGZOO_ENVS:
         return EnvRef(name, multi_agent=True)
+    modules = tuple(gym_packages)
     if ":" in name:
         module, _, name = name.partition(":")
         import_packages([module])
+        modules += (module,)
+    atari = "NoFrameskip" in name or name.startswith("ALE/")
+    if atari:
+        _register_atari()
+        modules += ("ale_py",)
     for candidate in (name, f"sbagents/{name}"):
         if candidate in gym.registry:
-            return EnvRef(candidate)
-    if "NoFrameskip" in name or name.startswith("ALE/"):
-        _register_atari()
-        if name in gym.registry:
-            return EnvRef(name)
+            return EnvRef(candidate, modules=modules)
     known = list(gym.registry) + list(PETTINGZOO_ENVS)
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see python -m sbagents.train --list"

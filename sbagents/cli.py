@@ -20,6 +20,16 @@ class ArgumentParser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags that pick a finished run: ``--algo --env -f --exp-id --load-best --gym-packages``."""
+    parser.add_argument("--algo", required=True, help="algorithm of the run")
+    parser.add_argument("--env", required=True, help="env id of the run")
+    parser.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
+    parser.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
+    parser.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
+    parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+
+
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 

@@ -7,23 +7,18 @@ from typing import Any
 
 import torch
 
-from sbagents.cli import ArgumentParser, run
+from sbagents.cli import ArgumentParser, add_run_arguments, run
 from sbagents.evaluation import evaluate
 
 
 def build_parser() -> ArgumentParser:
     """The ``evaluate`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.evaluate", description="Evaluate a trained run.")
-    p.add_argument("--algo", required=True, help="algorithm of the run")
-    p.add_argument("--env", required=True, help="env id of the run")
-    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
-    p.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
-    p.add_argument("--load-best", action="store_true", help="load best_model.zip instead of the final model")
+    add_run_arguments(p)
     p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to run (default 10)")
     p.add_argument("--render", action="store_true", help="render in 'human' mode while evaluating")
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the greedy policy")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation env")
-    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     p.add_argument("--attack", default=None, metavar="SPEC",
                    help='observation attacks, e.g. "gaussian:0.05,0.1 pgd:0.05" (adversarial.csv/.png in the run dir)')
     p.add_argument("--fairness", default=None, metavar="KEYS",

@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sbagents.cli import ArgumentParser, run
+from sbagents.cli import ArgumentParser, add_run_arguments, run
 from sbagents.env_factory import make_vec, normalize_for_eval
 from sbagents.env_ids import resolve_env
 from sbagents.errors import UsageError
@@ -64,15 +64,10 @@ def _has_attr(venv: object, name: str) -> bool:
 def build_parser() -> ArgumentParser:
     """The ``export`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.export", description="Export a trained policy to ONNX.")
-    p.add_argument("--algo", required=True, help="algorithm of the run")
-    p.add_argument("--env", required=True, help="env id of the run")
-    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
-    p.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
-    p.add_argument("--load-best", action="store_true", help="export best_model.zip instead of the final model")
+    add_run_arguments(p)
     p.add_argument("--int8", action="store_true", help="also write policy.int8.onnx (onnxruntime quantize_dynamic)")
     p.add_argument("--out", default=None, help="output folder (default: <run dir>/export)")
     p.add_argument("--n-observations", type=int, default=1000, help="observations for the parity check")
-    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     return p
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
-from sbagents.cli import ArgumentParser, run
+from sbagents.cli import ArgumentParser, add_run_arguments, run
 from sbagents.env_factory import make_vec, normalize_for_eval
 from sbagents.env_ids import resolve_env
 from sbagents.errors import UsageError
@@ -115,11 +115,7 @@ def build_parser() -> ArgumentParser:
     p = ArgumentParser(
         prog="python -m sbagents.record_video", description="Record an mp4 of a trained agent."
     )
-    p.add_argument("--algo", required=True, help="algorithm of the run")
-    p.add_argument("--env", required=True, help="env id of the run")
-    p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
-    p.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
-    p.add_argument("--load-best", action="store_true", help="load best_model.zip instead of the final model")
+    add_run_arguments(p)
     p.add_argument("-n", "--n-steps", type=int, default=1000, help="steps to record (default 1000)")
     p.add_argument("-o", "--output-folder", default=None, help="video folder (default: <run dir>/videos)")
     p.add_argument("--seed", type=int, default=0, help="seed of the recording env")
@@ -133,7 +129,6 @@ def build_parser() -> ArgumentParser:
         help="greedy actions (default)",
     )
     group.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
-    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     return p
 
 

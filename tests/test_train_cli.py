@@ -122,3 +122,16 @@ def test_interrupt_keeps_model_and_logs(tmp_path: Path, sig: signal.Signals) -> 
     assert model.num_timesteps == s["n_timesteps"]
     lines = (run_dir / "0.monitor.csv").read_text().splitlines()
     assert len(lines) > 2 and all(len(line.split(",")) == 3 for line in lines[1:])
+
+
+def test_vec_env_choices_give_identical_runs(tmp_path: Path) -> None:
+    rows = {}
+    for k, vec_env in enumerate(["dummy", "subproc", "batched"], start=1):
+        result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "2", "-n", "2048", "--verbose", "0",
+                     "--vec-env", vec_env, "-params", "n_envs:2", "--eval-freq", "-1")
+        assert result.returncode == 0, result.stderr
+        run_dir = tmp_path / "ppo" / f"{RUN}_{k}"
+        assert yaml.safe_load((run_dir / RUN / "args.yml").read_text())["vec_env"] == vec_env
+        rows[vec_env] = monitor_rows(run_dir)
+    assert len(rows["dummy"]) > 5
+    assert rows["dummy"] == rows["subproc"] == rows["batched"]

@@ -2,7 +2,7 @@
 
 Per seed: train ``ppo`` on ``treasure_hunt_v0`` (``zoo_configs/ppo.yml``, optional ``--params`` overrides),
 timing ``model.learn`` only, then evaluate the deterministic team on 100 seeded episodes
-(:func:`sbagents.multiagent.evaluate_team`, eval seed ``10000 + seed``) on the reference env.
+(:func:`sbagents.team_eval.evaluate_team`, eval seed ``10000 + seed``) on the reference env.
 Target: >= 4.5 of 5 treasures per episode on every seed in <= 90 s of training.
 
 Two paths, same numbers: ``--via train`` runs :func:`sbagents.training.train` with ``vec_env="batched"``
@@ -32,7 +32,7 @@ from benchmarks.speed import write_section
 from sbagents.batched import BatchedTreasureHuntVecEnv, make_batched_vec_env
 from sbagents.env_ids import resolve_env
 from sbagents.envs.treasure_hunt_v0 import parallel_env
-from sbagents.multiagent import evaluate_team
+from sbagents.team_eval import evaluate_team
 from sbagents.training import build_experiment
 
 ENV = "treasure_hunt_v0"

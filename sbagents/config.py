@@ -102,7 +102,7 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
         if not sep or not key:
             raise UsageError(f"{flag} expects key:value pairs, got {pair!r}")
         try:
-            value = yaml.load(raw, Loader=ZooLoader) if raw.strip() else None  # noqa: S506 - safe loader
+            value = yaml.load(raw, Loader=ZooLoader) if raw.strip() else None  # noqa: S506 - a yaml.SafeLoader
         except yaml.YAMLError:
             raise UsageError(
                 f"{flag} {key}: value {raw!r} is not a YAML scalar, list or mapping"

@@ -65,7 +65,7 @@ def evaluate_model(
     if n_episodes < 1:
         raise UsageError(f"the number of evaluation episodes must be >= 1, got {n_episodes}")
     if ref.multi_agent:
-        from sbagents.multiagent import evaluate_team
+        from sbagents.team_eval import evaluate_team
 
         vec_normalize = None
         if stats_path is not None and stats_path.exists():

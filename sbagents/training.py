@@ -112,7 +112,7 @@ def _callbacks(
     if eval_freq > 0:
         freq = max(eval_freq // n_vec, 1)
         if ref.multi_agent:
-            from sbagents.multiagent import TeamEvalCallback
+            from sbagents.team_eval import TeamEvalCallback
 
             callbacks.append(
                 TeamEvalCallback(

@@ -14,13 +14,8 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.monitor import Monitor
 
 from sbagents.envs import treasure_hunt_v0
-from sbagents.multiagent import (
-    PETTINGZOO_ENVS,
-    ParameterSharingVecEnv,
-    TeamEvalCallback,
-    evaluate_team,
-    make_parameter_sharing_vec_env,
-)
+from sbagents.multiagent import PETTINGZOO_ENVS, ParameterSharingVecEnv, make_parameter_sharing_vec_env
+from sbagents.team_eval import TeamEvalCallback, evaluate_team
 
 STAY, RIGHT = 4, 3
 EGO = {"observation": "egocentric"}

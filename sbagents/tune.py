@@ -1,0 +1,44 @@
+"""``python -m sbagents.tune``: a thin argparse shell over :func:`sbagents.tuning.tune` (Optuna)."""
+
+from __future__ import annotations
+
+from sbagents.cli import ArgumentParser, run
+from sbagents.tuning import PRUNERS, SAMPLERS, tune
+
+
+def build_parser() -> ArgumentParser:
+    """The ``tune`` argument parser."""
+    p = ArgumentParser(prog="python -m sbagents.tune", description="Optuna search over an algorithm's hyperparameters.")
+    p.add_argument("--algo", required=True, help="algorithm to tune")
+    p.add_argument("--env", required=True, help="env id")
+    p.add_argument("--n-trials", type=int, default=20, help="finished trials the study should hold (resumes)")
+    p.add_argument("--storage", default=None, help="RDB URL (default: sqlite file in the log folder)")
+    p.add_argument("--study-name", default=None, help="study name (default: <algo>-<EnvId>)")
+    p.add_argument("--n-jobs", type=int, default=1, help="parallel trials in this process")
+    p.add_argument("--sampler", default="tpe", choices=list(SAMPLERS), help="Optuna sampler")
+    p.add_argument("--pruner", default="median", choices=list(PRUNERS), help="Optuna pruner")
+    p.add_argument("--n-seeds", type=int, default=1, help="seeds per trial (objective: mean of best evaluations)")
+    p.add_argument("-n", "--n-timesteps", type=int, default=None, help="training budget per trial and seed")
+    p.add_argument("--n-evaluations", type=int, default=5, help="evaluations per training run")
+    p.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation")
+    p.add_argument("-f", "--log-folder", default="logs", help="where the study file and outputs go")
+    p.add_argument("--seed", type=int, default=0, help="first seed (trial seeds are seed..seed+n_seeds-1)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, run or resume the study, print the best trial and where its zoo entry is."""
+    a = build_parser().parse_args(argv)
+    result = tune(a.algo, a.env, a.n_trials, a.storage, a.study_name, a.n_jobs, a.sampler, a.pruner, a.n_seeds,
+                  a.n_timesteps, a.n_evaluations, a.eval_episodes, a.log_folder, a.seed)
+    study = result.study
+    print(f"study {study.study_name}: {len(study.trials)} trials")
+    if result.best_config_path.exists():
+        print(f"best objective {study.best_value:.4g} (trial {study.best_trial.number}); "
+              f"zoo entry: {result.best_config_path}")
+    print(f"history plot: {result.history_plot_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    run("python -m sbagents.tune", main)

@@ -1,0 +1,187 @@
+"""Optuna hyperparameter search behind ``python -m sbagents.tune``.
+
+Unlike RL Zoo, a trial's objective is the *best* periodic evaluation (not the last), averaged over
+``n_seeds`` seeds, and the study lives in an RDB storage (an SQLite file in the log folder by default), so an
+interrupted study resumes and several machines can share one study through a server URL.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import torch
+import yaml
+from stable_baselines3.common.callbacks import EvalCallback
+from stable_baselines3.common.utils import set_random_seed
+
+from sbagents.algos import ALGOS
+from sbagents.env_factory import make_vec, normalize_for_eval, normalize_for_training
+from sbagents.env_ids import EnvRef, resolve_env
+from sbagents.errors import UsageError
+from sbagents.run_dir import env_stem
+from sbagents.training import build_experiment, check_spaces
+
+SAMPLERS = {"tpe": optuna.samplers.TPESampler, "random": optuna.samplers.RandomSampler}
+PRUNERS = {"median": optuna.pruners.MedianPruner, "halving": optuna.pruners.SuccessiveHalvingPruner,
+           "none": optuna.pruners.NopPruner}
+
+
+def sample_params(trial: optuna.Trial, algo: str) -> dict[str, Any]:
+    """Hyperparameters for one trial, as zoo-config values (plain YAML data)."""
+    params: dict[str, Any] = {
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 1e-2, log=True),
+        "gamma": trial.suggest_categorical("gamma", [0.9, 0.95, 0.98, 0.99]),
+    }
+    if algo in ("qlearning", "sarsa"):
+        params["learning_rate"] = trial.suggest_float("alpha", 0.05, 0.5, log=True)
+        params["exploration_initial_eps"] = trial.suggest_float("exploration_initial_eps", 0.05, 0.5)
+        return params
+    width = trial.suggest_categorical("net_width", [32, 64, 128])
+    params["policy_kwargs"] = {"net_arch": [width, width]}
+    if algo in ("ppo", "a2c", "trpo"):
+        params["n_steps"] = trial.suggest_categorical("n_steps", [32, 64, 128, 256])
+        params["ent_coef"] = trial.suggest_float("ent_coef", 1e-8, 0.05, log=True)
+        if algo == "ppo":
+            params["batch_size"] = trial.suggest_categorical("batch_size", [64, 128, 256])
+    elif algo in ("dqn", "qrdqn"):
+        params["exploration_fraction"] = trial.suggest_float("exploration_fraction", 0.05, 0.5)
+        params["target_update_interval"] = trial.suggest_categorical("target_update_interval", [100, 500, 2000])
+    elif ALGOS[algo].off_policy:
+        params["batch_size"] = trial.suggest_categorical("batch_size", [64, 128, 256])
+        params["tau"] = trial.suggest_categorical("tau", [0.005, 0.01, 0.02])
+    return params
+
+
+class _BestEval(EvalCallback):
+    """EvalCallback that reports the running best mean return to the trial (for pruning)."""
+
+    def __init__(self, trial: optuna.Trial, step_offset: int, seeds_done: list[float], **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.trial, self.step_offset, self.seeds_done = trial, step_offset, seeds_done
+        self.n_evals = 0
+        self.pruned = False
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            super()._on_step()
+            self.n_evals += 1
+            running = float(np.mean([*self.seeds_done, self.best_mean_reward]))
+            self.trial.report(running, self.step_offset + self.n_evals)
+            if self.trial.should_prune():
+                self.pruned = True
+                return False
+        return True
+
+
+@dataclass
+class TuneResult:
+    """A finished (or resumed) study: where it is stored and the best trial's zoo entry."""
+
+    study: optuna.Study
+    best_config_path: Path
+    history_plot_path: Path
+
+
+def _objective(algo: str, ref: EnvRef, n_timesteps: int | None, n_seeds: int, n_evaluations: int,
+               eval_episodes: int, seed: int) -> Any:
+    def objective(trial: optuna.Trial) -> float:
+        params = sample_params(trial, algo)
+        exp = build_experiment(algo, ref, hyperparams=params, n_timesteps=n_timesteps)
+        trial.set_user_attr("config", exp.hyperparams)
+        bests: list[float] = []
+        for k in range(n_seeds):
+            run_seed = seed + k
+            set_random_seed(run_seed)
+            env = normalize_for_training(make_vec(exp, ref, exp.n_envs, run_seed), exp)
+            eval_env = make_vec(exp, ref, 1, run_seed + 10_000)
+            if exp.normalize:
+                eval_env = normalize_for_eval(eval_env, exp)
+            try:
+                model = ALGOS[algo].cls(exp.policy, env, seed=run_seed, device="cpu", verbose=0, **exp.algo_kwargs)
+            except (TypeError, ValueError, AssertionError) as exc:
+                raise optuna.TrialPruned(f"invalid combination: {exc}") from None
+            freq = max(exp.n_timesteps // (n_evaluations * env.num_envs), 1)
+            callback = _BestEval(trial, k * n_evaluations, bests, eval_env=eval_env, eval_freq=freq,
+                                 n_eval_episodes=eval_episodes, deterministic=True, verbose=0)
+            model.learn(exp.n_timesteps, callback=callback)
+            env.close()
+            eval_env.close()
+            if callback.pruned:
+                raise optuna.TrialPruned()
+            bests.append(float(callback.best_mean_reward))
+        return float(np.mean(bests))
+
+    return objective
+
+
+def tune(
+    algo: str,
+    env: str,
+    n_trials: int = 20,
+    storage: str | None = None,
+    study_name: str | None = None,
+    n_jobs: int = 1,
+    sampler: str = "tpe",
+    pruner: str = "median",
+    n_seeds: int = 1,
+    n_timesteps: int | None = None,
+    n_evaluations: int = 5,
+    eval_episodes: int = 5,
+    log_folder: str | Path = "logs",
+    seed: int = 0,
+) -> TuneResult:
+    """Run (or resume) an Optuna study until it holds ``n_trials`` finished trials.
+
+    :param storage: an RDB URL (``postgresql://...`` lets several machines share the study); default an SQLite
+        file ``<log_folder>/<algo>/<EnvId>_tune.db``.
+    :return: the study, the best trial's zoo entry (``<EnvId>_tune_best.yml``) and the history plot path.
+    """
+    if algo not in ALGOS:
+        raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
+    if sampler not in SAMPLERS or pruner not in PRUNERS:
+        raise UsageError(f"--sampler must be one of {', '.join(SAMPLERS)} and --pruner one of {', '.join(PRUNERS)}")
+    if n_trials < 1 or n_seeds < 1:
+        raise UsageError("--n-trials and --n-seeds must be >= 1")
+    torch.set_num_threads(1)
+    ref = resolve_env(env)
+    check_spaces(build_experiment(algo, ref, n_timesteps=n_timesteps or 1), ref)
+    folder = Path(log_folder) / algo
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = env_stem(ref.env_id)
+    storage = storage or f"sqlite:///{(folder / f'{stem}_tune.db').resolve()}"
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(
+        study_name=study_name or f"{algo}-{stem}", storage=storage, load_if_exists=True, direction="maximize",
+        sampler=SAMPLERS[sampler](seed=seed), pruner=PRUNERS[pruner](),
+    )
+    finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    remaining = n_trials - len(study.get_trials(deepcopy=False, states=finished))
+    if remaining > 0:
+        objective = _objective(algo, ref, n_timesteps, n_seeds, n_evaluations, eval_episodes, seed)
+        study.optimize(objective, n_trials=remaining, n_jobs=n_jobs, catch=())
+    return _write_outputs(study, folder, stem, ref.env_id)
+
+
+def _write_outputs(study: optuna.Study, folder: Path, stem: str, env_id: str) -> TuneResult:
+    best_path, plot_path = folder / f"{stem}_tune_best.yml", folder / f"{stem}_tune_history.png"
+    completed = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    if completed:
+        best = study.best_trial
+        header = f"# best of {len(completed)} trials: objective {best.value:.4g} (trial {best.number})\n"
+        best_path.write_text(header + yaml.safe_dump({env_id: best.user_attrs["config"]}, sort_keys=True))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from optuna.visualization.matplotlib import plot_optimization_history
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        ax = plot_optimization_history(study)
+    ax.figure.savefig(plot_path, dpi=100, bbox_inches="tight")
+    matplotlib.pyplot.close(ax.figure)
+    return TuneResult(study, best_path, plot_path)

@@ -1,0 +1,55 @@
+"""Optuna tuning: a study killed mid-way resumes from its SQLite file; the emitted zoo entry trains."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import optuna
+from cli_helpers import cli, popen, summary
+
+STUDY_DB = "ppo/sbagents_GridWorld-v0_tune.db"
+
+
+def finished_trials(db: Path) -> int:
+    if not db.exists():
+        return 0
+    try:
+        study = optuna.load_study(study_name="ppo-sbagents_GridWorld-v0", storage=f"sqlite:///{db}")
+    except KeyError:  # the study row is not written yet
+        return 0
+    states = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    return len(study.get_trials(deepcopy=False, states=states))
+
+
+def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:
+    args = ("--algo", "ppo", "--env", "GridWorld-v0", "--n-trials", "3", "-n", "30000", "-f", str(tmp_path),
+            "--pruner", "none", "--n-evaluations", "3")
+    proc = popen("tune", *args)
+    db = tmp_path / STUDY_DB
+    deadline = time.time() + 300
+    while finished_trials(db) < 2:
+        assert proc.poll() is None and time.time() < deadline, proc.communicate()
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)  # no chance to clean up: the SQLite file is all that is left
+    proc.wait()
+    assert finished_trials(db) == 2
+
+    resumed = cli("tune", *args)
+    assert resumed.returncode == 0, resumed.stderr
+    assert finished_trials(db) == 3
+    assert "study ppo-sbagents_GridWorld-v0" in resumed.stdout
+    best = tmp_path / "ppo" / "sbagents_GridWorld-v0_tune_best.yml"
+    assert (tmp_path / "ppo" / "sbagents_GridWorld-v0_tune_history.png").stat().st_size > 0
+
+    trained = cli("train", "--algo", "ppo", "--env", "GridWorld-v0", "-conf", str(best), "-f", str(tmp_path / "logs"),
+                  "--seed", "0", "--verbose", "0", "-n", "4096")
+    assert trained.returncode == 0, trained.stderr
+    assert summary(tmp_path / "logs" / "ppo" / "sbagents_GridWorld-v0_1")["n_timesteps"] >= 4096
+
+
+def test_bad_tune_input_is_one_line(tmp_path: Path) -> None:
+    result = cli("tune", "--algo", "sac", "--env", "GridWorld-v0", "-f", str(tmp_path))
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert "sac cannot learn sbagents/GridWorld-v0" in result.stderr

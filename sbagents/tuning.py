@@ -182,6 +182,8 @@ def _write_outputs(study: optuna.Study, folder: Path, stem: str, env_id: str) ->
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         ax = plot_optimization_history(study)
-    ax.figure.savefig(plot_path, dpi=100, bbox_inches="tight")
-    matplotlib.pyplot.close(ax.figure)
+    figure = ax.get_figure(root=True)
+    assert figure is not None
+    figure.savefig(plot_path, dpi=100, bbox_inches="tight")
+    matplotlib.pyplot.close(figure)
     return TuneResult(study, best_path, plot_path)

@@ -135,3 +135,18 @@ def test_vec_env_choices_give_identical_runs(tmp_path: Path) -> None:
         rows[vec_env] = monitor_rows(run_dir)
     assert len(rows["dummy"]) > 5
     assert rows["dummy"] == rows["subproc"] == rows["batched"]
+
+
+def test_list_progress_tensorboard_and_checkpoints(tmp_path: Path) -> None:
+    listing = cli("train", "--list")
+    assert listing.returncode == 0
+    for name in ("sbagents/GridWorld-v0", "sbagents/SmartHome-v0", "sbagents/RobustPickAndPlace-v0",
+                 "treasure_hunt_v0", "qlearning", "tqc", "crossq"):
+        assert name in listing.stdout
+    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "2048", "--verbose", "0",
+                 "-P", "-tb", str(tmp_path / "tb"), "--save-freq", "1024", "-params", "n_envs:2")
+    assert result.returncode == 0, result.stderr
+    run_dir = tmp_path / "ppo" / f"{RUN}_1"
+    assert sorted(p.name for p in run_dir.glob("rl_model_*_steps.zip")) == ["rl_model_1024_steps.zip",
+                                                                            "rl_model_2048_steps.zip"]
+    assert list((tmp_path / "tb").rglob("events.out.tfevents.*"))

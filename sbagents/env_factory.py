@@ -158,3 +158,17 @@ def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = 
     loaded.training = False
     loaded.norm_reward = False
     return loaded
+
+
+def make_eval_vec(
+    exp: Experiment,
+    ref: EnvRef,
+    n_envs: int,
+    seed: int | None,
+    stats_path: Path | None = None,
+    vec_env: str = "auto",
+    env_kwargs: dict[str, Any] | None = None,
+) -> VecEnv:
+    """An evaluation env wrapped exactly as in training, with frozen normalisation (:func:`normalize_for_eval`:
+    the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env)."""
+    return normalize_for_eval(make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=env_kwargs), exp, stats_path)

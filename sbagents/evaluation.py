@@ -11,7 +11,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_factory import make_eval_vec, make_vec
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment
@@ -85,7 +85,7 @@ def evaluate_model(
         return {"env": ref.env_id, "algo": exp.algo, **result}
     extra = {"render_mode": "human"} if render else None
     # the reference envs (not the batched ones): their human rendering prints every step
-    venv = normalize_for_eval(make_vec(exp, ref, 1, seed, vec_env="dummy", env_kwargs=extra), exp, stats_path)
+    venv = make_eval_vec(exp, ref, 1, seed, stats_path, vec_env="dummy", env_kwargs=extra)
     metrics_fn = _episode_metrics_fn(venv)
     step_infos: list[dict[str, Any]] = []
     successes: list[bool] = []

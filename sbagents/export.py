@@ -11,8 +11,9 @@ from pathlib import Path
 import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sbagents.callbacks.common import env_attr
 from sbagents.cli import ArgumentParser, add_run_arguments, run
-from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_factory import make_eval_vec
 from sbagents.env_ids import resolve_env
 from sbagents.errors import UsageError
 from sbagents.onnx_export import ExportReport, export_run
@@ -40,9 +41,9 @@ def export(
     exp = loaded.experiment
     if exp.frame_stack or exp.env_wrapper:
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
-    venv = normalize_for_eval(make_vec(exp, ref, 1, seed=0), exp, loaded.stats_path)
+    venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path)
     vec_normalize = venv if isinstance(venv, VecNormalize) else None
-    names = {k: tuple(venv.get_attr(k)[0]) if _has_attr(venv, k) else None for k in ("obs_names", "action_names")}
+    names = {k: tuple(v) if (v := env_attr(venv, k)) is not None else None for k in ("obs_names", "action_names")}
     try:
         return export_run(
             loaded.model, vec_normalize, out or loaded.run_dir / "export", int8, ref.env_id,
@@ -51,14 +52,6 @@ def export(
         )
     finally:
         venv.close()
-
-
-def _has_attr(venv: object, name: str) -> bool:
-    try:
-        venv.get_attr(name)  # type: ignore[attr-defined]
-    except AttributeError:
-        return False
-    return True
 
 
 def build_parser() -> ArgumentParser:

@@ -26,7 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.algos import ALGOS, algos_for
 from sbagents.config import default_config_path, lookup_entry
-from sbagents.env_factory import make_vec, normalize_for_eval, normalize_for_training
+from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.evaluation import evaluate_model
@@ -86,10 +86,14 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
     return obs_space, act_space
 
 
-def _make_model(
+def make_model(
     exp: Experiment, env: VecEnv, seed: int, device: str, tensorboard_log: str | None, verbose: int,
-    trained_agent: Path | None,
+    trained_agent: Path | None = None,
 ) -> BaseAlgorithm:
+    """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue.
+
+    Hyperparameters the algorithm rejects raise :class:`UsageError`.
+    """
     cls = ALGOS[exp.algo].cls
     if trained_agent is not None:
         return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose)
@@ -122,12 +126,10 @@ def _callbacks(
                 )
             )
         else:
-            eval_env = make_vec(exp, ref, n_eval_envs, seed + 10_000)
-            if isinstance(train_env, VecNormalize):
-                eval_env = normalize_for_eval(eval_env, exp)
             callbacks.append(
-                EvalCallback(eval_env, n_eval_episodes=eval_episodes, eval_freq=freq, log_path=str(run_dir),
-                             best_model_save_path=str(run_dir), deterministic=True, verbose=0)
+                EvalCallback(make_eval_vec(exp, ref, n_eval_envs, seed + 10_000), n_eval_episodes=eval_episodes,
+                             eval_freq=freq, log_path=str(run_dir), best_model_save_path=str(run_dir),
+                             deterministic=True, verbose=0)
             )
     if save_freq > 0:
         callbacks.append(
@@ -200,7 +202,7 @@ def train(
         save_experiment(run_dir, exp, args, command or f"python -m sbagents.train --algo {algo} --env {env}")
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env), exp, stats)
-        model = _make_model(exp, train_env, seed, device, tensorboard_log, verbose, agent_path)
+        model = make_model(exp, train_env, seed, device, tensorboard_log, verbose, agent_path)
         cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq, verbose)
         cbs += trust_callbacks(trust, exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes)
     except BaseException:

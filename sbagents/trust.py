@@ -8,7 +8,7 @@ from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks import (
     AdversarialEvalCallback,
@@ -20,7 +20,7 @@ from sbagents.callbacks import (
     fairness_report,
     parse_attack_spec,
 )
-from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_factory import make_eval_vec
 from sbagents.env_ids import EnvRef
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment
@@ -75,11 +75,6 @@ class TrustOptions:
         return self.safety or self.cost_limit is not None or self.max_violations is not None
 
 
-def _eval_env(exp: Experiment, ref: EnvRef, seed: int, train_env: VecEnv) -> VecEnv:
-    venv = make_vec(exp, ref, 1, seed)
-    return normalize_for_eval(venv, exp) if isinstance(train_env, VecNormalize) else venv
-
-
 def trust_callbacks(
     opts: TrustOptions, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int,
     eval_freq: int, eval_episodes: int,
@@ -94,11 +89,11 @@ def trust_callbacks(
     freq = max(eval_freq // train_env.num_envs, 1) if eval_freq > 0 else exp.n_timesteps
     if opts.adversarial:
         callbacks.append(AdversarialEvalCallback(
-            _eval_env(exp, ref, seed + 20_000, train_env), parse_attacks(opts.adversarial, "--adversarial-eval"),
+            make_eval_vec(exp, ref, 1, seed + 20_000), parse_attacks(opts.adversarial, "--adversarial-eval"),
             eval_freq=freq, n_eval_episodes=eval_episodes, path=str(run_dir), seed=seed + 20_000))
     if opts.fairness:
         callbacks.append(FairnessEvalCallback(
-            _eval_env(exp, ref, seed + 30_000, train_env), parse_keys(opts.fairness), bins=opts.bins,
+            make_eval_vec(exp, ref, 1, seed + 30_000), parse_keys(opts.fairness), bins=opts.bins,
             eval_freq=freq, n_eval_episodes=max(eval_episodes, 30), path=str(run_dir), seed=seed + 30_000))
     return callbacks
 
@@ -111,12 +106,12 @@ def trust_report(
     result: dict[str, Any] = {}
     specs = parse_attacks(attacks, "--attack")
     if specs:
-        venv = normalize_for_eval(make_vec(exp, ref, 1, seed), exp, stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, stats_path)
         result["adversarial"] = adversarial_report(model, venv, specs, n_episodes, out_dir, seed=seed)
         venv.close()
     keys = parse_keys(fairness)
     if keys:
-        venv = normalize_for_eval(make_vec(exp, ref, 1, seed), exp, stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, stats_path)
         try:
             result["fairness"] = fairness_report(model, venv, keys, bins, n_episodes, out_dir, seed=seed)
         except (KeyError, ValueError) as exc:

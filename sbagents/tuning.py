@@ -20,11 +20,11 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
-from sbagents.env_factory import make_vec, normalize_for_eval, normalize_for_training
+from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.run_dir import env_stem
-from sbagents.training import build_experiment, check_spaces
+from sbagents.training import build_experiment, check_spaces, make_model
 
 SAMPLERS = {"tpe": optuna.samplers.TPESampler, "random": optuna.samplers.RandomSampler}
 PRUNERS = {"median": optuna.pruners.MedianPruner, "halving": optuna.pruners.SuccessiveHalvingPruner,
@@ -98,13 +98,11 @@ def _objective(algo: str, ref: EnvRef, n_timesteps: int | None, n_seeds: int, n_
             run_seed = seed + k
             set_random_seed(run_seed)
             env = normalize_for_training(make_vec(exp, ref, exp.n_envs, run_seed), exp)
-            eval_env = make_vec(exp, ref, 1, run_seed + 10_000)
-            if exp.normalize:
-                eval_env = normalize_for_eval(eval_env, exp)
+            eval_env = make_eval_vec(exp, ref, 1, run_seed + 10_000)
             try:
-                model = ALGOS[algo].cls(exp.policy, env, seed=run_seed, device="cpu", verbose=0, **exp.algo_kwargs)
-            except (TypeError, ValueError, AssertionError) as exc:
-                raise optuna.TrialPruned(f"invalid combination: {exc}") from None
+                model = make_model(exp, env, run_seed, "cpu", None, 0)
+            except UsageError as exc:
+                raise optuna.TrialPruned(str(exc)) from None
             freq = max(exp.n_timesteps // (n_evaluations * env.num_envs), 1)
             callback = _BestEval(trial, k * n_evaluations, bests, eval_env=eval_env, eval_freq=freq,
                                  n_eval_episodes=eval_episodes, deterministic=True, verbose=0)

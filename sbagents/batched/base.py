@@ -62,11 +62,10 @@ class BatchedVecEnv(VecEnv):
             acts = acts.astype(np.int64)
         self._actions = acts
 
-    def _check_actions(self, n_actions: int) -> None:
-        acts = self._actions
-        if acts.min() < 0 or acts.max() >= n_actions:
-            bad = acts[(acts < 0) | (acts >= n_actions)]
-            raise ValueError(f"actions must be ints in 0..{n_actions - 1}, got {bad.tolist()}")
+    def _raise_invalid_action(self, slot: int, n_actions: int) -> None:
+        raise ValueError(
+            f"actions must be ints in 0..{n_actions - 1}, got {self._actions[slot]} in slot {slot}"
+        )
 
     def _episode_info(self, ep_return: float, ep_len: int) -> dict[str, Any]:
         """SB3 Monitor's ``episode`` info: ``{"r": return, "l": length, "t": seconds since creation}``."""

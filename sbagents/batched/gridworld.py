@@ -7,11 +7,13 @@ rewards, dones, and infos (``event`` and ``TimeLimit.truncated`` every step; at 
 monitor file ``<monitor_dir>/<i>.monitor.csv`` per env copy. GridWorld has no randomness, so seeds
 (accepted for API compatibility) do not change trajectories.
 
-A step is a lookup in precomputed ``(cell, action)`` tables: next cell, reward and event.
+A step is one call of the compiled kernel :func:`sbagents.batched.kernels.gridworld_step` over
+precomputed ``(cell, action)`` tables: next cell, reward, goal reached and event.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -19,6 +21,7 @@ from stable_baselines3.common.monitor import Monitor, ResultsWriter
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
 from sbagents.batched.base import BatchedVecEnv, monitor_writer
+from sbagents.batched.kernels import gridworld_step
 from sbagents.envs.gridworld import (
     ACTION_DELTAS,
     GOAL_REWARD,
@@ -56,12 +59,11 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self.max_steps = template.max_steps
         self._start = int(template.to_obs(template.start))
         self._build_tables(template)
-        self._state = np.full(n_envs, self._start, dtype=np.int64)
-        self._key = self._state * 4  # current cell's row in the flat tables
-        self._tick = 0  # steps since creation; an episode's length is tick - start tick
-        self._start_tick = np.zeros(n_envs, dtype=np.int64)
-        self._next_truncation = self.max_steps  # earliest tick at which some episode is truncated
+        self._key = np.full(n_envs, self._start * 4, dtype=np.int64)  # current cell * 4: table row
+        self._ep_len = np.zeros(n_envs, dtype=np.int64)
         self._ep_return = np.zeros(n_envs, dtype=np.float64)
+        self._final_return = np.zeros(n_envs, dtype=np.float64)
+        self._final_len = np.zeros(n_envs, dtype=np.int64)
         super().__init__(n_envs, 1, template, template.observation_space, template.action_space)
         self._writers: list[ResultsWriter | None] = [
             monitor_writer(monitor_dir, i, env_id, self._t_start) for i in range(n_envs)
@@ -85,67 +87,65 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
                 else:
                     nxt[cell, a] = int(env.to_obs((r2, c2)))
                     rew[cell, a] = GOAL_REWARD if (r2, c2) == env.goal else STEP_REWARD
-        self._next = nxt.reshape(-1)  # next cell (the observation)
-        self._next_key = self._next * 4  # next cell's row in the flat tables
+        self._next_key = nxt.reshape(-1) * 4  # next cell's row in the flat tables
         self._reward = rew.reshape(-1)
-        self._event_name = np.array(EVENTS, dtype=object)[event.reshape(-1)]
-        self._reaches_goal = self._next == int(env.to_obs(env.goal))
+        self._event = event.reshape(-1)
+        self._event_names = np.array(EVENTS, dtype=object)
+        self._reaches_goal = nxt.reshape(-1) == int(env.to_obs(env.goal))
 
     # ------------------------------------------------------------------ core API
     def reset(self) -> VecEnvObs:
         """Reset every copy to the start cell; returns the observations, shape ``(n_envs,)`` int64."""
-        self._state = np.full(self.num_envs, self._start, dtype=np.int64)
-        self._key = self._state * 4
-        self._start_tick[:] = self._tick
-        self._next_truncation = self._tick + self.max_steps
+        self._key[:] = self._start * 4
+        self._ep_len[:] = 0
         self._ep_return[:] = 0.0
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
-        return self._state.copy()
+        return np.full(self.num_envs, self._start, dtype=np.int64)
 
     def step_wait(self) -> VecEnvStepReturn:
-        acts = self._actions
-        if acts.view(np.uint64).max() >= 4:  # negative actions wrap to huge values
-            self._check_actions(4)
-        key = self._key + acts
-        state = self._next[key]
-        rewards = self._reward[key]
-        terminated = self._reaches_goal[key]
-        self._key = self._next_key[key]
-        self._tick += 1
-        self._ep_return += rewards
+        acts, n = self._actions, self.num_envs
+        obs = np.empty(n, dtype=np.int64)
+        rewards = np.empty(n, dtype=np.float32)
+        dones = np.empty(n, dtype=bool)
+        terminated = np.empty(n, dtype=bool)
+        events = np.empty(n, dtype=np.int64)
+        n_done = gridworld_step(
+            acts, self._key, self._ep_len, self._ep_return, self._next_key, self._reward, self._reaches_goal,
+            self._event, self._start * 4, self.max_steps, obs, rewards, dones, terminated, events,
+            self._final_return, self._final_len,
+        )
+        if n_done < 0:
+            self._raise_invalid_action(-1 - n_done, 4)
         infos: list[dict[str, Any]] = [
-            {"event": e, "TimeLimit.truncated": False} for e in self._event_name[key].tolist()
+            {"event": e, "TimeLimit.truncated": False} for e in self._event_names[events].tolist()
         ]
-        n_done = np.count_nonzero(terminated)
-        if self._tick >= self._next_truncation:  # only then can an episode time out
-            truncated = self._start_tick <= self._tick - self.max_steps
-            n_done += np.count_nonzero(truncated)
-            dones = terminated | truncated
-        else:
-            dones = terminated
         if n_done:
-            for i in np.flatnonzero(dones).tolist():
-                self._finish_episode(i, infos[i], state, bool(terminated[i]))
-            state[dones] = self._start
-            self._key[dones] = self._start * 4
-            self._start_tick[dones] = self._tick
-            self._ep_return[dones] = 0.0
-            self._next_truncation = int(self._start_tick.min()) + self.max_steps
-        self._state = state
-        return state.copy(), rewards, dones, infos
+            ended = np.flatnonzero(dones).tolist()
+            self._finish_episodes(ended, infos, obs, terminated)
+            obs[dones] = self._start
+        return obs, rewards, dones, infos
 
-    def _finish_episode(self, i: int, info: dict[str, Any], state: np.ndarray, term: bool) -> None:
-        info["is_success"] = term
-        info["TimeLimit.truncated"] = not term
-        ep = self._episode_info(float(self._ep_return[i]), self._tick - int(self._start_tick[i]))
-        writer = self._writers[i]
-        if writer is not None:
-            writer.write_row(ep)
-        info["episode"] = ep
-        info["terminal_observation"] = state[i]  # np.int64 scalar (a copy), as the reference
-        self.reset_infos[i] = {}
+    def _finish_episodes(
+        self, ended: list[int], infos: list[dict[str, Any]], obs: np.ndarray, terminated: np.ndarray
+    ) -> None:
+        """Episode-end infos (``is_success``, ``TimeLimit.truncated``, ``episode``, ``terminal_observation``)."""
+        returns = self._final_return.tolist()
+        lengths = self._final_len.tolist()
+        seconds = round(time.time() - self._t_start, 6)
+        for i in ended:
+            info = infos[i]
+            term = bool(terminated[i])
+            info["is_success"] = term
+            info["TimeLimit.truncated"] = not term
+            ep = {"r": round(returns[i], 6), "l": lengths[i], "t": seconds}
+            writer = self._writers[i]
+            if writer is not None:
+                writer.write_row(ep)
+            info["episode"] = ep
+            info["terminal_observation"] = obs[i].copy()  # np.int64 scalar, as the reference
+            self.reset_infos[i] = {}
 
     def close(self) -> None:
         for k, writer in enumerate(self._writers):
@@ -155,8 +155,8 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
 
     # ------------------------------------------------------------------ attributes / rendering
     def _sync(self, env_index: int) -> None:
-        self.template.agent = self.template.to_cell(int(self._state[env_index]))
-        self.template.steps = self._tick - int(self._start_tick[env_index])
+        self.template.agent = self.template.to_cell(int(self._key[env_index]) // 4)
+        self.template.steps = int(self._ep_len[env_index])
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         """True for SB3's ``Monitor`` (and its bases), like the reference ``make_vec_env`` envs."""

@@ -1,0 +1,262 @@
+"""Compiled (numba) step kernels of the batched VecEnvs.
+
+Each kernel advances every env copy in one call: a compiled loop over envs (and agents), so a step costs
+one dispatch instead of one numpy operation per quantity. State lives in numpy arrays owned by the
+VecEnv; the kernels update it in place and write the step's outputs into fresh arrays passed in.
+``cache=True`` keeps the compiled code next to this file, so only the first import on a machine pays
+the compile time (a few seconds).
+
+Conventions: cells are flat indices ``row * size + col``; a collected treasure's cell is the sentinel
+``n_cells``. Arithmetic on observations is done in float64 and stored as float32, exactly as the
+reference envs compute it in Python.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def first_invalid_action(acts: np.ndarray, n_actions: int) -> int:
+    """Index of the first action outside ``0..n_actions-1``, or -1 if all are valid."""
+    for i in range(acts.shape[0]):
+        if acts[i] < 0 or acts[i] >= n_actions:
+            return i
+    return -1
+
+
+# ---------------------------------------------------------------------------------------------- GridWorld
+@njit(cache=True)
+def gridworld_step(
+    acts: np.ndarray,
+    key: np.ndarray,
+    ep_len: np.ndarray,
+    ep_return: np.ndarray,
+    next_key: np.ndarray,
+    reward: np.ndarray,
+    goal: np.ndarray,
+    event: np.ndarray,
+    start_key: int,
+    max_steps: int,
+    obs: np.ndarray,
+    rew: np.ndarray,
+    done: np.ndarray,
+    term: np.ndarray,
+    ev: np.ndarray,
+    final_return: np.ndarray,
+    final_len: np.ndarray,
+) -> int:
+    """One GridWorld step of every copy; returns the number of finished episodes, or ``-1 - i`` (nothing
+    changed) if env ``i``'s action is not in ``0..3``.
+
+    State (updated): ``key (n,)`` current cell * 4, ``ep_len (n,)``, ``ep_return (n,)`` float64.
+    Tables, indexed by ``cell * 4 + action``: ``next_key`` (next cell * 4), ``reward`` float32,
+    ``goal`` (the move reaches the goal), ``event`` code. Outputs ``(n,)``: ``obs`` the cell after the
+    move (the terminal observation of a finished episode: the caller resets it), ``rew``, ``done``,
+    ``term`` (goal reached), ``ev``, and for finished episodes ``final_return``/``final_len``.
+    A finished copy is reset in place to ``start_key`` with zero length and return.
+    """
+    bad = first_invalid_action(acts, 4)
+    if bad >= 0:
+        return -1 - bad
+    n_done = 0
+    for i in range(acts.shape[0]):
+        k = key[i] + acts[i]
+        nk = next_key[k]
+        r = reward[k]
+        rew[i] = r
+        ev[i] = event[k]
+        obs[i] = nk >> 2
+        length = ep_len[i] + 1
+        ret = ep_return[i] + r
+        t = goal[k]
+        term[i] = t
+        if t or length >= max_steps:
+            done[i] = True
+            final_return[i] = ret
+            final_len[i] = length
+            key[i] = start_key
+            ep_len[i] = 0
+            ep_return[i] = 0.0
+            n_done += 1
+        else:
+            done[i] = False
+            key[i] = nk
+            ep_len[i] = length
+            ep_return[i] = ret
+    return n_done
+
+
+# ------------------------------------------------------------------------------------------ TreasureHunt
+@njit(cache=True, inline="always")  # a call per team would pay array refcounting
+def _treasure_obs(
+    i: int,
+    pos: np.ndarray,
+    tcell: np.ndarray,
+    ep_len: np.ndarray,
+    self_tab: np.ndarray,
+    rel: np.ndarray,
+    tcoord: np.ndarray,
+    egocentric: bool,
+    max_cycles: int,
+    mdist: np.ndarray,
+    out: np.ndarray,
+    keys: np.ndarray,
+) -> None:
+    """Write the observations of env ``i``'s agents into ``out[i]`` (shape ``(n_agents, dim)``).
+
+    ``self_tab (n_agents * n_cells, dim)`` holds each (agent, cell)'s fixed part (id, own cell,
+    neighbours / book: own cell, obstacles); ``rel (n_cells + 1, n_cells + 1, 2)`` scaled offsets
+    between cells; ``tcoord (n_cells + 1, 2)`` book coordinates (sentinel: -1, -1); ``mdist (n_cells + 1,
+    n_cells + 1)`` Manhattan distances (to the sentinel: larger than any); ``keys (n_treasures,)`` scratch.
+    """
+    n_a, n_t = pos.shape[1], tcell.shape[1]
+    n_cells, dim = tcoord.shape[0] - 1, out.shape[2]
+    time_left = 1.0 - ep_len[i] / max_cycles
+    for j in range(n_a):
+        cell = pos[i, j]
+        fixed = j * n_cells + cell
+        for d in range(dim):
+            out[i, j, d] = self_tab[fixed, d]
+        if not egocentric:
+            for k in range(n_t):
+                out[i, j, 2 + 2 * k] = tcoord[tcell[i, k], 0]
+                out[i, j, 3 + 2 * k] = tcoord[tcell[i, k], 1]
+            continue
+        out[i, j, n_a + 2] = time_left
+        # rank of each present treasure by (Manhattan distance, index): a branch-free stable sort;
+        # collected treasures (sentinel distance) rank last and keep the zero padding of ``self_tab``
+        for k in range(n_t):
+            keys[k] = mdist[cell, tcell[i, k]] * n_t + k
+        base = n_a + 3
+        for k in range(n_t):
+            t = tcell[i, k]
+            if t == n_cells:
+                continue
+            rank = 0
+            for k2 in range(n_t):
+                rank += keys[k2] < keys[k]
+            q = base + 3 * rank
+            out[i, j, q] = 1.0
+            out[i, j, q + 1] = rel[cell, t, 0]
+            out[i, j, q + 2] = rel[cell, t, 1]
+        base += 3 * n_t
+        for j2 in range(n_a):
+            if j2 != j:
+                out[i, j, base] = rel[cell, pos[i, j2], 0]
+                out[i, j, base + 1] = rel[cell, pos[i, j2], 1]
+                base += 2
+
+
+@njit(cache=True)
+def treasure_step(
+    acts: np.ndarray,
+    pos: np.ndarray,
+    tcell: np.ndarray,
+    collected: np.ndarray,
+    ep_len: np.ndarray,
+    ep_return: np.ndarray,
+    move: np.ndarray,
+    event_reward: np.ndarray,
+    treasure_reward: float,
+    shared: bool,
+    max_cycles: int,
+    self_tab: np.ndarray,
+    rel: np.ndarray,
+    tcoord: np.ndarray,
+    mdist: np.ndarray,
+    egocentric: bool,
+    obs: np.ndarray,
+    rew: np.ndarray,
+    done: np.ndarray,
+    term: np.ndarray,
+    ev: np.ndarray,
+    slot_collected: np.ndarray,
+) -> int:
+    """One step of every team (agents move in index order); returns the number of finished episodes.
+
+    State (updated): ``pos (n, n_agents)`` cells, ``tcell (n, n_treasures)`` (sentinel once collected),
+    ``collected (n,)``, ``ep_len (n,)``, ``ep_return (n,)`` team return. ``move (n_cells, n_actions, 2)``:
+    next cell and event code (0 move, 1 wall, 2 obstacle; 3 = treasure is set here). Outputs: ``obs
+    (n, n_agents, dim)`` float32 after the step (a finished episode's terminal observation: the caller
+    resets that team), ``rew``/``ev``/``slot_collected`` per slot ``(n * n_agents,)``, ``done``/``term``
+    ``(n,)``. Finished teams keep their final state until the caller resets them. Returns ``-1 - s``
+    (nothing changed) if slot ``s``'s action is out of range.
+    """
+    bad = first_invalid_action(acts, move.shape[1])
+    if bad >= 0:
+        return -1 - bad
+    n, n_a = pos.shape
+    n_t = tcell.shape[1]
+    n_cells = tcoord.shape[0] - 1
+    keys = np.empty(n_t, dtype=np.int64)
+    n_done = 0
+    for i in range(n):
+        total = 0
+        for j in range(n_a):
+            s = i * n_a + j
+            nxt = move[pos[i, j], acts[s], 0]
+            e = move[pos[i, j], acts[s], 1]
+            found = 0
+            if e == 0:
+                pos[i, j] = nxt
+                for k in range(n_t):
+                    if tcell[i, k] == nxt:
+                        tcell[i, k] = n_cells
+                        found += 1
+                        e = 3
+            ev[s] = e
+            rew[s] = event_reward[e]
+            if not shared:
+                rew[s] += treasure_reward * found
+            total += found
+        collected[i] += total
+        team = 0.0
+        for j in range(n_a):
+            s = i * n_a + j
+            if shared:
+                rew[s] += treasure_reward * total
+            team += rew[s]
+            slot_collected[s] = collected[i]
+        ep_return[i] += team
+        ep_len[i] += 1
+        t = collected[i] == n_t
+        term[i] = t
+        done[i] = t or ep_len[i] >= max_cycles
+        if done[i]:
+            n_done += 1
+        _treasure_obs(i, pos, tcell, ep_len, self_tab, rel, tcoord, egocentric, max_cycles, mdist, obs, keys)
+    return n_done
+
+
+@njit(cache=True)
+def treasure_reset(
+    envs: np.ndarray,
+    cells: np.ndarray,
+    pos: np.ndarray,
+    tcell: np.ndarray,
+    collected: np.ndarray,
+    ep_len: np.ndarray,
+    ep_return: np.ndarray,
+    self_tab: np.ndarray,
+    rel: np.ndarray,
+    tcoord: np.ndarray,
+    mdist: np.ndarray,
+    egocentric: bool,
+    max_cycles: int,
+    obs: np.ndarray,
+) -> None:
+    """Reset teams ``envs (m,)`` to the start cells ``cells (m, n_agents + n_treasures)``; write their obs."""
+    n_a, n_t = pos.shape[1], tcell.shape[1]
+    keys = np.empty(n_t, dtype=np.int64)
+    for q in range(envs.shape[0]):
+        i = envs[q]
+        for j in range(n_a):
+            pos[i, j] = cells[q, j]
+        for k in range(n_t):
+            tcell[i, k] = cells[q, n_a + k]
+        collected[i] = 0
+        ep_len[i] = 0
+        ep_return[i] = 0.0
+        _treasure_obs(i, pos, tcell, ep_len, self_tab, rel, tcoord, egocentric, max_cycles, mdist, obs, keys)

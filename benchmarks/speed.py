@@ -92,8 +92,23 @@ def vec_env_rate(vec: VecEnv, n_steps: int, seed: int = 0) -> float:
     return rate
 
 
+def ppo_kwargs(env_id: str, n_envs: int) -> dict[str, Any]:
+    """The zoo config's PPO keyword arguments for ``n_envs`` env copies.
+
+    At the config's own ``n_envs`` they are the config's. At another ``n_envs`` the minibatch size is scaled
+    with the rollout so that every rollout is still split into the config's number of minibatches
+    (CleanRL's ``num_minibatches`` convention): scaling out the envs then scales the data per gradient step,
+    not the number of gradient steps per transition.
+    """
+    exp = build_experiment("ppo", resolve_env(env_id))
+    kwargs = dict(exp.algo_kwargs)
+    if n_envs != exp.n_envs:
+        kwargs["batch_size"] = max(1, kwargs.get("batch_size", 64) * n_envs // exp.n_envs)
+    return kwargs
+
+
 def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, seed: int = 0) -> float:
-    """PPO training fps (``learn`` only) with the zoo hyperparameters on ``n_envs`` env copies.
+    """PPO training fps (``learn`` only) with the zoo hyperparameters (:func:`ppo_kwargs`) on ``n_envs`` copies.
 
     Trains whole rollouts, at least two and at least ``min_steps`` transitions.
     """
@@ -103,7 +118,7 @@ def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, se
         vec = make_batched_vec_env(env_id, n_envs, seed, exp.env_kwargs, None)
     else:
         vec = reference_vec_env(env_id, n_envs, seed, exp.env_kwargs)
-    model = PPO(exp.policy, vec, seed=seed, verbose=0, **exp.algo_kwargs)
+    model = PPO(exp.policy, vec, seed=seed, verbose=0, **ppo_kwargs(env_id, n_envs))
     rollout = model.n_steps * vec.num_envs
     steps = max(2, -(-min_steps // rollout)) * rollout
     start = time.perf_counter()
@@ -205,16 +220,19 @@ def markdown(results: dict[str, Any]) -> str:
                      f"{s['batched'] / s['reference']:.1f}x |")
     lines += [
         "",
-        "PPO training fps (`model.learn` only, zoo hyperparameters, torch 1 thread):",
+        "PPO training fps (`model.learn` only, zoo hyperparameters, torch 1 thread). At an `n_envs` other than "
+        "the config's, `batch_size` is scaled with the rollout so each rollout keeps the config's number of "
+        "minibatches:",
         "",
-        "| env | n_envs | reference | batched | batched / reference |",
-        "|---|---:|---:|---:|---:|",
+        "| env | n_envs | batch_size | reference | batched | batched / reference |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     for env_id, r in results["envs"].items():
         for n in sorted({r["config_n_envs"], N_ENVS}):
             ref, bat = r["ppo_fps"][f"reference_{n}"], r["ppo_fps"][f"batched_{n}"]
             tag = " (config)" if n == r["config_n_envs"] else ""
-            lines.append(f"| {env_id} | {n}{tag} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.1f}x |")
+            batch = ppo_kwargs(env_id, n).get("batch_size", 64)
+            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x |")
     lines += [
         "",
         "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "

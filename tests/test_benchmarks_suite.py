@@ -1,0 +1,152 @@
+"""The ``python -m benchmarks`` suite: each suite's run/markdown/main on tiny budgets, into a tmp Markdown."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from benchmarks import __main__ as suite
+from benchmarks import callback_overhead, export_latency, recorded
+
+ROOT = Path(__file__).resolve().parents[1]
+
+RESULTS = ROOT / "benchmarks" / "results"
+OTHER = "<!-- other:start -->\nkeep me\n<!-- other:end -->\n"
+
+
+@pytest.fixture(autouse=True)
+def _one_thread() -> None:
+    torch.set_num_threads(1)
+
+
+def _section(text: str, name: str) -> str:
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    assert text.count(start) == 1 and text.count(end) == 1, f"markers of {name} missing or repeated"
+    return text[text.index(start) + len(start) : text.index(end)]
+
+
+def _md_file(tmp_path: Path) -> Path:
+    path = tmp_path / "BENCH.md"
+    path.write_text("# Benchmarks\n\n" + OTHER)
+    return path
+
+
+def test_recorded_table_from_real_results(tmp_path: Path) -> None:
+    md = _md_file(tmp_path)
+    rows = recorded.main(["--output", str(md)])
+    by_file = {r["file"]: r for r in rows}
+    learning_files = sorted(p.name for p in RESULTS.glob("learning_*.json"))
+    assert learning_files and set(learning_files) <= set(by_file)
+    text = md.read_text()
+    assert OTHER in text  # other sections stay
+    section = _section(text, "recorded-learning")
+    assert "## Learning results recorded by the learning benchmarks" in section
+    for name in learning_files:  # key metric range recomputed from the file itself
+        runs: list[dict[str, Any]] = json.loads((RESULTS / name).read_text())
+        env, algo = runs[0]["env"], runs[0]["algo"]
+        row = by_file[name]
+        assert row["seeds"] == " ".join(str(s) for s in sorted(r["seed"] for r in runs))
+        assert f"`python -m benchmarks.learning --algo {algo} --env {env} --seeds {row['seeds']}`" in section
+        train = [r["train_seconds"] for r in runs]
+        assert row["train_s"].startswith(f"{min(train):.1f}")
+        if env == "treasure_hunt_v0":
+            vals = [r["eval"]["metrics"]["treasures_per_episode"] for r in runs]
+            assert row["metric"] == "treasures/episode"
+            assert row["metric_range"] in (f"{min(vals):.2f}-{max(vals):.2f}", f"{min(vals):.2f}")
+        if env == "sbagents/SmartHome-v0":
+            share = min(r["eval"]["metrics"]["criterion_share"] for r in runs)
+            assert row["metric"] == "comfort criterion share"
+            assert row["metric_range"].startswith(f"{share:.1%}")
+        assert re.fullmatch(r"\d{4}-\d{2}-\d{2}( \(uncommitted\))?", row["date"])
+    th = json.loads((RESULTS / "treasure_hunt_learning.json").read_text())
+    th_row = by_file["treasure_hunt_learning.json"]
+    assert th_row["metric_range"].startswith(f"{min(r['treasures'] for r in th['runs']):.2f}")
+    assert "`python -m benchmarks.treasure_hunt_learning --seeds 0 1 2`" in section
+    assert section.count("\n| ") == len(rows) + 1  # header + one line per file
+
+
+def test_recorded_generic_env_and_uncommitted_file(tmp_path: Path) -> None:
+    def run(seed: int, mean_return: float) -> dict[str, Any]:
+        return {"algo": "a2c", "env": "CartPole-v1", "seed": seed, "n_timesteps": 1000, "train_seconds": 2.0,
+                "eval": {"mean_return": mean_return, "success_rate": None, "metrics": {}}, "load_before": 1.0}
+
+    (tmp_path / "learning_CartPole-v1_a2c.json").write_text(json.dumps([run(3, 120.5), run(1, 80.25)]))
+    (rows,) = recorded.collect(tmp_path)
+    assert (rows["metric"], rows["metric_range"], rows["success"], rows["seeds"]) == (
+        "mean return", "80.25-120.50", "-", "1 3")
+    assert rows["date"].endswith("(uncommitted)")  # tmp_path is not in a git repository
+    assert "--seeds 1 3" in recorded.markdown([rows])
+
+
+def test_callback_overhead_tiny(tmp_path: Path) -> None:
+    md, raw = _md_file(tmp_path), tmp_path / "cb.json"
+    results = callback_overhead.main(["--timesteps", "1024", "--repeats", "1", "--envs", "GridWorld",
+                                      "--output", str(md), "--json", str(raw)])
+    grid = results["results"]["GridWorld"]
+    assert list(grid) == list(callback_overhead.VARIANTS)
+    assert grid["none"]["overhead_pct"] == 0.0
+    assert all(r["fps_cpu"] > 100 and r["fps_wall"] > 100 and len(r["samples"]) == 1 for r in grid.values())
+    assert json.loads(raw.read_text())["timesteps"] == 1024
+    section = _section(md.read_text(), "callback-overhead")
+    assert "`python -m benchmarks.callback_overhead --timesteps 1024 --repeats 1 --envs GridWorld`" in section
+    assert "load average before/after" in section and "Target: at most 10%." in section
+    assert "| env | callbacks | fps (CPU time) | overhead | fps (wall) |" in section
+    assert f"| GridWorld | transparency .csv.gz | {grid['transparency .csv.gz']['fps_cpu']:,.0f} |" in section
+    with pytest.raises(ValueError, match="unknown"):
+        callback_overhead.run(envs=["Pong"])
+
+
+def test_export_latency_tiny(tmp_path: Path) -> None:
+    md = _md_file(tmp_path)
+    results = export_latency.main(["--train-steps", "0", "--latency-n", "30", "--n-observations", "50",
+                                   "--output", str(md)])
+    assert results["parity"]["onnx"] < 1e-4
+    assert 0 < results["files"]["onnx_int8"] < results["files"]["onnx"]
+    lat = results["latency"]
+    assert set(lat) == {"sb3_predict", "onnx", "onnx_int8"}
+    assert all(0 < row["p50_us"] <= row["p99_us"] for row in lat.values())
+    assert results["action_bounds"] == [[-1.0, 1.0], [-10.0, 10.0]]
+    section = _section(md.read_text(), "export-latency")
+    assert f"| `policy.onnx` (fp32) | {results['files']['onnx']:,} B |" in section
+    assert f"{lat['sb3_predict']['p50_us']:.1f} us" in section
+    cmd = "python -m benchmarks.export_latency --train-steps 0 --latency-n 30 --n-observations 50 --seed 0"
+    assert f"`{cmd}`" in section
+    assert "untrained weights" in section and OTHER in md.read_text()
+
+
+def test_suite_dispatch_and_flags(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: dict[str, Any] = {}
+    monkeypatch.setattr(suite.speed, "main", lambda **kw: calls.setdefault("speed", kw))
+    monkeypatch.setattr(suite.callback_overhead, "main", lambda argv: calls.setdefault("callbacks", argv))
+    monkeypatch.setattr(suite.export_latency, "main", lambda argv: calls.setdefault("export", argv))
+    md = _md_file(tmp_path)
+    suite.main(["--quick", "--output", str(md), "--only", "speed", "--only", "callbacks", "export",
+                "learning"])
+    assert calls["speed"] == {"output": str(md), "json_path": None, "rounds": 3, "quick": True}
+    assert calls["callbacks"][:4] == ["--timesteps", "4096", "--repeats", "1"]
+    assert "--json" not in calls["callbacks"] and calls["export"][:2] == ["--train-steps", "0"]
+    assert "recorded-learning" in md.read_text()  # the learning suite really ran
+    calls.clear()
+    suite.main(["--output", str(md), "--only", "callbacks", "--rounds", "5", "--json", str(tmp_path / "r")])
+    assert set(calls) == {"callbacks"}
+    assert calls["callbacks"] == ["--repeats", "5", "--output", str(md), "--json",
+                                  str(tmp_path / "r" / "callback_overhead.json")]
+    assert suite.json_paths("out/speed_x.json")["speed"] == str(Path("out/speed_x.json"))
+    assert suite.json_paths("")["export"] is None
+
+
+def test_suite_reports_failure_and_keeps_going(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def boom(argv: list[str]) -> None:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(suite.export_latency, "main", boom)
+    md = _md_file(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        suite.main(["--output", str(md), "--only", "export", "learning"])
+    assert exc.value.code == 1
+    assert "recorded-learning" in md.read_text() and "export-latency" not in md.read_text()

@@ -144,7 +144,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
             if writer is not None:
                 writer.write_row(ep)
             info["episode"] = ep
-            info["terminal_observation"] = obs[i].copy()  # np.int64 scalar, as the reference
+            info["terminal_observation"] = obs[i]  # a new np.int64 scalar, as the reference
             self.reset_infos[i] = {}
 
     def close(self) -> None:

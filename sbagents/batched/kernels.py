@@ -104,7 +104,7 @@ def _treasure_obs(
     out: np.ndarray,
     keys: np.ndarray,
 ) -> None:
-    """Write the observations of env ``i``'s agents into ``out[i]`` (shape ``(n_agents, dim)``).
+    """Write the observations of env ``i``'s agents into ``out[i]`` (shape ``(n_agents, dim)``, zeroed).
 
     ``self_tab (n_agents * n_cells, dim)`` holds each (agent, cell)'s fixed part (id, own cell,
     neighbours / book: own cell, obstacles); ``rel (n_cells + 1, n_cells + 1, 2)`` scaled offsets
@@ -117,13 +117,18 @@ def _treasure_obs(
     for j in range(n_a):
         cell = pos[i, j]
         fixed = j * n_cells + cell
-        for d in range(dim):
-            out[i, j, d] = self_tab[fixed, d]
         if not egocentric:
+            for d in range(dim):
+                out[i, j, d] = self_tab[fixed, d]
             for k in range(n_t):
                 out[i, j, 2 + 2 * k] = tcoord[tcell[i, k], 0]
                 out[i, j, 3 + 2 * k] = tcoord[tcell[i, k], 1]
             continue
+        # ``out`` is zeroed by the caller: only the non-zero entries are written
+        for d in range(n_a + 2):  # agent id, own cell
+            out[i, j, d] = self_tab[fixed, d]
+        for d in range(dim - 4, dim):  # blocked neighbours
+            out[i, j, d] = self_tab[fixed, d]
         out[i, j, n_a + 2] = time_left
         # rank of each present treasure by (Manhattan distance, index): a branch-free stable sort;
         # collected treasures (sentinel distance) rank last and keep the zero padding of ``self_tab``

@@ -194,7 +194,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
             self._raise_invalid_action(-1 - n_done, self._n_actions)
         infos: list[dict[str, Any]] = [
             {"treasures_collected": c, "event": e}
-            for c, e in zip(slot_collected.tolist(), self._event_names[events].tolist(), strict=True)
+            for c, e in zip(slot_collected.tolist(), self._event_names[events].tolist())  # noqa: B905 (same size)
         ]
         if n_done:
             ended = np.flatnonzero(dones).tolist()

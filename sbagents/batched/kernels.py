@@ -89,52 +89,53 @@ def gridworld_step(
 
 
 # ------------------------------------------------------------------------------------------ TreasureHunt
-@njit(cache=True, inline="always")  # a call per team would pay array refcounting
+@njit(cache=True, inline="always")  # inlined: a call per team would pay array refcounting
 def _treasure_obs(
     i: int,
     pos: np.ndarray,
     tcell: np.ndarray,
     ep_len: np.ndarray,
-    self_tab: np.ndarray,
-    rel: np.ndarray,
-    tcoord: np.ndarray,
+    coords: np.ndarray,
+    neighbours: np.ndarray,
+    book_tail: np.ndarray,
+    scale: float,
     egocentric: bool,
     max_cycles: int,
-    mdist: np.ndarray,
     out: np.ndarray,
     keys: np.ndarray,
 ) -> None:
     """Write the observations of env ``i``'s agents into ``out[i]`` (shape ``(n_agents, dim)``, zeroed).
 
-    ``self_tab (n_agents * n_cells, dim)`` holds each (agent, cell)'s fixed part (id, own cell,
-    neighbours / book: own cell, obstacles); ``rel (n_cells + 1, n_cells + 1, 2)`` scaled offsets
-    between cells; ``tcoord (n_cells + 1, 2)`` book coordinates (sentinel: -1, -1); ``mdist (n_cells + 1,
-    n_cells + 1)`` Manhattan distances (to the sentinel: larger than any); ``keys (n_treasures,)`` scratch.
+    ``coords (n_cells + 1, 2)`` row/col of each cell (the sentinel: -1, -1); ``neighbours (n_cells, 4)``
+    blocked up/down/left/right flags; ``book_tail`` the book layout's obstacle coordinates; ``scale`` =
+    1 / (grid_size - 1); ``keys (n_treasures,)`` scratch. Only small tables are read (they stay in L1).
     """
-    n_a, n_t = pos.shape[1], tcell.shape[1]
-    n_cells, dim = tcoord.shape[0] - 1, out.shape[2]
+    n_a, n_t, dim = pos.shape[1], tcell.shape[1], out.shape[2]
+    n_cells = coords.shape[0] - 1
+    if not egocentric:
+        for j in range(n_a):
+            out[i, j, 0] = coords[pos[i, j], 0]
+            out[i, j, 1] = coords[pos[i, j], 1]
+            for k in range(n_t):
+                out[i, j, 2 + 2 * k] = coords[tcell[i, k], 0]
+                out[i, j, 3 + 2 * k] = coords[tcell[i, k], 1]
+            for d in range(book_tail.shape[0]):
+                out[i, j, 2 + 2 * n_t + d] = book_tail[d]
+        return
     time_left = 1.0 - ep_len[i] / max_cycles
     for j in range(n_a):
         cell = pos[i, j]
-        fixed = j * n_cells + cell
-        if not egocentric:
-            for d in range(dim):
-                out[i, j, d] = self_tab[fixed, d]
-            for k in range(n_t):
-                out[i, j, 2 + 2 * k] = tcoord[tcell[i, k], 0]
-                out[i, j, 3 + 2 * k] = tcoord[tcell[i, k], 1]
-            continue
-        # ``out`` is zeroed by the caller: only the non-zero entries are written
-        for d in range(n_a + 2):  # agent id, own cell
-            out[i, j, d] = self_tab[fixed, d]
-        for d in range(dim - 4, dim):  # blocked neighbours
-            out[i, j, d] = self_tab[fixed, d]
+        row, col = coords[cell, 0], coords[cell, 1]
+        out[i, j, j] = 1.0
+        out[i, j, n_a] = row * scale
+        out[i, j, n_a + 1] = col * scale
         out[i, j, n_a + 2] = time_left
-        # rank of each present treasure by (Manhattan distance, index): a branch-free stable sort;
-        # collected treasures (sentinel distance) rank last and keep the zero padding of ``self_tab``
+        # rank present treasures by (Manhattan distance, index): a branch-free stable sort; collected ones
+        # rank last and leave the zero padding
         for k in range(n_t):
-            keys[k] = mdist[cell, tcell[i, k]] * n_t + k
-        base = n_a + 3
+            t = tcell[i, k]
+            far = 4 * n_cells if t == n_cells else abs(coords[t, 0] - row) + abs(coords[t, 1] - col)
+            keys[k] = far * n_t + k
         for k in range(n_t):
             t = tcell[i, k]
             if t == n_cells:
@@ -142,16 +143,18 @@ def _treasure_obs(
             rank = 0
             for k2 in range(n_t):
                 rank += keys[k2] < keys[k]
-            q = base + 3 * rank
+            q = n_a + 3 + 3 * rank
             out[i, j, q] = 1.0
-            out[i, j, q + 1] = rel[cell, t, 0]
-            out[i, j, q + 2] = rel[cell, t, 1]
-        base += 3 * n_t
+            out[i, j, q + 1] = (coords[t, 0] - row) * scale
+            out[i, j, q + 2] = (coords[t, 1] - col) * scale
+        q = n_a + 3 + 3 * n_t
         for j2 in range(n_a):
             if j2 != j:
-                out[i, j, base] = rel[cell, pos[i, j2], 0]
-                out[i, j, base + 1] = rel[cell, pos[i, j2], 1]
-                base += 2
+                out[i, j, q] = (coords[pos[i, j2], 0] - row) * scale
+                out[i, j, q + 1] = (coords[pos[i, j2], 1] - col) * scale
+                q += 2
+        for d in range(4):
+            out[i, j, dim - 4 + d] = neighbours[cell, d]
 
 
 @njit(cache=True)
@@ -167,10 +170,10 @@ def treasure_step(
     treasure_reward: float,
     shared: bool,
     max_cycles: int,
-    self_tab: np.ndarray,
-    rel: np.ndarray,
-    tcoord: np.ndarray,
-    mdist: np.ndarray,
+    coords: np.ndarray,
+    neighbours: np.ndarray,
+    book_tail: np.ndarray,
+    scale: float,
     egocentric: bool,
     obs: np.ndarray,
     rew: np.ndarray,
@@ -184,17 +187,17 @@ def treasure_step(
     State (updated): ``pos (n, n_agents)`` cells, ``tcell (n, n_treasures)`` (sentinel once collected),
     ``collected (n,)``, ``ep_len (n,)``, ``ep_return (n,)`` team return. ``move (n_cells, n_actions, 2)``:
     next cell and event code (0 move, 1 wall, 2 obstacle; 3 = treasure is set here). Outputs: ``obs
-    (n, n_agents, dim)`` float32 after the step (a finished episode's terminal observation: the caller
-    resets that team), ``rew``/``ev``/``slot_collected`` per slot ``(n * n_agents,)``, ``done``/``term``
-    ``(n,)``. Finished teams keep their final state until the caller resets them. Returns ``-1 - s``
-    (nothing changed) if slot ``s``'s action is out of range.
+    (n, n_agents, dim)`` float32, zeroed by the caller, after the step (a finished episode's terminal
+    observation: the caller resets that team), ``rew``/``ev``/``slot_collected`` per slot
+    ``(n * n_agents,)``, ``done``/``term`` ``(n,)``. Finished teams keep their final state until the caller
+    resets them. Returns ``-1 - s`` (nothing changed) if slot ``s``'s action is out of range.
     """
     bad = first_invalid_action(acts, move.shape[1])
     if bad >= 0:
         return -1 - bad
     n, n_a = pos.shape
     n_t = tcell.shape[1]
-    n_cells = tcoord.shape[0] - 1
+    n_cells = coords.shape[0] - 1
     keys = np.empty(n_t, dtype=np.int64)
     n_done = 0
     for i in range(n):
@@ -231,37 +234,43 @@ def treasure_step(
         done[i] = t or ep_len[i] >= max_cycles
         if done[i]:
             n_done += 1
-        _treasure_obs(i, pos, tcell, ep_len, self_tab, rel, tcoord, egocentric, max_cycles, mdist, obs, keys)
+        _treasure_obs(i, pos, tcell, ep_len, coords, neighbours, book_tail, scale, egocentric, max_cycles, obs,
+                      keys)
     return n_done
 
 
 @njit(cache=True)
 def treasure_reset(
     envs: np.ndarray,
-    cells: np.ndarray,
+    picks: np.ndarray,
+    free: np.ndarray,
     pos: np.ndarray,
     tcell: np.ndarray,
+    treasure: np.ndarray,
     collected: np.ndarray,
     ep_len: np.ndarray,
     ep_return: np.ndarray,
-    self_tab: np.ndarray,
-    rel: np.ndarray,
-    tcoord: np.ndarray,
-    mdist: np.ndarray,
+    coords: np.ndarray,
+    neighbours: np.ndarray,
+    book_tail: np.ndarray,
+    scale: float,
     egocentric: bool,
     max_cycles: int,
     obs: np.ndarray,
 ) -> None:
-    """Reset teams ``envs (m,)`` to the start cells ``cells (m, n_agents + n_treasures)``; write their obs."""
+    """Reset teams ``envs (m,)``: agents then treasures on the free cells ``free[picks] (m, n_agents +
+    n_treasures)``; ``treasure`` keeps the initial treasure cells; rewrite the teams' observation rows."""
     n_a, n_t = pos.shape[1], tcell.shape[1]
     keys = np.empty(n_t, dtype=np.int64)
     for q in range(envs.shape[0]):
         i = envs[q]
         for j in range(n_a):
-            pos[i, j] = cells[q, j]
+            pos[i, j] = free[picks[q, j]]
         for k in range(n_t):
-            tcell[i, k] = cells[q, n_a + k]
+            tcell[i, k] = treasure[i, k] = free[picks[q, n_a + k]]
         collected[i] = 0
         ep_len[i] = 0
         ep_return[i] = 0.0
-        _treasure_obs(i, pos, tcell, ep_len, self_tab, rel, tcoord, egocentric, max_cycles, mdist, obs, keys)
+        obs[i] = 0.0
+        _treasure_obs(i, pos, tcell, ep_len, coords, neighbours, book_tail, scale, egocentric, max_cycles, obs,
+                      keys)

@@ -20,6 +20,7 @@ reference.
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -71,6 +72,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._cells = self.size * self.size  # cell index ``cells`` is the "collected" sentinel
         self._build_move_table(env)
         self._build_obs_tables(env)
+        self._obs_tables = (self._coords, self._neighbours, self._book_tail, self._scale, self.egocentric)
         self._pos = np.zeros((n, n_a), dtype=np.int64)  # flat cells row * size + col
         self._treasure = np.zeros((n, n_t), dtype=np.int64)  # initial treasure cells
         self._tcell = np.zeros((n, n_t), dtype=np.int64)  # treasure cell, or the sentinel once collected
@@ -110,31 +112,18 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._event_names = np.array(EVENTS, dtype=object)
 
     def _build_obs_tables(self, env: CooperativeTreasureHunt) -> None:
-        """Observation pieces computed as the reference computes them (float64, then float32).
+        """Small tables the kernel builds observations from (as the reference computes them).
 
-        ``_self_tab (n_agents * cells, dim)``: each (agent, cell)'s fixed part (egocentric: agent id, own
-        cell, blocked neighbours; book: own cell, obstacles); ``_rel (cells + 1, cells + 1, 2)``: scaled
-        offsets between cells; ``_tcoord (cells + 1, 2)``: cell coordinates, ``(-1, -1)`` for the sentinel;
-        ``_mdist (cells + 1, cells + 1)``: Manhattan distances (to the sentinel: farther than any real one).
+        ``_coords (cells + 1, 2)``: row/col of each cell, ``(-1, -1)`` for the collected sentinel;
+        ``_neighbours (cells, 4)``: up/down/left/right is an edge or obstacle; ``_book_tail``: the book
+        layout's obstacle coordinates; ``_scale = 1 / (grid_size - 1)``.
         """
-        size, cells, n_a, n_t, dim = self.size, self._cells, self.n_agents, self.n_treasures, self._dim
-        rows, cols = np.divmod(np.arange(cells + 1), size)
-        self._tcoord = np.stack([rows, cols], axis=-1).astype(np.float64)
-        self._tcoord[cells] = -1.0
-        self_tab = np.zeros((n_a, cells, dim), dtype=np.float64)
-        scale = 1.0 / (size - 1)
-        if self.egocentric:
-            self_tab[:, :, :n_a] = np.eye(n_a)[:, None, :]
-            self_tab[:, :, n_a], self_tab[:, :, n_a + 1] = rows[:cells] * scale, cols[:cells] * scale
-            self_tab[:, :, dim - 4 :] = self._move[:, :4, 1] != 0  # up/down/left/right: edge or obstacle
-        else:
-            self_tab[:, :, 0], self_tab[:, :, 1] = rows[:cells], cols[:cells]
-            self_tab[:, :, 2 + 2 * n_t :] = np.array(env.obstacles, dtype=np.float64).reshape(-1)
-        self._self_tab = self_tab.astype(np.float32).reshape(n_a * cells, dim)
-        d_row, d_col = rows[None, :] - rows[:, None], cols[None, :] - cols[:, None]
-        self._rel = (np.stack([d_row, d_col], axis=-1) * scale).astype(np.float32)
-        self._mdist = np.abs(d_row) + np.abs(d_col)
-        self._mdist[:, cells] = 4 * size  # collected treasures sort after every present one
+        rows, cols = np.divmod(np.arange(self._cells + 1), self.size)
+        self._coords = np.stack([rows, cols], axis=-1).astype(np.int64)
+        self._coords[self._cells] = -1
+        self._neighbours = (self._move[:, :4, 1] != 0).astype(np.float32)
+        self._book_tail = np.array(env.obstacles, dtype=np.float32).reshape(-1)
+        self._scale = 1.0 / (self.size - 1)
 
     # ------------------------------------------------------------------ reset
     def seed(self, seed: int | None = None) -> list[int | None]:  # type: ignore[override]
@@ -146,27 +135,28 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
 
     def _reset_envs(self, envs: list[int], obs: np.ndarray) -> None:
         """Reset the given env copies (per-env RNG draws, like the reference ``reset``); write their obs."""
-        n_a, size = self.n_agents, self.size
-        picks = np.empty((len(envs), n_a + self.n_treasures), dtype=np.int64)  # free-cell indices
+        n_a, size, n_free = self.n_agents, self.size, len(self._free)
+        n_picks = n_a + self.n_treasures
+        seeds, options, rngs, reset_infos = self._seeds, self._options, self._rngs, self.reset_infos
+        picks = np.empty((len(envs), n_picks), dtype=np.int64)  # indices into the free cells
         for q, i in enumerate(envs):
-            seed, options = self._seeds[i * n_a], self._options[i * n_a]
-            rng = self._rngs[i]
+            first = i * n_a
+            seed, rng = seeds[first], rngs[i]
             if seed is not None or rng is None:
                 rng, _ = seeding.np_random(seed)
-                self._rngs[i] = rng
-                self._seeds[i * n_a : (i + 1) * n_a] = [None] * n_a
-            if options and ("agents" in options or "treasures" in options):
-                self.template.reset(options=options)  # validates and places by hand (no RNG draw)
+                rngs[i] = rng
+                seeds[first : first + n_a] = [None] * n_a
+            option = options[first]
+            if option and ("agents" in option or "treasures" in option):
+                self.template.reset(options=option)  # validates and places by hand (no RNG draw)
                 placed = (*self.template.positions, *self.template.treasures)
                 picks[q] = self._free_index[[r * size + c for r, c in placed]]
             else:
-                picks[q] = rng.choice(len(self._free), n_a + self.n_treasures, replace=False)
-            self.reset_infos[i * n_a : (i + 1) * n_a] = [{"treasures_collected": 0} for _ in range(n_a)]
-        idx = np.asarray(envs, dtype=np.int64)
-        cells = self._free[picks]
-        self._treasure[idx] = cells[:, n_a:]
-        treasure_reset(idx, cells, self._pos, self._tcell, self._collected, self._ep_len, self._ep_return,
-                       self._self_tab, self._rel, self._tcoord, self._mdist, self.egocentric, self.max_cycles, obs)
+                picks[q] = rng.choice(n_free, n_picks, replace=False)
+            for s in range(first, first + n_a):
+                reset_infos[s] = {"treasures_collected": 0}
+        treasure_reset(np.array(envs, dtype=np.int64), picks, self._free, self._pos, self._tcell, self._treasure,
+                       self._collected, self._ep_len, self._ep_return, *self._obs_tables, self.max_cycles, obs)
 
     def reset(self) -> VecEnvObs:
         """Reset every env (pending seeds/options are used once); returns ``(num_envs, obs_dim)`` float32."""
@@ -187,8 +177,8 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         terminated = np.empty(n, dtype=bool)
         n_done = treasure_step(
             acts, self._pos, self._tcell, self._collected, self._ep_len, self._ep_return, self._move,
-            _EVENT_REWARD, TREASURE_REWARD, self.shared, self.max_cycles, self._self_tab, self._rel,
-            self._tcoord, self._mdist, self.egocentric, obs, rewards, dones, terminated, events, slot_collected,
+            _EVENT_REWARD, TREASURE_REWARD, self.shared, self.max_cycles, *self._obs_tables, obs, rewards, dones,
+            terminated, events, slot_collected,
         )
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, self._n_actions)
@@ -198,26 +188,31 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         ]
         if n_done:
             ended = np.flatnonzero(dones).tolist()
-            terminal = obs[ended]  # a copy: the reset below rewrites those rows of ``obs``
-            for q, i in enumerate(ended):
-                self._finish_episode(i, infos, bool(terminated[i]), terminal[q])
+            self._finish_episodes(ended, infos, terminated, obs)
             self._reset_envs(ended, obs)
         return obs.reshape(k, -1), rewards, dones.repeat(n_a), infos
 
-    def _finish_episode(self, i: int, infos: list[dict[str, Any]], term: bool, terminal: np.ndarray) -> None:
-        """Episode-end infos of env ``i`` and its monitor row; ``terminal (n_agents, dim)`` final obs."""
-        base = i * self.n_agents
-        for j in range(self.n_agents):
-            info = infos[base + j]
-            info["is_success"] = term
-            info["TimeLimit.truncated"] = not term
-            info["terminal_observation"] = terminal[j]
-        ep = self._episode_info(float(self._ep_return[i]), int(self._ep_len[i]))
-        infos[base]["episode"] = ep
-        treasures = int(self._collected[i])
-        infos[base]["treasures"] = treasures
-        if self._writer is not None:
-            self._writer.write_row({**ep, "treasures": treasures})
+    def _finish_episodes(
+        self, ended: list[int], infos: list[dict[str, Any]], terminated: np.ndarray, obs: np.ndarray
+    ) -> None:
+        """Episode-end infos of the ``ended`` envs and their monitor rows (before ``obs`` is reset)."""
+        n_a = self.n_agents
+        terminal = list(obs[ended].reshape(-1, self._dim))  # copies: the reset rewrites these rows of ``obs``
+        returns, lengths = self._ep_return[ended].tolist(), self._ep_len[ended].tolist()
+        treasures, success = self._collected[ended].tolist(), terminated[ended].tolist()
+        seconds = round(time.time() - self._t_start, 6)
+        for q, i in enumerate(ended):
+            term = success[q]
+            for j in range(n_a):
+                info = infos[i * n_a + j]
+                info["is_success"] = term
+                info["TimeLimit.truncated"] = not term
+                info["terminal_observation"] = terminal[q * n_a + j]
+            ep = {"r": round(returns[q], 6), "l": lengths[q], "t": seconds}
+            infos[i * n_a]["episode"] = ep
+            infos[i * n_a]["treasures"] = treasures[q]
+            if self._writer is not None:
+                self._writer.write_row({**ep, "treasures": treasures[q]})
 
     # ------------------------------------------------------------------ attributes / rendering
     def _sync(self, env_index: int) -> None:

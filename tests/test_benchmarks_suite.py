@@ -150,3 +150,23 @@ def test_suite_reports_failure_and_keeps_going(tmp_path: Path, monkeypatch: pyte
         suite.main(["--output", str(md), "--only", "export", "learning"])
     assert exc.value.code == 1
     assert "recorded-learning" in md.read_text() and "export-latency" not in md.read_text()
+
+
+def test_speed_markdown_has_ratios_and_amdahl_bound() -> None:
+    from benchmarks import speed
+
+    assert speed.amdahl_bound(50_000, 250_000) == pytest.approx(1.25)  # env = 20% of the reference's time
+    assert speed.amdahl_bound(300_000, 250_000) == float("inf")
+    kwargs_64 = speed.ppo_kwargs("sbagents/GridWorld-v0", 64)
+    kwargs_8 = speed.ppo_kwargs("sbagents/GridWorld-v0", 8)
+    assert kwargs_64["batch_size"] == 8 * kwargs_8["batch_size"]  # same minibatches per rollout
+    results = {
+        "machine": {"cpu": "x", "cores": 2, "python": "3.11", "numpy": "2", "torch": "2", "stable_baselines3": "2",
+                    "date": "d", "load_before": [1.0], "load_after": [1.0]},
+        "envs": {"sbagents/GridWorld-v0": {
+            "config_n_envs": 8, "steps_per_s": {"single": 4e5, "reference": 2.5e5, "batched": 7.5e6},
+            "ppo_fps": {"reference_8": 2e4, "batched_8": 2.2e4, "reference_64": 5e4, "batched_64": 6e4}}},
+    }
+    text = speed.markdown(results)
+    assert "| sbagents/GridWorld-v0 | 64 | 2048 | 50,000 | 60,000 | 1.20x | 1.25x |" in text
+    assert "30.0x" in text

@@ -128,16 +128,6 @@ def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, se
     return fps
 
 
-def amdahl_bound(ppo_fps_reference: float, env_rate_reference: float) -> float:
-    """Largest PPO fps ratio any VecEnv could reach: ``1 / (1 - env share of the reference's PPO time)``.
-
-    The env share is ``ppo_fps_reference / env_rate_reference`` (seconds stepping per transition over seconds
-    per trained transition); ``inf`` if stepping alone would take all of the time.
-    """
-    share = ppo_fps_reference / env_rate_reference
-    return float("inf") if share >= 1.0 else 1.0 / (1.0 - share)
-
-
 def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, float]:
     samples: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(rounds):
@@ -234,24 +224,19 @@ def markdown(results: dict[str, Any]) -> str:
         "the config's, `batch_size` is scaled with the rollout so each rollout keeps the config's number of "
         "minibatches:",
         "",
-        "| env | n_envs | batch_size | reference | batched | batched / reference | bound with a free env |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| env | n_envs | batch_size | reference | batched | batched / reference |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     for env_id, r in results["envs"].items():
         for n in sorted({r["config_n_envs"], N_ENVS}):
             ref, bat = r["ppo_fps"][f"reference_{n}"], r["ppo_fps"][f"batched_{n}"]
             tag = " (config)" if n == r["config_n_envs"] else ""
             batch = ppo_kwargs(env_id, n).get("batch_size", 64)
-            bound = amdahl_bound(ref, r["steps_per_s"]["reference"])
-            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x | "
-                         f"{bound:.2f}x |")
+            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x |")
     lines += [
         "",
         "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "
-        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds. \"Bound with a free env\" "
-        "is Amdahl's limit of the PPO ratio: the reference's PPO time with its env stepping time (at the "
-        "reference x64 rate above) removed; the rest is SB3's policy forward passes, rollout buffer and "
-        "gradient steps, which no VecEnv can speed up.",
+        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds.",
     ]
     return "\n".join(lines)
 

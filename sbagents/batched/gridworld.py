@@ -90,7 +90,6 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self._next_key = nxt.reshape(-1) * 4  # next cell's row in the flat tables
         self._reward = rew.reshape(-1)
         self._event = event.reshape(-1)
-        self._event_names = np.array(EVENTS, dtype=object)
         self._reaches_goal = nxt.reshape(-1) == int(env.to_obs(env.goal))
 
     # ------------------------------------------------------------------ core API
@@ -118,9 +117,8 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         )
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, 4)
-        infos: list[dict[str, Any]] = [
-            {"event": e, "TimeLimit.truncated": False} for e in self._event_names[events].tolist()
-        ]
+        names = EVENTS
+        infos: list[dict[str, Any]] = [{"event": names[e], "TimeLimit.truncated": False} for e in events.tolist()]
         if n_done:
             ended = np.flatnonzero(dones).tolist()
             self._finish_episodes(ended, infos, obs, terminated)
@@ -131,21 +129,19 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self, ended: list[int], infos: list[dict[str, Any]], obs: np.ndarray, terminated: np.ndarray
     ) -> None:
         """Episode-end infos (``is_success``, ``TimeLimit.truncated``, ``episode``, ``terminal_observation``)."""
-        returns = self._final_return.tolist()
-        lengths = self._final_len.tolist()
+        returns, lengths = self._final_return.tolist(), self._final_len.tolist()
+        success, writers, reset_infos = terminated.tolist(), self._writers, self.reset_infos
         seconds = round(time.time() - self._t_start, 6)
         for i in ended:
-            info = infos[i]
-            term = bool(terminated[i])
+            info, term = infos[i], success[i]
+            ep = {"r": round(returns[i], 6), "l": lengths[i], "t": seconds}
             info["is_success"] = term
             info["TimeLimit.truncated"] = not term
-            ep = {"r": round(returns[i], 6), "l": lengths[i], "t": seconds}
-            writer = self._writers[i]
-            if writer is not None:
-                writer.write_row(ep)
             info["episode"] = ep
             info["terminal_observation"] = obs[i]  # a new np.int64 scalar, as the reference
-            self.reset_infos[i] = {}
+            reset_infos[i] = {}
+            if writers[i] is not None:
+                writers[i].write_row(ep)  # type: ignore[union-attr]
 
     def close(self) -> None:
         for k, writer in enumerate(self._writers):

@@ -280,7 +280,7 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
             f"Action: [{self._last_action[0]:.2f}, {self._last_action[1]:.2f}]"
         )
 
-    def render(self) -> str | np.ndarray | None:
+    def render(self) -> str | np.ndarray | None:  # type: ignore[override]  # gymnasium 1.2 types it narrower
         if self.render_mode == "ansi":
             return self.state_text()
         if self.render_mode == "human":

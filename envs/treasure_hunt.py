@@ -142,7 +142,9 @@ class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
         else:
             space = spaces.Box(-1.0, 1.0, (size,), np.float32)
         self.observation_spaces = {a: space for a in self.possible_agents}
-        self.action_spaces = {a: spaces.Discrete(len(ACTION_DELTAS)) for a in self.possible_agents}
+        self.action_spaces: dict[str, spaces.Space[Any]] = {
+            a: spaces.Discrete(len(ACTION_DELTAS)) for a in self.possible_agents
+        }
         self._free = [
             (r, c)
             for r in range(self.grid_size)

@@ -15,6 +15,8 @@ from sbagents.env_factory import make_eval_vec, make_vec
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment
+from sbagents.rllib import evaluate_rllib_run, is_rllib_run
+from sbagents.run_dir import find_run_dir
 from sbagents.run_loading import load_run
 
 
@@ -142,6 +144,10 @@ def evaluate(
 
     parse_attacks(attacks, "--attack")
     ref = resolve_env(env, gym_packages)
+    run_dir = find_run_dir(log_folder, algo, ref.env_id, exp_id)
+    if is_rllib_run(run_dir):  # python -m sbagents.train --backend rllib
+        return evaluate_rllib_run(run_dir, algo, ref.env_id, n_episodes, deterministic, seed, render,
+                                  {"--load-best": load_best, "--attack": attacks, "--fairness": fairness})
     run = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
     exp, stats = run.experiment, run.stats_path
     summary = evaluate_model(run.model, exp, ref, n_episodes, deterministic, seed, stats, render=render)

@@ -6,6 +6,7 @@ agent (tabular Q-learning) on GridWorld and prints the learned path.
 
 from __future__ import annotations
 
+import argparse
 import shlex
 import sys
 
@@ -60,17 +61,56 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--log-interval", type=int, default=-1,
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
     p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 info, 2 debug")
+    dist = p.add_argument_group("distributed (Ray RLlib, PettingZoo envs; pip install 'sbagents[distributed]')")
+    dist.add_argument("--backend", choices=["sb3", "rllib"], default="sb3", help="training library (default sb3)")
+    dist.add_argument("--num-env-runners", type=int, default=None, metavar="N",
+                      help="RLlib env runner actors (default: the config's; 0 samples in the driver)")
+    dist.add_argument("--address", default=None, metavar="ADDR",
+                      help="Ray cluster to join (auto, host:6379 or ray://host:10001); default: a local Ray")
     return p
+
+
+def main_rllib(args: argparse.Namespace, parser: ArgumentParser, command: str) -> int:
+    """The ``--backend rllib`` branch: check the flags, then :func:`sbagents.rllib.training.train_rllib`."""
+    from sbagents.rllib import check_train_args, require_ray
+
+    check_train_args(args, {a.dest: a.default for a in parser._actions})
+    require_ray()
+    from sbagents.rllib.training import train_rllib
+
+    result = train_rllib(
+        args.algo, args.env, n_timesteps=args.n_timesteps, log_folder=args.log_folder, seed=args.seed,
+        hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,
+        env_kwargs=parse_overrides(args.env_kwargs, "--env-kwargs"), num_env_runners=args.num_env_runners,
+        address=args.address, num_threads=args.num_threads, eval_freq=args.eval_freq,
+        eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes, progress=args.progress,
+        verbose=args.verbose, command=command,
+    )
+    summary = result.summary
+    if result.interrupted:
+        print(f"interrupted after {summary['n_timesteps']} env steps; checkpoint and logs saved in {result.run_dir}")
+        return 130
+    print(f"run dir: {result.run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} env steps/s)")
+    if summary["eval"]:
+        ev = summary["eval"]
+        print(f"evaluation: mean team return {ev['mean_return']:.2f} +- {ev['std_return']:.2f}, "
+              f"{ev['metrics']['treasures_per_episode']:.2f} treasures/episode over {ev['n_episodes']} episodes")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, train, print where the run went and its evaluation."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     if args.list:
         print("envs:  " + "  ".join(sbagents_env_ids()))
         print("algos: " + "  ".join(ALGOS))
         return 0
     command = "python -m sbagents.train " + shlex.join(sys.argv[1:] if argv is None else argv)
+    if args.backend == "rllib":
+        return main_rllib(args, parser, command)
+    if args.address is not None or args.num_env_runners is not None:
+        parser.error("--address and --num-env-runners need --backend rllib")
     result = train(
         args.algo, args.env, n_timesteps=args.n_timesteps, log_folder=args.log_folder, seed=args.seed,
         hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,

@@ -1,0 +1,86 @@
+"""TreasureHunt learning benchmark for the Ray RLlib backend (needs ``pip install 'sbagents[distributed]'``).
+
+Per seed: :func:`sbagents.rllib.training.train_rllib` with the shipped ``zoo_configs/rllib_ppo.yml`` entry
+(parameter-shared PPO on egocentric observations; ``--params`` overrides it), on a local Ray instance with
+``--num-env-runners`` samplers, then the greedy team on 100 seeded episodes (eval seed ``10000 + seed``) from the
+saved checkpoint, without Ray. Reports treasures per episode, team return, wall-clock training time (Ray start
+and algorithm build excluded, as ``summary.json``'s ``train_seconds``) and the learning curve of ``progress.csv``.
+
+    python -m benchmarks.rllib_learning --seeds 0 1 2
+    python -m benchmarks.rllib_learning --seeds 0 --params policies:per_agent -n 200000
+    python -m benchmarks.rllib_learning --seeds 0 -n 40000 --num-threads 0   # torch's default threads
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from sbagents.config import parse_overrides
+from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
+from sbagents.rllib.evaluation import evaluate_checkpoint
+from sbagents.rllib.training import train_rllib
+
+ENV = "treasure_hunt_v0"
+
+
+def run_seed(
+    seed: int, params: dict[str, Any], log_folder: str, n_timesteps: int | None, num_env_runners: int | None,
+    num_threads: int, n_eval: int = 100,
+) -> dict[str, Any]:
+    """Train one seed and evaluate the greedy team; returns a JSON-able dict."""
+    start = time.perf_counter()
+    result = train_rllib("ppo", ENV, n_timesteps=n_timesteps, log_folder=log_folder, seed=seed, hyperparams=params,
+                         num_env_runners=num_env_runners, num_threads=num_threads, eval_freq=-1,
+                         final_eval_episodes=0, verbose=0)
+    wall = time.perf_counter() - start
+    ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, ENV, "ppo", result.experiment.env_kwargs,
+                             n_episodes=n_eval, seed=10_000 + seed)
+    with (result.run_dir / PROGRESS_FILE).open() as f:
+        rows = list(csv.DictReader(f))
+    s = result.summary
+    return {
+        "seed": seed, "treasures_per_episode": ev["metrics"]["treasures_per_episode"],
+        "team_return": ev["mean_return"], "success_rate": ev["success_rate"], "n_eval_episodes": n_eval,
+        "env_steps": s["n_timesteps"], "iterations": s["iterations"], "train_seconds": s["train_seconds"],
+        "wall_seconds_incl_ray_start": round(wall, 1), "fps": s["fps"], "num_env_runners": s["num_env_runners"],
+        "num_threads": num_threads, "policies": s["policies"], "run_dir": str(result.run_dir),
+        "curve": [(int(r["env_steps"]), r["episode_return_mean"]) for r in rows[:: max(len(rows) // 10, 1)]],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse arguments, run every seed, print one JSON line per seed and a summary line."""
+    p = argparse.ArgumentParser(prog="python -m benchmarks.rllib_learning", description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--params", nargs="+", metavar="KEY:VALUE", help="overrides of the zoo entry")
+    p.add_argument("-n", "--n-timesteps", type=int, default=None, help="env steps (default: the config's)")
+    p.add_argument("--num-env-runners", type=int, default=None)
+    p.add_argument("--num-threads", type=int, default=1, help="torch threads per process (<= 0: torch's default)")
+    p.add_argument("--n-eval", type=int, default=100)
+    p.add_argument("-f", "--log-folder", default=None, help="keep the runs here (default: a temp dir)")
+    args = p.parse_args(argv)
+    params = parse_overrides(args.params, "--params")
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.log_folder or tmp
+        for seed in args.seeds:
+            row = run_seed(seed, params, folder, args.n_timesteps, args.num_env_runners, args.num_threads,
+                           args.n_eval)
+            print(json.dumps(row), flush=True)
+            results.append(row)
+    treasures = [r["treasures_per_episode"] for r in results]
+    seconds = [r["train_seconds"] for r in results]
+    print(json.dumps({"params": params, "treasures_min": min(treasures), "treasures_max": max(treasures),
+                      "train_seconds_min": min(seconds), "train_seconds_max": max(seconds)}))
+    print(f"reference: {Path('zoo_configs/rllib_ppo.yml')} (shipped entry) + overrides {params}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

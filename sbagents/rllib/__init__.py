@@ -1,0 +1,144 @@
+"""Ray RLlib backend for the PettingZoo envs (``python -m sbagents.train --backend rllib``).
+
+This module never imports Ray: it holds what the CLIs need to decide whether a run or a command belongs to the
+RLlib backend. Training lives in :mod:`sbagents.rllib.training`, evaluation in :mod:`sbagents.rllib.evaluation`
+(both import Ray, an optional extra: ``pip install 'sbagents[distributed]'``).
+
+An RLlib run dir has the same layout as an SB3 one (``<log>/<algo>/<env>_<k>/`` with ``<env>/config.yml``,
+``args.yml``, ``command.txt``, ``summary.json``) plus ``rllib_checkpoint/`` (``Algorithm.save_to_path``) and
+``progress.csv`` (one row per training iteration), instead of the SB3 model zip.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import socket
+from argparse import Namespace
+from pathlib import Path
+from typing import Any
+
+from sbagents.errors import UsageError
+
+#: Algorithms the RLlib backend trains (names as in ``--algo``).
+RLLIB_ALGOS: tuple[str, ...] = ("ppo",)
+#: The RLlib checkpoint inside a run dir; its presence marks an RLlib run.
+CHECKPOINT_DIR = "rllib_checkpoint"
+#: Per-iteration metrics of an RLlib run.
+PROGRESS_FILE = "progress.csv"
+#: Where the learner's (multi-agent) RLModule sits inside an RLlib checkpoint.
+MODULE_SUBDIR = ("learner_group", "learner", "rl_module")
+#: Module id of the parameter-shared policy (``policies: shared``); per-agent modules are named like the agents.
+SHARED_MODULE = "shared"
+NEEDS_RAY = "--backend rllib needs Ray: pip install 'sbagents[distributed]'"
+
+#: ``train`` flags (argparse dest -> flag) that the RLlib backend does not implement.
+UNSUPPORTED_TRAIN_FLAGS: dict[str, str] = {
+    "trained_agent": "-i/--trained-agent",
+    "tensorboard_log": "-tb/--tensorboard-log",
+    "save_freq": "--save-freq",
+    "vec_env": "--vec-env",
+    "n_eval_envs": "--n-eval-envs",
+    "log_interval": "--log-interval",
+    "gym_packages": "--gym-packages",
+    "transparency_log": "--transparency-log",
+    "transparency_format": "--transparency-format",
+    "safety": "--safety",
+    "cost_limit": "--cost-limit",
+    "max_violations": "--max-violations",
+    "adversarial_eval": "--adversarial-eval",
+    "fairness": "--fairness",
+    "bins": "--bins",
+}
+
+
+def ray_available() -> bool:
+    """Whether ``ray.rllib`` can be imported (without importing it)."""
+    try:
+        return importlib.util.find_spec("ray") is not None and importlib.util.find_spec("ray.rllib") is not None
+    except (ImportError, ValueError):  # a broken or stubbed-out ray package
+        return False
+
+
+def require_ray(what: str = "--backend rllib") -> None:
+    """Raise :class:`UsageError` (``<what> needs Ray: pip install ...``) unless Ray RLlib is importable."""
+    if not ray_available():
+        raise UsageError(NEEDS_RAY.replace("--backend rllib", what, 1))
+
+
+def is_rllib_run(run_dir: str | Path) -> bool:
+    """Whether ``run_dir`` was written by the RLlib backend (it holds :data:`CHECKPOINT_DIR`)."""
+    return (Path(run_dir) / CHECKPOINT_DIR).is_dir()
+
+
+def evaluate_rllib_run(
+    run_dir: Path,
+    algo: str,
+    env_id: str,
+    n_episodes: int = 10,
+    deterministic: bool = True,
+    seed: int | None = 0,
+    render: bool = False,
+    unsupported: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """``python -m sbagents.evaluate`` on an RLlib run dir (see :func:`sbagents.rllib.evaluation.evaluate_run`).
+
+    :param unsupported: evaluate flags (flag -> value) that RLlib runs do not support; any truthy one is an error.
+    """
+    given = [flag for flag, value in (unsupported or {}).items() if value]
+    if given:
+        raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
+    require_ray("evaluating an RLlib run")
+    from sbagents.rllib.evaluation import evaluate_run
+
+    return evaluate_run(run_dir, algo, env_id, n_episodes, deterministic, seed, render)
+
+
+def check_address(address: str | None, timeout: float = 5.0) -> None:
+    """Raise :class:`UsageError` unless the Ray cluster at ``address`` accepts a TCP connection.
+
+    Ray itself retries an unreachable address for minutes; this fails in seconds. ``None``, ``auto`` and ``local``
+    are not checked (Ray resolves them).
+    """
+    if address is None or address in ("auto", "local"):
+        return
+    host, _, port = address.split("://", 1)[-1].rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--address {address!r}: expected host:port, ray://host:port or auto")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise UsageError(f"cannot reach the Ray cluster at {address}: {exc.strerror or exc}") from None
+
+
+def check_train_args(args: Namespace, defaults: dict[str, Any]) -> None:
+    """Reject ``train`` CLI arguments the RLlib backend cannot honour (one-line :class:`UsageError`).
+
+    :param args: parsed ``python -m sbagents.train`` arguments with ``backend == "rllib"``.
+    :param defaults: the parser's default per dest, to tell which unsupported flags were given.
+    """
+    if args.num_env_runners is not None and args.num_env_runners < 0:
+        raise UsageError(f"--num-env-runners must be >= 0, got {args.num_env_runners}")
+    if args.algo not in RLLIB_ALGOS:
+        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {args.algo!r}")
+    given = [flag for dest, flag in UNSUPPORTED_TRAIN_FLAGS.items() if getattr(args, dest) != defaults.get(dest)]
+    if given:
+        raise UsageError(f"{', '.join(given)} not supported with --backend rllib")
+    if args.device not in ("auto", "cpu"):
+        raise UsageError(f"--backend rllib trains on the CPU here; got --device {args.device}")
+    check_address(args.address)
+
+
+__all__ = [
+    "CHECKPOINT_DIR",
+    "MODULE_SUBDIR",
+    "NEEDS_RAY",
+    "PROGRESS_FILE",
+    "RLLIB_ALGOS",
+    "SHARED_MODULE",
+    "check_address",
+    "check_train_args",
+    "evaluate_rllib_run",
+    "is_rllib_run",
+    "ray_available",
+    "require_ray",
+]

@@ -1,0 +1,155 @@
+"""The Ray RLlib backend: ``python -m sbagents.train --backend rllib`` on TreasureHunt, and evaluate on its run dir.
+
+The flag checks run everywhere; the training tests need Ray (the ``test`` extra installs ``sbagents[distributed]``)
+and start a local Ray instance (2 env runners, or sampling in the driver).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from cli_helpers import cli, last_json, popen, summary
+
+from sbagents.errors import UsageError
+from sbagents.rllib import CHECKPOINT_DIR, NEEDS_RAY, PROGRESS_FILE, is_rllib_run, ray_available
+
+RUN = "treasure_hunt_v0"
+SMALL = ["-params", "train_batch_size_per_learner:1000", "minibatch_size:256", "num_envs_per_env_runner:2"]
+needs_ray = pytest.mark.skipif(not ray_available(), reason="needs Ray RLlib (pip install 'sbagents[distributed]')")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--address", "auto"], "need --backend rllib"),
+        (["--num-env-runners", "2"], "need --backend rllib"),
+        (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--num-env-runners", "-1"], ">= 0"),
+        (["--backend", "rllib", "--algo", "dqn", "--env", RUN], "supports --algo ppo"),
+        (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--address", "127.0.0.1:1"], "cannot reach the Ray"),
+        (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--safety", "-i", "x.zip"],
+         "-i/--trained-agent, --safety not supported"),
+    ],
+)
+def test_bad_flag_combinations_are_one_line_errors(args: list[str], message: str) -> None:
+    result = cli("train", *args)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], result.stderr
+
+
+@needs_ray
+def test_non_pettingzoo_env_is_rejected_before_ray_starts() -> None:
+    result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", "sbagents/GridWorld-v0")
+    assert result.returncode == 2 and "trains PettingZoo envs (treasure_hunt_v0)" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_without_ray_the_backend_says_how_to_install_it(tmp_path: Path) -> None:
+    fake = tmp_path / "site" / "ray"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ImportError('no ray here')\n")
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path / 'site'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    result = subprocess.run([sys.executable, "-m", "sbagents.train", "--backend", "rllib", "--algo", "ppo", "--env",
+                             RUN, "-f", str(tmp_path)], capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"python -m sbagents.train: error: {NEEDS_RAY}"
+    assert not (tmp_path / "ppo").exists()
+
+
+@needs_ray
+def test_zoo_entry_is_validated_and_lr_schedule_resolved() -> None:
+    from sbagents.rllib.training import resolve_entry
+
+    exp = resolve_entry("ppo", RUN, {"n_timesteps": 1000, "lr": "lin_0.003", "policies": "per_agent"}, "f.yml")
+    assert exp.training["lr"] == [[0, 0.003], [1000, 0.0]] and exp.policies == "per_agent"
+    with pytest.raises(UsageError, match=r"f\.yml: unknown key\(s\) learning_rate; accepted: n_timesteps"):
+        resolve_entry("ppo", RUN, {"learning_rate": 0.1}, "f.yml")
+    with pytest.raises(UsageError, match="unknown model key"):
+        resolve_entry("ppo", RUN, {"model": {"net_arch": [64]}}, "f.yml")
+    with pytest.raises(UsageError, match="policies must be one of shared, per_agent"):
+        resolve_entry("ppo", RUN, {"policies": "mixed"}, "f.yml")
+
+
+@needs_ray
+def test_shipped_rllib_configs_resolve() -> None:
+    from sbagents.config import load_yaml
+    from sbagents.rllib.training import resolve_entry
+
+    paths = sorted((Path(__file__).resolve().parents[1] / "zoo_configs").glob("rllib_*.yml"))
+    assert paths
+    for path in paths:
+        for env_id, entry in load_yaml(path).items():
+            exp = resolve_entry(path.stem.removeprefix("rllib_"), env_id, dict(entry), str(path))
+            assert exp.n_timesteps > 0 and exp.model.get("vf_share_layers") is False, (path, env_id)
+
+
+def _progress(run_dir: Path) -> list[dict[str, str]]:
+    with (run_dir / PROGRESS_FILE).open() as f:
+        return list(csv.DictReader(f))
+
+
+@needs_ray
+def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) -> None:
+    result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "3000", "--num-env-runners",
+                 "2", "-f", str(tmp_path), "--seed", "3", "--eval-freq", "2000", "--verbose", "0", *SMALL)
+    assert result.returncode == 0, result.stderr
+    run_dir = tmp_path / "ppo" / f"{RUN}_1"
+    assert is_rllib_run(run_dir)
+    for name in ("command.txt", "summary.json", PROGRESS_FILE, f"{RUN}/config.yml", f"{RUN}/args.yml",
+                 f"{CHECKPOINT_DIR}/learner_group/learner/rl_module/shared/module_state.pkl"):
+        assert (run_dir / name).exists(), name
+    s = summary(run_dir)
+    assert s["backend"] == "rllib" and s["num_env_runners"] == 2 and s["seed"] == 3 and s["policies"] == "shared"
+    assert s["interrupted"] is False and s["n_timesteps"] >= 3000 and s["n_agent_steps"] == 3 * s["n_timesteps"]
+    assert s["iterations"] == 3 and s["fps"] > 0 and s["train_seconds"] > 0
+    assert s["eval"]["n_episodes"] == 10 and set(s["eval"]["metrics"]) == {"treasures_per_episode", "team_return"}
+    rows = _progress(run_dir)
+    assert [int(r["env_steps"]) for r in rows] == [1000, 2000, 3000]
+    assert rows[1]["eval_treasures_per_episode"] != "" and math.isfinite(float(rows[-1]["shared/policy_loss"]))
+    args = (run_dir / RUN / "args.yml").read_text()
+    assert "backend: rllib" in args and "seed: 3" in args
+    report = last_json(cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "4", "--json").stdout)
+    assert report["n_episodes"] == 4 and report["env"] == RUN and report["algo"] == "ppo"
+    assert all(math.isfinite(report[k]) for k in ("mean_return", "std_return", "mean_length"))
+    assert 0 <= report["metrics"]["treasures_per_episode"] <= 5
+    assert report["metrics"]["team_return"] == report["mean_return"] and report["mean_length"] <= 50
+    again = last_json(cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "4", "--json").stdout)
+    assert again == report  # greedy + seeded env: reproducible
+    best = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "--load-best")
+    assert best.returncode == 2 and "--load-best not supported for RLlib runs" in best.stderr
+
+
+@needs_ray
+def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: Path) -> None:
+    from sbagents.rllib.evaluation import evaluate_run, load_modules
+
+    proc = popen("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "1000000", "--num-env-runners",
+                 "0", "-f", str(tmp_path), "--seed", "1", "--eval-freq", "-1", "--verbose", "0", *SMALL,
+                 "policies:per_agent")
+    run_dir = tmp_path / "ppo" / f"{RUN}_1"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (run_dir / PROGRESS_FILE).exists() and len(_progress(run_dir)) >= 2:
+            break
+        time.sleep(0.5)
+    assert proc.poll() is None, proc.communicate()[1]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    s = json.loads((run_dir / "summary.json").read_text())
+    assert s["interrupted"] is True and s["eval"] is None and 2000 <= s["n_timesteps"] < 1_000_000
+    assert s["policies"] == "per_agent" and s["num_env_runners"] == 0
+    modules = load_modules(run_dir / CHECKPOINT_DIR)
+    assert sorted(modules) == ["agent_0", "agent_1", "agent_2"]
+    assert "agent_2/policy_loss" in _progress(run_dir)[0]
+    report = evaluate_run(run_dir, "ppo", RUN, n_episodes=2, seed=0)
+    assert report["n_episodes"] == 2 and math.isfinite(report["mean_return"])

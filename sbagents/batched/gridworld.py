@@ -59,11 +59,10 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self.max_steps = template.max_steps
         self._start = int(template.to_obs(template.start))
         self._build_tables(template)
-        self._key = np.full(n_envs, self._start * 4, dtype=np.int64)  # current cell * 4: table row
-        self._ep_len = np.zeros(n_envs, dtype=np.int64)
-        self._ep_return = np.zeros(n_envs, dtype=np.float64)
-        self._final_return = np.zeros(n_envs, dtype=np.float64)
-        self._final_len = np.zeros(n_envs, dtype=np.int64)
+        # rows: current cell * 4 (table row), episode length, length of the episode that just ended
+        self._counters = np.zeros((3, n_envs), dtype=np.int64)
+        self._counters[0] = self._start * 4
+        self._returns = np.zeros((2, n_envs), dtype=np.float64)  # rows: episode return, return of an ended one
         super().__init__(n_envs, 1, template, template.observation_space, template.action_space)
         self._writers: list[ResultsWriter | None] = [
             monitor_writer(monitor_dir, i, env_id, self._t_start) for i in range(n_envs)
@@ -87,17 +86,16 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
                 else:
                     nxt[cell, a] = int(env.to_obs((r2, c2)))
                     rew[cell, a] = GOAL_REWARD if (r2, c2) == env.goal else STEP_REWARD
-        self._next_key = nxt.reshape(-1) * 4  # next cell's row in the flat tables
+        goal = nxt.reshape(-1) == int(env.to_obs(env.goal))
+        # rows of ``cell * 4 + action``: next cell's table row (next cell * 4), event code, reaches the goal
+        self._table = np.stack([nxt.reshape(-1) * 4, event.reshape(-1), goal.astype(np.int64)], axis=1)
         self._reward = rew.reshape(-1)
-        self._event = event.reshape(-1)
-        self._reaches_goal = nxt.reshape(-1) == int(env.to_obs(env.goal))
 
     # ------------------------------------------------------------------ core API
     def reset(self) -> VecEnvObs:
         """Reset every copy to the start cell; returns the observations, shape ``(n_envs,)`` int64."""
-        self._key[:] = self._start * 4
-        self._ep_len[:] = 0
-        self._ep_return[:] = 0.0
+        self._counters[:2] = [[self._start * 4], [0]]
+        self._returns[0] = 0.0
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
@@ -107,14 +105,11 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         acts, n = self._actions, self.num_envs
         obs = np.empty(n, dtype=np.int64)
         rewards = np.empty(n, dtype=np.float32)
-        dones = np.empty(n, dtype=bool)
-        terminated = np.empty(n, dtype=bool)
+        flags = np.empty((2, n), dtype=bool)  # done, terminated
         events = np.empty(n, dtype=np.int64)
-        n_done = gridworld_step(
-            acts, self._key, self._ep_len, self._ep_return, self._next_key, self._reward, self._reaches_goal,
-            self._event, self._start * 4, self.max_steps, obs, rewards, dones, terminated, events,
-            self._final_return, self._final_len,
-        )
+        n_done = gridworld_step(acts, self._counters, self._returns, self._table, self._reward, self._start * 4,
+                                self.max_steps, obs, rewards, flags, events)
+        dones, terminated = flags
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, 4)
         names = EVENTS
@@ -129,7 +124,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self, ended: list[int], infos: list[dict[str, Any]], obs: np.ndarray, terminated: np.ndarray
     ) -> None:
         """Episode-end infos (``is_success``, ``TimeLimit.truncated``, ``episode``, ``terminal_observation``)."""
-        returns, lengths = self._final_return.tolist(), self._final_len.tolist()
+        returns, lengths = self._returns[1].tolist(), self._counters[2].tolist()
         success, writers, reset_infos = terminated.tolist(), self._writers, self.reset_infos
         seconds = round(time.time() - self._t_start, 6)
         for i in ended:
@@ -151,8 +146,8 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
 
     # ------------------------------------------------------------------ attributes / rendering
     def _sync(self, env_index: int) -> None:
-        self.template.agent = self.template.to_cell(int(self._key[env_index]) // 4)
-        self.template.steps = int(self._ep_len[env_index])
+        self.template.agent = self.template.to_cell(int(self._counters[0, env_index]) // 4)
+        self.template.steps = int(self._counters[1, env_index])
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
         """True for SB3's ``Monitor`` (and its bases), like the reference ``make_vec_env`` envs."""

@@ -30,61 +30,56 @@ def first_invalid_action(acts: np.ndarray, n_actions: int) -> int:
 @njit(cache=True)
 def gridworld_step(
     acts: np.ndarray,
-    key: np.ndarray,
-    ep_len: np.ndarray,
-    ep_return: np.ndarray,
-    next_key: np.ndarray,
+    counters: np.ndarray,
+    returns: np.ndarray,
+    table: np.ndarray,
     reward: np.ndarray,
-    goal: np.ndarray,
-    event: np.ndarray,
     start_key: int,
     max_steps: int,
     obs: np.ndarray,
     rew: np.ndarray,
-    done: np.ndarray,
-    term: np.ndarray,
+    flags: np.ndarray,
     ev: np.ndarray,
-    final_return: np.ndarray,
-    final_len: np.ndarray,
 ) -> int:
     """One GridWorld step of every copy; returns the number of finished episodes, or ``-1 - i`` (nothing
     changed) if env ``i``'s action is not in ``0..3``.
 
-    State (updated): ``key (n,)`` current cell * 4, ``ep_len (n,)``, ``ep_return (n,)`` float64.
-    Tables, indexed by ``cell * 4 + action``: ``next_key`` (next cell * 4), ``reward`` float32,
-    ``goal`` (the move reaches the goal), ``event`` code. Outputs ``(n,)``: ``obs`` the cell after the
-    move (the terminal observation of a finished episode: the caller resets it), ``rew``, ``done``,
-    ``term`` (goal reached), ``ev``, and for finished episodes ``final_return``/``final_len``.
-    A finished copy is reset in place to ``start_key`` with zero length and return.
+    State (updated): ``counters (3, n)`` int64 rows: current cell * 4, episode length, and (output) the
+    length of an episode that ended; ``returns (2, n)`` float64 rows: episode return, and (output) the
+    return of an episode that ended. Tables indexed by ``cell * 4 + action``: ``table (cells * 4, 3)``
+    next cell * 4, event code, move reaches the goal; ``reward`` float32. Outputs ``(n,)``: ``obs`` the
+    cell after the move (a finished episode's terminal observation: the caller resets it), ``rew``,
+    ``flags (2, n)`` rows done and terminated (goal reached), ``ev``. A finished copy is reset in place to
+    ``start_key`` with zero length and return.
     """
     bad = first_invalid_action(acts, 4)
     if bad >= 0:
         return -1 - bad
     n_done = 0
     for i in range(acts.shape[0]):
-        k = key[i] + acts[i]
-        nk = next_key[k]
+        k = counters[0, i] + acts[i]
+        nk = table[k, 0]
         r = reward[k]
         rew[i] = r
-        ev[i] = event[k]
+        ev[i] = table[k, 1]
         obs[i] = nk >> 2
-        length = ep_len[i] + 1
-        ret = ep_return[i] + r
-        t = goal[k]
-        term[i] = t
+        length = counters[1, i] + 1
+        ret = returns[0, i] + r
+        t = table[k, 2] != 0
+        flags[1, i] = t
         if t or length >= max_steps:
-            done[i] = True
-            final_return[i] = ret
-            final_len[i] = length
-            key[i] = start_key
-            ep_len[i] = 0
-            ep_return[i] = 0.0
+            flags[0, i] = True
+            counters[2, i] = length
+            returns[1, i] = ret
+            counters[0, i] = start_key
+            counters[1, i] = 0
+            returns[0, i] = 0.0
             n_done += 1
         else:
-            done[i] = False
-            key[i] = nk
-            ep_len[i] = length
-            ep_return[i] = ret
+            flags[0, i] = False
+            counters[0, i] = nk
+            counters[1, i] = length
+            returns[0, i] = ret
     return n_done
 
 

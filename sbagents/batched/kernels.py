@@ -84,188 +84,214 @@ def gridworld_step(
 
 
 # ------------------------------------------------------------------------------------------ TreasureHunt
-@njit(cache=True, inline="always")  # inlined: a call per team would pay array refcounting
-def _treasure_obs(
-    i: int,
-    pos: np.ndarray,
-    tcell: np.ndarray,
-    ep_len: np.ndarray,
+# Packed state of ``n`` teams: ``cells (n, n_agents + 2 * n_treasures)`` int64 = agent cells | treasure cells
+# (the sentinel ``n_cells`` once collected) | initial treasure cells; ``counters (n, 2)`` int64 = treasures
+# collected, episode length; ``returns (n,)`` float64 team return. ``params`` int64 = (shared reward,
+# max_cycles, egocentric observation).
+@njit(cache=True)
+def _write_obs(
+    teams: np.ndarray,
+    n_teams: int,
+    cells: np.ndarray,
+    counters: np.ndarray,
+    params: np.ndarray,
     coords: np.ndarray,
     neighbours: np.ndarray,
     book_tail: np.ndarray,
-    scale: float,
-    egocentric: bool,
-    max_cycles: int,
+    offs: np.ndarray,
     out: np.ndarray,
-    keys: np.ndarray,
 ) -> None:
-    """Write the observations of env ``i``'s agents into ``out[i]`` (shape ``(n_agents, dim)``, zeroed).
+    """Write the observations of the teams ``teams[:n_teams]`` into ``out (n, n_agents, dim)`` (rows zeroed).
 
+    One call covers many teams: a numba call per team would pay reference counting on every array argument.
     ``coords (n_cells + 1, 2)`` row/col of each cell (the sentinel: -1, -1); ``neighbours (n_cells, 4)``
-    blocked up/down/left/right flags; ``book_tail`` the book layout's obstacle coordinates; ``scale`` =
-    1 / (grid_size - 1); ``keys (n_treasures,)`` scratch. Only small tables are read (they stay in L1).
+    blocked up/down/left/right flags; ``book_tail`` the book layout's obstacle coordinates; ``offs`` the
+    float32 value of ``d / (grid_size - 1)`` at index ``d + grid_size - 1``.
     """
-    n_a, n_t, dim = pos.shape[1], tcell.shape[1], out.shape[2]
+    n_a, dim = out.shape[1], out.shape[2]
+    n_t = (cells.shape[1] - n_a) // 2
     n_cells = coords.shape[0] - 1
-    if not egocentric:
+    zero = (offs.shape[0] - 1) // 2  # index of an offset of 0
+    keys = np.empty(n_t, dtype=np.int64)
+    trow = np.empty(n_t, dtype=np.int64)
+    tcol = np.empty(n_t, dtype=np.int64)
+    for q in range(n_teams):
+        i = teams[q]
+        if params[2] == 0:  # book layout
+            for j in range(n_a):
+                out[i, j, 0] = coords[cells[i, j], 0]
+                out[i, j, 1] = coords[cells[i, j], 1]
+                for k in range(n_t):
+                    out[i, j, 2 + 2 * k] = coords[cells[i, n_a + k], 0]
+                    out[i, j, 3 + 2 * k] = coords[cells[i, n_a + k], 1]
+                for d in range(book_tail.shape[0]):
+                    out[i, j, 2 + 2 * n_t + d] = book_tail[d]
+            continue
+        time_left = 1.0 - counters[i, 1] / params[1]
+        m = 0  # the team's present treasures, in index order
+        for k in range(n_t):
+            t = cells[i, n_a + k]
+            if t != n_cells:
+                trow[m] = coords[t, 0]
+                tcol[m] = coords[t, 1]
+                m += 1
         for j in range(n_a):
-            out[i, j, 0] = coords[pos[i, j], 0]
-            out[i, j, 1] = coords[pos[i, j], 1]
-            for k in range(n_t):
-                out[i, j, 2 + 2 * k] = coords[tcell[i, k], 0]
-                out[i, j, 3 + 2 * k] = coords[tcell[i, k], 1]
-            for d in range(book_tail.shape[0]):
-                out[i, j, 2 + 2 * n_t + d] = book_tail[d]
-        return
-    time_left = 1.0 - ep_len[i] / max_cycles
+            cell = cells[i, j]
+            row, col = coords[cell, 0], coords[cell, 1]
+            out[i, j, j] = 1.0
+            out[i, j, n_a] = offs[zero + row]
+            out[i, j, n_a + 1] = offs[zero + col]
+            out[i, j, n_a + 2] = time_left
+            # rank the present treasures by (Manhattan distance, index): a branch-free stable sort; the
+            # slots of collected ones keep the zero padding
+            for k in range(m):
+                keys[k] = (abs(trow[k] - row) + abs(tcol[k] - col)) * n_t + k
+            for k in range(m):
+                rank = 0
+                for k2 in range(m):
+                    rank += keys[k2] < keys[k]
+                b = n_a + 3 + 3 * rank
+                out[i, j, b] = 1.0
+                out[i, j, b + 1] = offs[zero + trow[k] - row]
+                out[i, j, b + 2] = offs[zero + tcol[k] - col]
+            b = n_a + 3 + 3 * n_t
+            for j2 in range(n_a):
+                if j2 != j:
+                    other = cells[i, j2]
+                    out[i, j, b] = offs[zero + coords[other, 0] - row]
+                    out[i, j, b + 1] = offs[zero + coords[other, 1] - col]
+                    b += 2
+            for d in range(4):
+                out[i, j, dim - 4 + d] = neighbours[cell, d]
+
+
+@njit(cache=True, inline="always")
+def _place_team(i: int, picks: np.ndarray, free: np.ndarray, cells: np.ndarray, n_a: int, n_t: int) -> None:
+    """Team ``i``'s agents, then treasures, on the free cells ``free[picks]`` (``picks (n_a + n_t,)``)."""
     for j in range(n_a):
-        cell = pos[i, j]
-        row, col = coords[cell, 0], coords[cell, 1]
-        out[i, j, j] = 1.0
-        out[i, j, n_a] = row * scale
-        out[i, j, n_a + 1] = col * scale
-        out[i, j, n_a + 2] = time_left
-        # rank present treasures by (Manhattan distance, index): a branch-free stable sort; collected ones
-        # rank last and leave the zero padding
-        for k in range(n_t):
-            t = tcell[i, k]
-            far = 4 * n_cells if t == n_cells else abs(coords[t, 0] - row) + abs(coords[t, 1] - col)
-            keys[k] = far * n_t + k
-        for k in range(n_t):
-            t = tcell[i, k]
-            if t == n_cells:
-                continue
-            rank = 0
-            for k2 in range(n_t):
-                rank += keys[k2] < keys[k]
-            q = n_a + 3 + 3 * rank
-            out[i, j, q] = 1.0
-            out[i, j, q + 1] = (coords[t, 0] - row) * scale
-            out[i, j, q + 2] = (coords[t, 1] - col) * scale
-        q = n_a + 3 + 3 * n_t
-        for j2 in range(n_a):
-            if j2 != j:
-                out[i, j, q] = (coords[pos[i, j2], 0] - row) * scale
-                out[i, j, q + 1] = (coords[pos[i, j2], 1] - col) * scale
-                q += 2
-        for d in range(4):
-            out[i, j, dim - 4 + d] = neighbours[cell, d]
+        cells[i, j] = free[picks[j]]
+    for k in range(n_t):
+        cells[i, n_a + k] = cells[i, n_a + n_t + k] = free[picks[n_a + k]]
 
 
 @njit(cache=True)
 def treasure_step(
     acts: np.ndarray,
-    pos: np.ndarray,
-    tcell: np.ndarray,
-    collected: np.ndarray,
-    ep_len: np.ndarray,
-    ep_return: np.ndarray,
+    cells: np.ndarray,
+    counters: np.ndarray,
+    returns: np.ndarray,
     move: np.ndarray,
-    event_reward: np.ndarray,
-    treasure_reward: float,
-    shared: bool,
-    max_cycles: int,
+    reward_of: np.ndarray,
+    params: np.ndarray,
     coords: np.ndarray,
     neighbours: np.ndarray,
     book_tail: np.ndarray,
-    scale: float,
-    egocentric: bool,
+    offs: np.ndarray,
+    free: np.ndarray,
+    next_picks: np.ndarray,
     obs: np.ndarray,
     rew: np.ndarray,
-    done: np.ndarray,
-    term: np.ndarray,
-    ev: np.ndarray,
-    slot_collected: np.ndarray,
+    flags: np.ndarray,
+    slot_info: np.ndarray,
+    finals: np.ndarray,
+    final_returns: np.ndarray,
+    terminal: np.ndarray,
 ) -> int:
-    """One step of every team (agents move in index order); returns the number of finished episodes.
+    """One step of every team (agents move in index order); returns the number of finished episodes, or
+    ``-1 - s`` (nothing changed) if slot ``s``'s action is out of range.
 
-    State (updated): ``pos (n, n_agents)`` cells, ``tcell (n, n_treasures)`` (sentinel once collected),
-    ``collected (n,)``, ``ep_len (n,)``, ``ep_return (n,)`` team return. ``move (n_cells, n_actions, 2)``:
-    next cell and event code (0 move, 1 wall, 2 obstacle; 3 = treasure is set here). Outputs: ``obs
-    (n, n_agents, dim)`` float32, zeroed by the caller, after the step (a finished episode's terminal
-    observation: the caller resets that team), ``rew``/``ev``/``slot_collected`` per slot
-    ``(n * n_agents,)``, ``done``/``term`` ``(n,)``. Finished teams keep their final state until the caller
-    resets them. Returns ``-1 - s`` (nothing changed) if slot ``s``'s action is out of range.
+    ``move (n_cells, n_actions, 2)``: next cell and event code (0 move, 1 wall, 2 obstacle; 3 treasure is set
+    here); ``reward_of (5,)``: rewards of the four events, then the per-treasure bonus. Outputs: ``obs (n,
+    n_agents, dim)`` float32 (zeroed by the caller), ``rew (n * n_agents,)``, ``flags (2, n)`` done and
+    terminated, ``slot_info (2, n * n_agents)`` event code and treasures collected (after the step).
+    A finished team's episode is reported in the first ``n_done`` columns of ``finals (4, n)`` (team index,
+    length, treasures, terminated), ``final_returns`` and rows of ``terminal (n, n_agents, dim)`` (its last
+    observations); the team is then reset in place onto its pre-drawn ``next_picks[i]`` (indices into
+    ``free``), whose observations replace the terminal ones in ``obs``. The caller draws the next picks.
     """
     bad = first_invalid_action(acts, move.shape[1])
     if bad >= 0:
         return -1 - bad
-    n, n_a = pos.shape
-    n_t = tcell.shape[1]
+    n, n_a = cells.shape[0], acts.shape[0] // cells.shape[0]
+    n_t = (cells.shape[1] - n_a) // 2
     n_cells = coords.shape[0] - 1
-    keys = np.empty(n_t, dtype=np.int64)
+    shared = params[0] != 0
     n_done = 0
     for i in range(n):
         total = 0
         for j in range(n_a):
             s = i * n_a + j
-            nxt = move[pos[i, j], acts[s], 0]
-            e = move[pos[i, j], acts[s], 1]
+            cell = cells[i, j]
+            nxt = move[cell, acts[s], 0]
+            e = move[cell, acts[s], 1]
             found = 0
             if e == 0:
-                pos[i, j] = nxt
+                cells[i, j] = nxt
                 for k in range(n_t):
-                    if tcell[i, k] == nxt:
-                        tcell[i, k] = n_cells
+                    if cells[i, n_a + k] == nxt:
+                        cells[i, n_a + k] = n_cells
                         found += 1
                         e = 3
-            ev[s] = e
-            rew[s] = event_reward[e]
-            if not shared:
-                rew[s] += treasure_reward * found
+            slot_info[0, s] = e
+            rew[s] = reward_of[e] if shared else reward_of[e] + reward_of[4] * found
             total += found
-        collected[i] += total
+        counters[i, 0] += total
+        collected = counters[i, 0]
         team = 0.0
         for j in range(n_a):
             s = i * n_a + j
             if shared:
-                rew[s] += treasure_reward * total
+                rew[s] += reward_of[4] * total
             team += rew[s]
-            slot_collected[s] = collected[i]
-        ep_return[i] += team
-        ep_len[i] += 1
-        t = collected[i] == n_t
-        term[i] = t
-        done[i] = t or ep_len[i] >= max_cycles
-        if done[i]:
+            slot_info[1, s] = collected
+        returns[i] += team
+        counters[i, 1] += 1
+        length = counters[i, 1]
+        t = collected == n_t
+        flags[1, i] = t
+        flags[0, i] = t or length >= params[1]
+        if flags[0, i]:
+            finals[0, n_done] = i
+            finals[1, n_done] = length
+            finals[2, n_done] = collected
+            finals[3, n_done] = t
+            final_returns[n_done] = returns[i]
             n_done += 1
-        _treasure_obs(i, pos, tcell, ep_len, coords, neighbours, book_tail, scale, egocentric, max_cycles, obs,
-                      keys)
+    _write_obs(np.arange(n), n, cells, counters, params, coords, neighbours, book_tail, offs, obs)
+    if n_done == 0:
+        return 0
+    ended = finals[0, :n_done]
+    for q in range(n_done):  # terminal observations, then the reset onto the pre-drawn starts
+        i = ended[q]
+        terminal[q] = obs[i]
+        _place_team(i, next_picks[i], free, cells, n_a, n_t)
+        counters[i, 0] = counters[i, 1] = 0
+        returns[i] = 0.0
+        obs[i] = 0.0
+    _write_obs(ended, n_done, cells, counters, params, coords, neighbours, book_tail, offs, obs)
     return n_done
 
 
 @njit(cache=True)
 def treasure_reset(
-    envs: np.ndarray,
     picks: np.ndarray,
     free: np.ndarray,
-    pos: np.ndarray,
-    tcell: np.ndarray,
-    treasure: np.ndarray,
-    collected: np.ndarray,
-    ep_len: np.ndarray,
-    ep_return: np.ndarray,
+    cells: np.ndarray,
+    counters: np.ndarray,
+    returns: np.ndarray,
+    params: np.ndarray,
     coords: np.ndarray,
     neighbours: np.ndarray,
     book_tail: np.ndarray,
-    scale: float,
-    egocentric: bool,
-    max_cycles: int,
+    offs: np.ndarray,
     obs: np.ndarray,
 ) -> None:
-    """Reset teams ``envs (m,)``: agents then treasures on the free cells ``free[picks] (m, n_agents +
-    n_treasures)``; ``treasure`` keeps the initial treasure cells; rewrite the teams' observation rows."""
-    n_a, n_t = pos.shape[1], tcell.shape[1]
-    keys = np.empty(n_t, dtype=np.int64)
-    for q in range(envs.shape[0]):
-        i = envs[q]
-        for j in range(n_a):
-            pos[i, j] = free[picks[q, j]]
-        for k in range(n_t):
-            tcell[i, k] = treasure[i, k] = free[picks[q, n_a + k]]
-        collected[i] = 0
-        ep_len[i] = 0
-        ep_return[i] = 0.0
-        obs[i] = 0.0
-        _treasure_obs(i, pos, tcell, ep_len, coords, neighbours, book_tail, scale, egocentric, max_cycles, obs,
-                      keys)
+    """Reset every team ``i`` onto the free cells ``free[picks[i]]`` and write all observations (``obs``
+    zeroed)."""
+    n, n_a = cells.shape[0], obs.shape[1]
+    n_t = picks.shape[1] - n_a
+    for i in range(n):
+        _place_team(i, picks[i], free, cells, n_a, n_t)
+        counters[i, 0] = counters[i, 1] = 0
+        returns[i] = 0.0
+    _write_obs(np.arange(n), n, cells, counters, params, coords, neighbours, book_tail, offs, obs)

@@ -13,9 +13,10 @@ index order (the lower index collects a treasure two agents step onto), and obse
 from precomputed per-cell and per-cell-pair tables. Rewards are integers, so team returns summed in
 any order equal the reference's exactly.
 
-Each env copy owns a numpy ``Generator`` created exactly like the reference env's ``np_random``; resets
-draw from it with the same call (one loop iteration per env that resets), so start states match the
-reference.
+Each env copy owns a numpy ``Generator`` created exactly like the reference env's ``np_random`` and draws
+its start states with the same call, so they match the reference. The generator serves only resets, so
+each team's *next* start is drawn as soon as its current episode starts: the kernel then resets a finished
+team in place, and Python only draws the following start (one ``choice`` call per finished episode).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ from sbagents.envs.treasure_hunt import (
 TREASURE_HUNT_ID = "treasure_hunt_v0"
 #: Event codes -> the reference env's ``info["event"]`` strings.
 EVENTS: tuple[str, ...] = ("move", "wall", "obstacle", "treasure")
-_EVENT_REWARD = np.array([STEP_REWARD, WALL_REWARD, OBSTACLE_REWARD, STEP_REWARD], dtype=np.float32)
+#: Rewards of the event codes, then the bonus per treasure collected.
+_REWARD_OF = np.array([STEP_REWARD, WALL_REWARD, OBSTACLE_REWARD, STEP_REWARD, TREASURE_REWARD], dtype=np.float64)
 
 
 class BatchedTreasureHuntVecEnv(BatchedVecEnv):
@@ -72,13 +74,16 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._cells = self.size * self.size  # cell index ``cells`` is the "collected" sentinel
         self._build_move_table(env)
         self._build_obs_tables(env)
-        self._obs_tables = (self._coords, self._neighbours, self._book_tail, self._scale, self.egocentric)
-        self._pos = np.zeros((n, n_a), dtype=np.int64)  # flat cells row * size + col
-        self._treasure = np.zeros((n, n_t), dtype=np.int64)  # initial treasure cells
-        self._tcell = np.zeros((n, n_t), dtype=np.int64)  # treasure cell, or the sentinel once collected
-        self._collected = np.zeros(n, dtype=np.int64)
-        self._ep_len = np.zeros(n, dtype=np.int64)
-        self._ep_return = np.zeros(n, dtype=np.float64)  # team return
+        # packed state (see sbagents.batched.kernels): agent cells | treasure cells | initial treasure cells
+        self._state = np.zeros((n, n_a + 2 * n_t), dtype=np.int64)
+        self._pos, self._tcell = self._state[:, :n_a], self._state[:, n_a : n_a + n_t]
+        self._treasure = self._state[:, n_a + n_t :]
+        self._counters = np.zeros((n, 2), dtype=np.int64)  # treasures collected, episode length
+        self._returns = np.zeros(n, dtype=np.float64)  # team return
+        self._next_picks = np.zeros((n, n_a + n_t), dtype=np.int64)  # next start: indices into free cells
+        self._finals = np.zeros((4, n), dtype=np.int64)  # kernel output: ended team, length, treasures, success
+        self._final_returns = np.zeros(n, dtype=np.float64)
+        self._terminal = np.zeros((n, n_a, self._dim), dtype=np.float32)
         self._rngs: list[np.random.Generator | None] = [None] * n
         super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]))
         self._writer: ResultsWriter | None = None
@@ -109,21 +114,22 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
                 else:
                     move[cell, a] = (rr * size + cc, 0)
         self._move = move
-        self._event_names = np.array(EVENTS, dtype=object)
 
     def _build_obs_tables(self, env: CooperativeTreasureHunt) -> None:
-        """Small tables the kernel builds observations from (as the reference computes them).
+        """Small tables the kernel builds observations from (values computed as the reference does).
 
-        ``_coords (cells + 1, 2)``: row/col of each cell, ``(-1, -1)`` for the collected sentinel;
-        ``_neighbours (cells, 4)``: up/down/left/right is an edge or obstacle; ``_book_tail``: the book
-        layout's obstacle coordinates; ``_scale = 1 / (grid_size - 1)``.
+        ``coords (cells + 1, 2)``: row/col of each cell, ``(-1, -1)`` for the collected sentinel;
+        ``neighbours (cells, 4)``: up/down/left/right is an edge or obstacle; ``book_tail``: the book
+        layout's obstacle coordinates; ``offs[d + size - 1]`` = float32 of ``d / (size - 1)``.
         """
         rows, cols = np.divmod(np.arange(self._cells + 1), self.size)
-        self._coords = np.stack([rows, cols], axis=-1).astype(np.int64)
-        self._coords[self._cells] = -1
-        self._neighbours = (self._move[:, :4, 1] != 0).astype(np.float32)
-        self._book_tail = np.array(env.obstacles, dtype=np.float32).reshape(-1)
-        self._scale = 1.0 / (self.size - 1)
+        coords = np.stack([rows, cols], axis=-1).astype(np.int64)
+        coords[self._cells] = -1
+        neighbours = (self._move[:, :4, 1] != 0).astype(np.float32)
+        book_tail = np.array(env.obstacles, dtype=np.float32).reshape(-1)
+        offs = (np.arange(-(self.size - 1), self.size) * (1.0 / (self.size - 1))).astype(np.float32)
+        params = np.array([self.shared, self.max_cycles, self.egocentric], dtype=np.int64)
+        self._tables = (self._move, _REWARD_OF, params, coords, neighbours, book_tail, offs, self._free)
 
     # ------------------------------------------------------------------ reset
     def seed(self, seed: int | None = None) -> list[int | None]:  # type: ignore[override]
@@ -133,86 +139,82 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._seeds = [seed + k // self.n_agents for k in range(self.num_envs)]
         return self._seeds
 
-    def _reset_envs(self, envs: list[int], obs: np.ndarray) -> None:
-        """Reset the given env copies (per-env RNG draws, like the reference ``reset``); write their obs."""
-        n_a, size, n_free = self.n_agents, self.size, len(self._free)
-        n_picks = n_a + self.n_treasures
-        seeds, options, rngs, reset_infos = self._seeds, self._options, self._rngs, self.reset_infos
-        picks = np.empty((len(envs), n_picks), dtype=np.int64)  # indices into the free cells
-        for q, i in enumerate(envs):
-            first = i * n_a
-            seed, rng = seeds[first], rngs[i]
-            if seed is not None or rng is None:
-                rng, _ = seeding.np_random(seed)
-                rngs[i] = rng
-                seeds[first : first + n_a] = [None] * n_a
-            option = options[first]
-            if option and ("agents" in option or "treasures" in option):
-                self.template.reset(options=option)  # validates and places by hand (no RNG draw)
-                placed = (*self.template.positions, *self.template.treasures)
-                picks[q] = self._free_index[[r * size + c for r, c in placed]]
-            else:
-                picks[q] = rng.choice(n_free, n_picks, replace=False)
-            for s in range(first, first + n_a):
-                reset_infos[s] = {"treasures_collected": 0}
-        treasure_reset(np.array(envs, dtype=np.int64), picks, self._free, self._pos, self._tcell, self._treasure,
-                       self._collected, self._ep_len, self._ep_return, *self._obs_tables, self.max_cycles, obs)
+    def _draw(self, rng: np.random.Generator) -> np.ndarray:
+        """A start state as the reference draws it: free-cell indices of the agents, then the treasures."""
+        return rng.choice(len(self._free), self.n_agents + self.n_treasures, replace=False)
 
     def reset(self) -> VecEnvObs:
         """Reset every env (pending seeds/options are used once); returns ``(num_envs, obs_dim)`` float32."""
-        obs = np.zeros((self.n_envs, self.n_agents, self._dim), dtype=np.float32)
-        self._reset_envs(list(range(self.n_envs)), obs)
+        n_a, size = self.n_agents, self.size
+        picks = np.empty_like(self._next_picks)
+        for i in range(self.n_envs):
+            seed, option, rng = self._seeds[i * n_a], self._options[i * n_a], self._rngs[i]
+            if seed is not None or rng is None:  # a new generator: its first draw is this reset's
+                rng, _ = seeding.np_random(seed)
+                self._rngs[i] = rng
+                self._next_picks[i] = self._draw(rng)
+            if option and ("agents" in option or "treasures" in option):
+                self.template.reset(options=option)  # validates and places by hand (no RNG draw)
+                placed = (*self.template.positions, *self.template.treasures)
+                picks[i] = self._free_index[[r * size + c for r, c in placed]]
+            else:  # the pre-drawn start, then the generator's next draw for the following episode
+                picks[i] = self._next_picks[i]
+                self._next_picks[i] = self._draw(rng)
+        self.reset_infos = [{"treasures_collected": 0} for _ in range(self.num_envs)]
+        self._reset_seeds()
         self._reset_options()
+        obs = np.zeros((self.n_envs, n_a, self._dim), dtype=np.float32)
+        move, _, params, coords, neighbours, book_tail, offs, free = self._tables
+        treasure_reset(picks, free, self._state, self._counters, self._returns, params, coords, neighbours,
+                       book_tail, offs, obs)
         return obs.reshape(self.num_envs, -1)
 
     # ------------------------------------------------------------------ step
     def step_wait(self) -> VecEnvStepReturn:
-        acts = self._actions
         n, n_a, k = self.n_envs, self.n_agents, self.num_envs
         obs = np.zeros((n, n_a, self._dim), dtype=np.float32)
         rewards = np.empty(k, dtype=np.float32)
-        events = np.empty(k, dtype=np.int64)
-        slot_collected = np.empty(k, dtype=np.int64)
-        dones = np.empty(n, dtype=bool)
-        terminated = np.empty(n, dtype=bool)
+        flags = np.empty((2, n), dtype=bool)  # done, terminated
+        slot_info = np.empty((2, k), dtype=np.int64)  # event code, treasures collected
+        move, reward_of, params, coords, neighbours, book_tail, offs, free = self._tables
         n_done = treasure_step(
-            acts, self._pos, self._tcell, self._collected, self._ep_len, self._ep_return, self._move,
-            _EVENT_REWARD, TREASURE_REWARD, self.shared, self.max_cycles, *self._obs_tables, obs, rewards, dones,
-            terminated, events, slot_collected,
+            self._actions, self._state, self._counters, self._returns, move, reward_of, params, coords,
+            neighbours, book_tail, offs, free, self._next_picks, obs, rewards, flags, slot_info, self._finals,
+            self._final_returns, self._terminal,
         )
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, self._n_actions)
+        events, collected = slot_info.tolist()
+        names = EVENTS
         infos: list[dict[str, Any]] = [
-            {"treasures_collected": c, "event": e}
-            for c, e in zip(slot_collected.tolist(), self._event_names[events].tolist())  # noqa: B905 (same size)
+            {"treasures_collected": c, "event": names[e]} for e, c in zip(events, collected)  # noqa: B905
         ]
         if n_done:
-            ended = np.flatnonzero(dones).tolist()
-            self._finish_episodes(ended, infos, terminated, obs)
-            self._reset_envs(ended, obs)
-        return obs.reshape(k, -1), rewards, dones.repeat(n_a), infos
+            self._finish_episodes(n_done, infos)
+        return obs.reshape(k, -1), rewards, flags[0].repeat(n_a), infos
 
-    def _finish_episodes(
-        self, ended: list[int], infos: list[dict[str, Any]], terminated: np.ndarray, obs: np.ndarray
-    ) -> None:
-        """Episode-end infos of the ``ended`` envs and their monitor rows (before ``obs`` is reset)."""
+    def _finish_episodes(self, n_done: int, infos: list[dict[str, Any]]) -> None:
+        """Episode-end infos and monitor rows of the ``n_done`` teams the kernel reset; draw their next starts."""
         n_a = self.n_agents
-        terminal = list(obs[ended].reshape(-1, self._dim))  # copies: the reset rewrites these rows of ``obs``
-        returns, lengths = self._ep_return[ended].tolist(), self._ep_len[ended].tolist()
-        treasures, success = self._collected[ended].tolist(), terminated[ended].tolist()
+        ended, lengths, treasures, success = self._finals[:, :n_done].tolist()
+        returns = self._final_returns[:n_done].tolist()
+        terminal = list(self._terminal[:n_done].reshape(-1, self._dim).copy())  # rows, one per slot
         seconds = round(time.time() - self._t_start, 6)
         for q, i in enumerate(ended):
-            term = success[q]
+            term = success[q] == 1
+            first = i * n_a
             for j in range(n_a):
-                info = infos[i * n_a + j]
+                info = infos[first + j]
                 info["is_success"] = term
                 info["TimeLimit.truncated"] = not term
                 info["terminal_observation"] = terminal[q * n_a + j]
+                self.reset_infos[first + j] = {"treasures_collected": 0}
             ep = {"r": round(returns[q], 6), "l": lengths[q], "t": seconds}
-            infos[i * n_a]["episode"] = ep
-            infos[i * n_a]["treasures"] = treasures[q]
+            infos[first]["episode"] = ep
+            infos[first]["treasures"] = treasures[q]
             if self._writer is not None:
                 self._writer.write_row({**ep, "treasures": treasures[q]})
+            self._next_picks[i] = self._draw(self._rngs[i])  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ attributes / rendering
     def _sync(self, env_index: int) -> None:
@@ -220,8 +222,8 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         env.positions = [divmod(int(c), size) for c in self._pos[env_index]]
         env.treasures = [divmod(int(c), size) for c in self._treasure[env_index]]
         env.present = [bool(c != self._cells) for c in self._tcell[env_index]]
-        env.collected = int(self._collected[env_index])
-        env.steps = int(self._ep_len[env_index])
+        env.collected = int(self._counters[env_index, 0])
+        env.steps = int(self._counters[env_index, 1])
         env.agents = list(self.possible_agents)
 
     def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:

@@ -47,6 +47,7 @@ class BatchedVecEnv(VecEnv):
         self.n_envs = num_envs // slots_per_env
         self._t_start = time.time()
         self._actions: np.ndarray = np.zeros(num_envs, dtype=np.int64)
+        self._action_shape = (num_envs,)
         super().__init__(num_envs, observation_space, action_space)
 
     # ------------------------------------------------------------------ to implement
@@ -57,9 +58,9 @@ class BatchedVecEnv(VecEnv):
     # ------------------------------------------------------------------ VecEnv API
     def step_async(self, actions: np.ndarray) -> None:
         """Store the actions, shape ``(num_envs,)`` (any integer array of that size)."""
-        acts = np.asarray(actions).reshape(self.num_envs)
-        if acts.dtype != np.int64:
-            acts = acts.astype(np.int64)
+        acts = actions if type(actions) is np.ndarray else np.asarray(actions)
+        if acts.dtype != np.int64 or acts.shape != self._action_shape:
+            acts = acts.reshape(self.num_envs).astype(np.int64)  # reshape checks the size
         self._actions = acts
 
     def _raise_invalid_action(self, slot: int, n_actions: int) -> None:

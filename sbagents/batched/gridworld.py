@@ -63,6 +63,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self._counters = np.zeros((3, n_envs), dtype=np.int64)
         self._counters[0] = self._start * 4
         self._returns = np.zeros((2, n_envs), dtype=np.float64)  # rows: episode return, return of an ended one
+        self._terminated = np.zeros(n_envs, dtype=bool)  # kernel output: the episode reached the goal
         super().__init__(n_envs, 1, template, template.observation_space, template.action_space)
         self._writers: list[ResultsWriter | None] = [
             monitor_writer(monitor_dir, i, env_id, self._t_start) for i in range(n_envs)
@@ -105,11 +106,11 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         acts, n = self._actions, self.num_envs
         obs = np.empty(n, dtype=np.int64)
         rewards = np.empty(n, dtype=np.float32)
-        flags = np.empty((2, n), dtype=bool)  # done, terminated
+        dones = np.empty(n, dtype=bool)
         events = np.empty(n, dtype=np.int64)
+        terminated = self._terminated  # read only in this step
         n_done = gridworld_step(acts, self._counters, self._returns, self._table, self._reward, self._start * 4,
-                                self.max_steps, obs, rewards, flags, events)
-        dones, terminated = flags
+                                self.max_steps, obs, rewards, dones, terminated, events)
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, 4)
         names = EVENTS

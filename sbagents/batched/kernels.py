@@ -38,7 +38,8 @@ def gridworld_step(
     max_steps: int,
     obs: np.ndarray,
     rew: np.ndarray,
-    flags: np.ndarray,
+    done: np.ndarray,
+    term: np.ndarray,
     ev: np.ndarray,
 ) -> int:
     """One GridWorld step of every copy; returns the number of finished episodes, or ``-1 - i`` (nothing
@@ -49,7 +50,7 @@ def gridworld_step(
     return of an episode that ended. Tables indexed by ``cell * 4 + action``: ``table (cells * 4, 3)``
     next cell * 4, event code, move reaches the goal; ``reward`` float32. Outputs ``(n,)``: ``obs`` the
     cell after the move (a finished episode's terminal observation: the caller resets it), ``rew``,
-    ``flags (2, n)`` rows done and terminated (goal reached), ``ev``. A finished copy is reset in place to
+    ``done``, ``term`` (goal reached), ``ev``. A finished copy is reset in place to
     ``start_key`` with zero length and return.
     """
     bad = first_invalid_action(acts, 4)
@@ -66,9 +67,9 @@ def gridworld_step(
         length = counters[1, i] + 1
         ret = returns[0, i] + r
         t = table[k, 2] != 0
-        flags[1, i] = t
+        term[i] = t
         if t or length >= max_steps:
-            flags[0, i] = True
+            done[i] = True
             counters[2, i] = length
             returns[1, i] = ret
             counters[0, i] = start_key
@@ -76,7 +77,7 @@ def gridworld_step(
             returns[0, i] = 0.0
             n_done += 1
         else:
-            flags[0, i] = False
+            done[i] = False
             counters[0, i] = nk
             counters[1, i] = length
             returns[0, i] = ret

@@ -32,6 +32,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv
 
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
+from benchmarks.noop_vec_env import NoOpVecEnv
 from sbagents.batched import make_batched_vec_env
 from sbagents.env_ids import resolve_env
 from sbagents.envs.treasure_hunt_v0 import parallel_env
@@ -40,6 +41,7 @@ from sbagents.training import build_experiment
 
 ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0")
 N_ENVS = 64
+WARMUP_STEPS = 20  # untimed VecEnv steps before each stepping measurement
 
 
 def reference_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]) -> VecEnv:
@@ -80,16 +82,27 @@ def single_env_rate(env_id: str, env_kwargs: dict[str, Any], n_steps: int, seed:
 
 
 def vec_env_rate(vec: VecEnv, n_steps: int, seed: int = 0) -> float:
-    """Transitions/s of ``n_steps`` VecEnv steps with random actions (auto-resets included)."""
+    """Transitions/s of ``n_steps`` VecEnv steps with random actions (auto-resets included), timed after
+    :data:`WARMUP_STEPS` untimed ones."""
     n_actions = int(vec.action_space.n)  # type: ignore[attr-defined]
-    actions = np.random.default_rng(seed).integers(0, n_actions, size=(n_steps, vec.num_envs))
+    actions = np.random.default_rng(seed).integers(0, n_actions, size=(WARMUP_STEPS + n_steps, vec.num_envs))
     vec.reset()
+    for a in actions[:WARMUP_STEPS]:  # first calls load compiled kernels and warm caches
+        vec.step(a)
     start = time.perf_counter()
-    for a in actions:
+    for a in actions[WARMUP_STEPS:]:
         vec.step(a)
     rate = n_steps * vec.num_envs / (time.perf_counter() - start)
     vec.close()
     return rate
+
+
+def make_vec_kind(env_id: str, kind: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]) -> VecEnv:
+    """``reference``, ``batched`` or ``noop`` (:class:`benchmarks.noop_vec_env.NoOpVecEnv`: the ceiling)."""
+    if kind == "reference":
+        return reference_vec_env(env_id, n_envs, seed, env_kwargs)
+    batched = make_batched_vec_env(env_id, n_envs, seed, env_kwargs, None)
+    return NoOpVecEnv(batched) if kind == "noop" else batched
 
 
 def ppo_kwargs(env_id: str, n_envs: int) -> dict[str, Any]:
@@ -110,20 +123,18 @@ def ppo_kwargs(env_id: str, n_envs: int) -> dict[str, Any]:
 def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, seed: int = 0) -> float:
     """PPO training fps (``learn`` only) with the zoo hyperparameters (:func:`ppo_kwargs`) on ``n_envs`` copies.
 
-    Trains whole rollouts, at least two and at least ``min_steps`` transitions.
+    Times whole rollouts, at least two and at least ``min_steps`` transitions, after one untimed rollout.
     """
     torch.set_num_threads(1)
     exp = build_experiment("ppo", resolve_env(env_id))
-    if vec_kind == "batched":
-        vec = make_batched_vec_env(env_id, n_envs, seed, exp.env_kwargs, None)
-    else:
-        vec = reference_vec_env(env_id, n_envs, seed, exp.env_kwargs)
+    vec = make_vec_kind(env_id, vec_kind, n_envs, seed, exp.env_kwargs)
     model = PPO(exp.policy, vec, seed=seed, verbose=0, **ppo_kwargs(env_id, n_envs))
     rollout = model.n_steps * vec.num_envs
     steps = max(2, -(-min_steps // rollout)) * rollout
+    model.learn(rollout)  # warm-up rollout and update, not timed
     start = time.perf_counter()
-    model.learn(steps)
-    fps = model.num_timesteps / (time.perf_counter() - start)
+    model.learn(steps, reset_num_timesteps=False)
+    fps = steps / (time.perf_counter() - start)
     vec.close()
     return fps
 
@@ -156,15 +167,18 @@ def run(rounds: int = 3, quick: bool = False) -> dict[str, Any]:
             "batched": lambda e=env_id, k=kwargs, n=int(batched_steps * scale): vec_env_rate(  # type: ignore[misc]
                 make_batched_vec_env(e, N_ENVS, 0, k, None), n
             ),
+            "noop": lambda e=env_id, k=kwargs, n=int(batched_steps * scale): vec_env_rate(  # type: ignore[misc]
+                make_vec_kind(e, "noop", N_ENVS, 0, k), n
+            ),
         }
         env_rates = _median_rounds(fns, rounds)
         ppo: dict[str, float] = {}
         for n_envs in sorted({n_cfg, N_ENVS}):
             ppo_fns: dict[str, Callable[[], float]] = {
-                kind: partial(ppo_fps, env_id, kind, n_envs, 6_000 if quick else 24_000)
-                for kind in ("reference", "batched")
+                kind: partial(ppo_fps, env_id, kind, n_envs, 6_000 if quick else 48_000)
+                for kind in ("reference", "batched", "noop")
             }
-            rates = _median_rounds(ppo_fns, 1 if quick else max(rounds - 1, 1))
+            rates = _median_rounds(ppo_fns, 1 if quick else rounds)
             ppo.update({f"{kind}_{n_envs}": v for kind, v in rates.items()})
         results["envs"][env_id] = {"env_kwargs": kwargs, "config_n_envs": n_cfg, "steps_per_s": env_rates,
                                    "ppo_fps": ppo}
@@ -211,32 +225,38 @@ def markdown(results: dict[str, Any]) -> str:
         "Env transitions/s with random actions (resets included; TreasureHunt: one transition = one agent "
         "step):",
         "",
-        f"| env | single env | reference x{N_ENVS} | batched x{N_ENVS} | batched / reference |",
-        "|---|---:|---:|---:|---:|",
+        f"| env | single env | reference x{N_ENVS} | batched x{N_ENVS} | batched / reference | no-op x{N_ENVS} "
+        "| no-op / reference (ceiling) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for env_id, r in results["envs"].items():
         s = r["steps_per_s"]
         lines.append(f"| {env_id} | {_fmt(s['single'])} | {_fmt(s['reference'])} | {_fmt(s['batched'])} | "
-                     f"{s['batched'] / s['reference']:.1f}x |")
+                     f"{s['batched'] / s['reference']:.1f}x | {_fmt(s['noop'])} | {s['noop'] / s['reference']:.1f}x |")
     lines += [
         "",
         "PPO training fps (`model.learn` only, zoo hyperparameters, torch 1 thread). At an `n_envs` other than "
         "the config's, `batch_size` is scaled with the rollout so each rollout keeps the config's number of "
         "minibatches:",
         "",
-        "| env | n_envs | batch_size | reference | batched | batched / reference |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| env | n_envs | batch_size | reference | batched | batched / reference | no-op | no-op / reference "
+        "(ceiling) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for env_id, r in results["envs"].items():
         for n in sorted({r["config_n_envs"], N_ENVS}):
             ref, bat = r["ppo_fps"][f"reference_{n}"], r["ppo_fps"][f"batched_{n}"]
+            noop = r["ppo_fps"][f"noop_{n}"]
             tag = " (config)" if n == r["config_n_envs"] else ""
             batch = ppo_kwargs(env_id, n).get("batch_size", 64)
-            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x |")
+            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x | "
+                         f"{_fmt(noop)} | {noop / ref:.2f}x |")
     lines += [
         "",
         "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "
-        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds.",
+        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds. *No-op* is "
+        "`benchmarks.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
+        "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",
     ]
     return "\n".join(lines)
 

@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
@@ -162,9 +163,24 @@ def test_speed_markdown_has_ratios() -> None:
         "machine": {"cpu": "x", "cores": 2, "python": "3.11", "numpy": "2", "torch": "2", "stable_baselines3": "2",
                     "date": "d", "load_before": [1.0], "load_after": [1.0]},
         "envs": {"sbagents/GridWorld-v0": {
-            "config_n_envs": 8, "steps_per_s": {"single": 4e5, "reference": 2.5e5, "batched": 7.5e6},
-            "ppo_fps": {"reference_8": 2e4, "batched_8": 2.2e4, "reference_64": 5e4, "batched_64": 6e4}}},
+            "config_n_envs": 8,
+            "steps_per_s": {"single": 4e5, "reference": 2.5e5, "batched": 7.5e6, "noop": 1.5e7},
+            "ppo_fps": {"reference_8": 2e4, "batched_8": 2.2e4, "noop_8": 2.4e4, "reference_64": 5e4,
+                        "batched_64": 6e4, "noop_64": 7e4}}},
     }
     text = speed.markdown(results)
-    assert "| sbagents/GridWorld-v0 | 64 | 2048 | 50,000 | 60,000 | 1.20x |" in text
-    assert "30.0x" in text
+    assert "| sbagents/GridWorld-v0 | 64 | 2048 | 50,000 | 60,000 | 1.20x | 70,000 | 1.40x |" in text
+    assert "| 30.0x | 15,000,000 | 60.0x |" in text
+
+
+def test_noop_vec_env_replays_a_step_with_fresh_outputs() -> None:
+    from benchmarks.noop_vec_env import NoOpVecEnv
+    from sbagents.batched import make_batched_vec_env
+
+    vec = NoOpVecEnv(make_batched_vec_env("treasure_hunt_v0", 2, 0, {}, None))
+    first = vec.reset()
+    obs, rewards, dones, infos = vec.step(np.zeros(6, dtype=np.int64))
+    again = vec.step(np.zeros(6, dtype=np.int64))
+    assert obs.shape == first.shape == (6, vec.observation_space.shape[0]) and obs is not again[0]
+    assert rewards.tolist() == [0.0] * 6 and not dones.any()
+    assert set(infos[0]) == {"treasures_collected", "event"} and infos[0] is not again[3][0]

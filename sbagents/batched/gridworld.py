@@ -61,13 +61,15 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self._build_tables(template)
         # rows: current cell * 4 (table row), episode length, length of the episode that just ended
         self._counters = np.zeros((3, n_envs), dtype=np.int64)
-        self._counters[0] = self._start * 4
+        self._start_key = self._start * 4
+        self._counters[0] = self._start_key
         self._returns = np.zeros((2, n_envs), dtype=np.float64)  # rows: episode return, return of an ended one
         self._terminated = np.zeros(n_envs, dtype=bool)  # kernel output: the episode reached the goal
         super().__init__(n_envs, 1, template, template.observation_space, template.action_space)
         self._writers: list[ResultsWriter | None] = [
             monitor_writer(monitor_dir, i, env_id, self._t_start) for i in range(n_envs)
         ]
+        self._monitored = monitor_dir is not None
 
     def _build_tables(self, env: GridWorldEnv) -> None:
         """Flat ``(cell * 4 + action)`` tables: next cell, reward (float32), event name, goal reached."""
@@ -109,7 +111,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         dones = np.empty(n, dtype=bool)
         events = np.empty(n, dtype=np.int64)
         terminated = self._terminated  # read only in this step
-        n_done = gridworld_step(acts, self._counters, self._returns, self._table, self._reward, self._start * 4,
+        n_done = gridworld_step(acts, self._counters, self._returns, self._table, self._reward, self._start_key,
                                 self.max_steps, obs, rewards, dones, terminated, events)
         if n_done < 0:
             self._raise_invalid_action(-1 - n_done, 4)
@@ -126,20 +128,22 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
     ) -> None:
         """Episode-end infos (``is_success``, ``TimeLimit.truncated``, ``episode``, ``terminal_observation``)."""
         returns, lengths = self._returns[1].tolist(), self._counters[2].tolist()
-        success, writers, reset_infos = terminated.tolist(), self._writers, self.reset_infos
+        success, reset_infos = terminated.tolist(), self.reset_infos
         seconds = round(time.time() - self._t_start, 6)
         for i in ended:
-            info, term = infos[i], success[i]
-            ep = {"r": round(returns[i], 6), "l": lengths[i], "t": seconds}
+            info, term, ret = infos[i], success[i], returns[i]
+            ep = {"r": ret if ret.is_integer() else round(ret, 6), "l": lengths[i], "t": seconds}  # Monitor's
             info["is_success"] = term
             info["TimeLimit.truncated"] = not term
             info["episode"] = ep
             info["terminal_observation"] = obs[i]  # a new np.int64 scalar, as the reference
             reset_infos[i] = {}
-            if writers[i] is not None:
-                writers[i].write_row(ep)  # type: ignore[union-attr]
+        if self._monitored:
+            for i in ended:
+                self._writers[i].write_row(infos[i]["episode"])  # type: ignore[union-attr]
 
     def close(self) -> None:
+        self._monitored = False
         for k, writer in enumerate(self._writers):
             if writer is not None:
                 writer.close()

@@ -49,7 +49,7 @@ def test_default_output_folder_and_stochastic(grid_logs: Path) -> None:
 
 
 def test_treasure_hunt_team_video(tmp_path: Path) -> None:
-    small = {"n_envs": 2, "n_steps": 256}
+    small = {"n_envs": 2, "n_steps": 256, "batch_size": 512}
     train(
         "ppo",
         "treasure_hunt_v0",

@@ -7,8 +7,11 @@ VecEnv; the kernels update it in place and write the step's outputs into fresh a
 the compile time (a few seconds).
 
 Conventions: cells are flat indices ``row * size + col``; a collected treasure's cell is the sentinel
-``n_cells``. Arithmetic on observations is done in float64 and stored as float32, exactly as the
-reference envs compute it in Python.
+``n_cells``. Observation values are the float32 of the float64 values the reference envs compute in
+Python (precomputed where they are tables).
+
+Kernels call helpers once per step, never once per env: each numba call pays reference counting on its
+array arguments (measured ~75 ns per call here), which per team cost more than the observations themselves.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ slot), auto-reset, seeding (env ``i`` is reset with ``seed + i``), and one monit
 
 A step is one call of the compiled kernel :func:`sbagents.batched.kernels.treasure_step`: agents move in
 index order (the lower index collects a treasure two agents step onto), and observations are assembled
-from precomputed per-cell and per-cell-pair tables. Rewards are integers, so team returns summed in
+from small per-cell tables in one pass over all teams. Rewards are integers, so team returns summed in
 any order equal the reference's exactly.
 
 Each env copy owns a numpy ``Generator`` created exactly like the reference env's ``np_random`` and draws

@@ -16,7 +16,6 @@ With ``--output`` the table is written between ``<!-- callback-overhead:start --
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -35,7 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.speed import machine_info, write_section  # noqa: E402
+from benchmarks.speed import machine_info, publish  # noqa: E402
 from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback  # noqa: E402
 from sbagents.envs.smart_home import SmartHomeEnv  # noqa: E402
 
@@ -171,13 +170,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Measure, print the section, and write it into ``--output`` / the raw numbers into ``--json``."""
     args = build_parser().parse_args(argv)
     results = run(args.timesteps, args.repeats, args.envs)
-    text = markdown(results)
-    print(text)
-    if args.output:
-        write_section(args.output, text, SECTION)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
+    publish(markdown(results), results, args.output, args.json, SECTION)
     return results
 
 

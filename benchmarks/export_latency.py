@@ -16,7 +16,6 @@ Writes the section between ``<!-- export-latency:start -->`` / ``<!-- export-lat
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -33,7 +32,7 @@ import torch  # noqa: E402
 from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.speed import machine_info, write_section  # noqa: E402
+from benchmarks.speed import machine_info, publish  # noqa: E402
 from sbagents.env_factory import make_vec, normalize_for_training  # noqa: E402
 from sbagents.env_ids import resolve_env  # noqa: E402
 from sbagents.onnx_export import export_run  # noqa: E402
@@ -160,13 +159,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Measure, print the section, and write it into ``--output`` / the raw numbers into ``--json``."""
     args = build_parser().parse_args(argv)
     results = run(args.train_steps, args.latency_n, args.n_observations, args.seed)
-    text = markdown(results)
-    print(text)
-    if args.output:
-        write_section(args.output, text, SECTION)
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
+    publish(markdown(results), results, args.output, args.json, SECTION)
     return results
 
 

@@ -22,7 +22,7 @@ from typing import Any
 if __package__ in (None, ""):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.speed import write_section  # noqa: E402
+from benchmarks.speed import publish  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "recorded-learning"
@@ -157,10 +157,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--output", default="", help="Markdown file to update ('' to only print)")
     args = parser.parse_args(argv)
     rows = collect(args.results)
-    text = markdown(rows)
-    print(text)
-    if args.output:
-        write_section(args.output, text, SECTION)
+    publish(markdown(rows), rows, args.output, None, SECTION)
     return rows
 
 

@@ -280,15 +280,21 @@ def write_section(path: str, text: str, name: str = "speed") -> None:
         fh.write(new)
 
 
+def publish(text: str, results: Any, output: str | None, json_path: str | None, name: str) -> None:
+    """Print a suite's section ``text``, write it into ``output`` (section ``name``) and the raw ``results`` as
+    JSON into ``json_path``; an empty or None path skips that file."""
+    print(text)
+    if output:
+        write_section(output, text, name)
+    if json_path:
+        os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
+        with open(json_path, "w") as fh:
+            fh.write(json.dumps(results, indent=2) + "\n")
+
+
 def main(output: str = "BENCHMARKS.md", json_path: str | None = "benchmarks/results/speed.json",
          rounds: int = 3, quick: bool = False) -> dict[str, Any]:
     """Run the speed suite, print the table, write it into ``output`` (and the raw numbers as JSON)."""
     results = run(rounds=rounds, quick=quick)
-    text = markdown(results)
-    print(text)
-    write_section(output, text)
-    if json_path:
-        os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
-        with open(json_path, "w") as fh:
-            json.dump(results, fh, indent=2)
+    publish(markdown(results), results, output, json_path, "speed")
     return results

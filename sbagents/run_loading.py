@@ -21,22 +21,33 @@ def config_path(run_dir: Path, env_id: str) -> Path:
     return run_dir / env_stem(env_id) / "config.yml"
 
 
-def save_experiment(run_dir: Path, exp: Experiment, args: dict[str, Any], command: str) -> None:
-    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt``."""
-    folder = config_path(run_dir, exp.env_id).parent
+def save_run_config(
+    run_dir: Path, env_id: str, hyperparams: dict[str, Any], args: dict[str, Any], command: str
+) -> None:
+    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt`` (any backend)."""
+    folder = config_path(run_dir, env_id).parent
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.yml").write_text(yaml.safe_dump(exp.hyperparams, sort_keys=True))
+    (folder / "config.yml").write_text(yaml.safe_dump(hyperparams, sort_keys=True))
     (folder / "args.yml").write_text(yaml.safe_dump(args, sort_keys=True))
     (run_dir / "command.txt").write_text(command + "\n")
 
 
-def load_experiment(run_dir: Path, algo: str, env_id: str) -> Experiment:
-    """The :class:`Experiment` a run was trained with (so evaluation wraps the env identically)."""
+def save_experiment(run_dir: Path, exp: Experiment, args: dict[str, Any], command: str) -> None:
+    """:func:`save_run_config` of an SB3 :class:`Experiment`."""
+    save_run_config(run_dir, exp.env_id, exp.hyperparams, args, command)
+
+
+def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
+    """The hyperparameters saved in a run's ``config.yml``, or :class:`UsageError` if the file is missing."""
     path = config_path(run_dir, env_id)
     if not path.exists():
         raise UsageError(f"{run_dir} has no {path.relative_to(run_dir)}; is it a sbagents run dir?")
-    entry = load_yaml(path) or {}
-    return resolve(algo, env_id, entry, str(path))
+    return load_yaml(path) or {}
+
+
+def load_experiment(run_dir: Path, algo: str, env_id: str) -> Experiment:
+    """The :class:`Experiment` a run was trained with (so evaluation wraps the env identically)."""
+    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)))
 
 
 def check_model_file(path: str | Path) -> Path:

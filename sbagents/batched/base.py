@@ -68,9 +68,9 @@ class BatchedVecEnv(VecEnv):
             f"actions must be ints in 0..{n_actions - 1}, got {self._actions[slot]} in slot {slot}"
         )
 
-    def _episode_info(self, ep_return: float, ep_len: int) -> dict[str, Any]:
-        """SB3 Monitor's ``episode`` info: ``{"r": return, "l": length, "t": seconds since creation}``."""
-        return {"r": round(ep_return, 6), "l": ep_len, "t": round(time.time() - self._t_start, 6)}
+    def _monitor_seconds(self) -> float:
+        """SB3 Monitor's ``episode["t"]``: seconds since creation, rounded as Monitor rounds them."""
+        return round(time.time() - self._t_start, 6)
 
     def _env_indices(self, indices: VecEnvIndices) -> list[int]:
         if indices is None:

@@ -13,7 +13,6 @@ precomputed ``(cell, action)`` tables: next cell, reward, goal reached and event
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -129,7 +128,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         """Episode-end infos (``is_success``, ``TimeLimit.truncated``, ``episode``, ``terminal_observation``)."""
         returns, lengths = self._returns[1].tolist(), self._counters[2].tolist()
         success, reset_infos = terminated.tolist(), self.reset_infos
-        seconds = round(time.time() - self._t_start, 6)
+        seconds = self._monitor_seconds()
         for i in ended:
             info, term, ret = infos[i], success[i], returns[i]
             ep = {"r": ret if ret.is_integer() else round(ret, 6), "l": lengths[i], "t": seconds}  # Monitor's

@@ -21,7 +21,6 @@ team in place, and Python only draws the following start (one ``choice`` call pe
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -199,7 +198,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         ended, lengths, treasures, success = self._finals[:, :n_done].tolist()
         returns = self._final_returns[:n_done].tolist()
         terminal = list(self._terminal[:n_done].reshape(-1, self._dim).copy())  # rows, one per slot
-        seconds = round(time.time() - self._t_start, 6)
+        seconds = self._monitor_seconds()
         for q, i in enumerate(ended):
             term = success[q] == 1
             first = i * n_a

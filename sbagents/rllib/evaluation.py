@@ -21,12 +21,11 @@ from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.multi_rl_module import MultiRLModule
 from ray.rllib.core.rl_module.rl_module import RLModule
 
-from sbagents.config import load_yaml
 from sbagents.env_ids import PETTINGZOO_ENVS
 from sbagents.errors import UsageError
 from sbagents.evaluation import summarize
 from sbagents.rllib import CHECKPOINT_DIR, MODULE_SUBDIR, SHARED_MODULE
-from sbagents.run_loading import config_path
+from sbagents.run_loading import load_run_config
 
 
 def load_modules(checkpoint: str | Path) -> dict[str, RLModule]:
@@ -174,9 +173,6 @@ def evaluate_run(
 ) -> dict[str, Any]:
     """Evaluate a finished (or interrupted) RLlib run dir of ``python -m sbagents.train --backend rllib``."""
     run_dir = Path(run_dir)
-    cfg = config_path(run_dir, env_id)
-    if not cfg.exists():
-        raise UsageError(f"{run_dir} has no {cfg.relative_to(run_dir)}; is it a sbagents run dir?")
-    entry = load_yaml(cfg) or {}
+    entry = load_run_config(run_dir, env_id)
     return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, env_id, algo, entry.get("env_kwargs") or {}, n_episodes,
                                deterministic, seed, render)

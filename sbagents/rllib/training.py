@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 import ray
 import torch
-import yaml
 from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
 from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
@@ -43,7 +42,7 @@ from sbagents.errors import UsageError
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE, RLLIB_ALGOS, SHARED_MODULE, check_address
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.run_dir import SUMMARY_FILE, create_run_dir
-from sbagents.run_loading import config_path
+from sbagents.run_loading import save_run_config
 
 #: Zoo-entry keys that describe the experiment (the rest go to RLlib).
 EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "model")
@@ -290,11 +289,8 @@ def train_rllib(
     args = {"algo": algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": exp.n_timesteps,
             "log_folder": str(log_folder), "eval_freq": eval_freq, "eval_episodes": eval_episodes,
             "num_env_runners": exp.num_env_runners, "address": address, "num_threads": num_threads}
-    folder = config_path(run_dir, exp.env_id).parent  # RL Zoo layout, as the SB3 runs
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.yml").write_text(yaml.safe_dump(exp.hyperparams, sort_keys=True))
-    (folder / "args.yml").write_text(yaml.safe_dump(args, sort_keys=True))
-    (run_dir / "command.txt").write_text((command or f"python -m sbagents.train --backend rllib --env {env}") + "\n")
+    save_run_config(run_dir, exp.env_id, exp.hyperparams, args,  # RL Zoo layout, as the SB3 runs
+                    command or f"python -m sbagents.train --backend rllib --env {env}")
     interrupted = False
     done: dict[str, Any] = {"env_steps": 0, "agent_steps": 0, "iterations": 0}  # updated every iteration
     try:

@@ -71,7 +71,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
         self._monitored = monitor_dir is not None
 
     def _build_tables(self, env: GridWorldEnv) -> None:
-        """Flat ``(cell * 4 + action)`` tables: next cell, reward (float32), event name, goal reached."""
+        """Flat ``(cell * 4 + action)`` tables: next cell, event code, goal reached (packed) and reward (float32)."""
         n_cells = env.n_rows * env.n_cols
         nxt = np.zeros((n_cells, 4), dtype=np.int64)
         rew = np.zeros((n_cells, 4), dtype=np.float32)
@@ -96,7 +96,7 @@ class BatchedGridWorldVecEnv(BatchedVecEnv):
     # ------------------------------------------------------------------ core API
     def reset(self) -> VecEnvObs:
         """Reset every copy to the start cell; returns the observations, shape ``(n_envs,)`` int64."""
-        self._counters[:2] = [[self._start * 4], [0]]
+        self._counters[0], self._counters[1] = self._start_key, 0
         self._returns[0] = 0.0
         self.reset_infos = [{} for _ in range(self.num_envs)]
         self._reset_seeds()

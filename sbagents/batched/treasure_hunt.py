@@ -163,7 +163,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._reset_seeds()
         self._reset_options()
         obs = np.zeros((self.n_envs, n_a, self._dim), dtype=np.float32)
-        move, _, params, coords, neighbours, book_tail, offs, free = self._tables
+        _, _, params, coords, neighbours, book_tail, offs, free = self._tables
         treasure_reset(picks, free, self._state, self._counters, self._returns, params, coords, neighbours,
                        book_tail, offs, obs)
         return obs.reshape(self.num_envs, -1)

@@ -169,6 +169,11 @@ class ObservationAttacker:
         self.obs_space = space
         if isinstance(space, spaces.Dict):
             raise ValueError("observation attacks do not support Dict observations")
+        if attack.name != "none" and not any(p.requires_grad for p in policy.parameters()):
+            raise ValueError(
+                f"observation attacks need a neural-network policy; {type(policy).__name__} has no trainable "
+                "network (a tabular policy indexes a table by the exact observation)"
+            )
         if attack.name == "critic" and not (hasattr(policy, "critic") or hasattr(policy, "q_net")):
             raise ValueError(
                 "the critic attack needs a Q-function (DQN, QR-DQN, DDPG, TD3, SAC), "

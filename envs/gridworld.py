@@ -34,6 +34,18 @@ GOAL_REWARD = 100.0
 _COLOURS = {"A": (30, 110, 230), "G": (40, 170, 60), "X": (60, 60, 60), ".": (235, 235, 235)}
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _int_pair(value: Any, what: str) -> Cell:
+    """``(row, col)`` from a pair of integers, or ValueError naming ``what``."""
+    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray) or len(value) != 2 \
+            or not all(_is_int(v) for v in value):
+        raise ValueError(f"{what} must be a pair of integers (row, col), got {value!r}")
+    return int(value[0]), int(value[1])
+
+
 class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
     """Deterministic grid navigation with obstacles and a single goal.
 
@@ -59,17 +71,19 @@ class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
         max_steps: int = 100,
         render_mode: str | None = None,
     ) -> None:
-        n_rows, n_cols = (size, size) if isinstance(size, int) else (int(size[0]), int(size[1]))
+        n_rows, n_cols = (int(size), int(size)) if isinstance(size, int | np.integer) else _int_pair(size, "size")
         if n_rows < 1 or n_cols < 1:
             raise ValueError(f"size must be positive, got {size!r}")
         self.n_rows, self.n_cols = n_rows, n_cols
         self.start = self._cell(start, "start")
         self.goal = self._cell(goal, "goal")
+        if isinstance(obstacles, str) or not isinstance(obstacles, Iterable):
+            raise ValueError(f"obstacles must be a list of (row, col) cells, got {obstacles!r}")
         self.obstacles = frozenset(self._cell(c, "obstacle") for c in obstacles)
         if self.start in self.obstacles or self.goal in self.obstacles:
             raise ValueError("start and goal must not be obstacles")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        if not _is_int(max_steps) or max_steps < 1:
+            raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.max_steps = max_steps
@@ -80,7 +94,7 @@ class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
         self.steps = 0
 
     def _cell(self, cell: Sequence[int], what: str) -> Cell:
-        row, col = int(cell[0]), int(cell[1])
+        row, col = _int_pair(cell, what)
         if not (0 <= row < self.n_rows and 0 <= col < self.n_cols):
             raise ValueError(f"{what} {tuple(cell)} is outside the {self.n_rows}x{self.n_cols} grid")
         return row, col

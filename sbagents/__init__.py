@@ -4,7 +4,13 @@ Importing the package registers the Gymnasium IDs (``sbagents/GridWorld-v0``, ..
 ``gym.make("sbagents:sbagents/GridWorld-v0")`` works in a fresh interpreter.
 """
 
-from sbagents.registration import GYM_ENVS, register_envs
+from pathlib import Path
+
+from sbagents import source_tree
+
+source_tree.install(Path(__file__).resolve().parent)  # a checkout: envs/, callbacks/, zoo_configs/ beside us
+
+from sbagents.registration import GYM_ENVS, register_envs  # noqa: E402
 
 __version__ = "0.1.0"
 

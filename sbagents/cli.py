@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -34,15 +35,30 @@ def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def describe_os_error(exc: OSError) -> str:
+    """``cannot use /proc/x: No such file or directory`` (the path and the reason, no errno noise)."""
+    where = f" {exc.filename}" if exc.filename else ""
+    return f"cannot use{where}: {exc.strerror or exc}"
+
+
 def run(prog: str, body: Callable[[], int | None]) -> NoReturn:
-    """Run a CLI body: SIGTERM acts like Ctrl-C; :class:`UsageError` becomes one line and exit code 2."""
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    """Run a CLI body: SIGTERM acts like Ctrl-C; :class:`UsageError` and file-system errors (a path that
+    cannot be read or written) become one line on stderr and exit code 2."""
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         code = body() or 0
     except UsageError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         code = 2
+    except BrokenPipeError:  # the reader of our output went away (``| head``): stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = 141
+    except OSError as exc:
+        print(f"{prog}: error: {describe_os_error(exc)}", file=sys.stderr)
+        code = 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         code = 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     raise SystemExit(code)

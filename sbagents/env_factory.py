@@ -70,6 +70,13 @@ def _chain(wrappers: list[tuple[Any, dict[str, Any]]]) -> Callable[[gym.Env], gy
     return wrap
 
 
+def _wrapped(make_env: Callable[..., Any], wrapper: Callable[[Any], Any]) -> Callable[..., Any]:
+    def make(**kwargs: Any) -> Any:
+        return wrapper(make_env(**kwargs))
+
+    return make
+
+
 def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef) -> str:
     """Which VecEnv ``--vec-env`` means here: ``auto`` picks ``batched`` where a batched implementation exists
     (GridWorld, TreasureHunt, with no Gymnasium wrappers), else ``dummy``."""
@@ -93,6 +100,7 @@ def make_vec(
     monitor_dir: str | Path | None = None,
     vec_env: str = "auto",
     env_kwargs: dict[str, Any] | None = None,
+    wrapper: Callable[[Any], Any] | None = None,
 ) -> VecEnv:
     """The vectorised env with wrappers and frame stacking, before normalisation.
 
@@ -100,11 +108,36 @@ def make_vec(
     :param vec_env: ``auto``, ``dummy``, ``subproc`` or ``batched`` (see :func:`vec_env_kind`); multi-agent envs
         use :class:`~sbagents.multiagent.ParameterSharingVecEnv` unless batched.
     :param env_kwargs: extra env kwargs on top of the experiment's (e.g. ``render_mode``).
+    :param wrapper: an extra outermost wrapper of every env copy (a Gymnasium wrapper, or a PettingZoo parallel
+        wrapper for multi-agent envs); it rules out the batched VecEnvs.
     """
     kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
-    check_env_kwargs(ref, {k: v for k, v in kwargs.items() if k != "render_mode"})
-    monitor = str(monitor_dir) if monitor_dir is not None else None
+    user_kwargs = {k: v for k, v in kwargs.items() if k != "render_mode"}
+    check_env_kwargs(ref, user_kwargs)
     kind = vec_env_kind(vec_env, exp, ref)
+    if wrapper is not None and kind == "batched":
+        kind = "dummy"
+    try:
+        venv = _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, wrapper)
+    except (TypeError, ValueError, AssertionError) as exc:
+        if not user_kwargs:
+            raise  # no user input involved: a bug, keep the traceback
+        given = ", ".join(f"{k}={v!r}" for k, v in user_kwargs.items())
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {reason}") from None
+    for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
+        venv = wrapper(venv, **wrapper_kwargs)
+    if exp.frame_stack:
+        venv = VecFrameStack(venv, exp.frame_stack)
+    return venv
+
+
+def _make_base_vec(
+    exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor_dir: str | Path | None, kind: str,
+    kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
+) -> VecEnv:
+    """The VecEnv of ``kind`` (see :func:`vec_env_kind`) before VecEnv wrappers and frame stacking."""
+    monitor = str(monitor_dir) if monitor_dir is not None else None
     venv: VecEnv
     if kind == "batched":
         from sbagents.batched import make_batched_vec_env
@@ -113,24 +146,22 @@ def make_vec(
     elif ref.multi_agent:
         from sbagents.multiagent import make_parameter_sharing_vec_env
 
-        venv = make_parameter_sharing_vec_env(
-            ref.pettingzoo_module().parallel_env, n_envs=n_envs, seed=seed, env_kwargs=kwargs, monitor_dir=monitor
-        )
+        make_env = ref.pettingzoo_module().parallel_env
+        if wrapper is not None:
+            make_env = _wrapped(make_env, wrapper)
+        venv = make_parameter_sharing_vec_env(make_env, n_envs=n_envs, seed=seed, env_kwargs=kwargs,
+                                              monitor_dir=monitor)
     else:
         venv = make_vec_env(
             ref.make_fn(),  # imports the env's modules first, also in SubprocVecEnv workers
             n_envs=n_envs,
             seed=seed,
             monitor_dir=monitor,
-            wrapper_class=_chain(exp.env_wrapper),
+            wrapper_class=_chain([*exp.env_wrapper, *([(wrapper, {})] if wrapper is not None else [])]),
             env_kwargs=kwargs,
             vec_env_cls=VEC_ENV_CLASSES[kind],
             monitor_kwargs=exp.monitor_kwargs or None,
         )
-    for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
-        venv = wrapper(venv, **wrapper_kwargs)
-    if exp.frame_stack:
-        venv = VecFrameStack(venv, exp.frame_stack)
     return venv
 
 
@@ -168,7 +199,19 @@ def make_eval_vec(
     stats_path: Path | None = None,
     vec_env: str = "auto",
     env_kwargs: dict[str, Any] | None = None,
+    wrapper: Callable[[Any], Any] | None = None,
 ) -> VecEnv:
     """An evaluation env wrapped exactly as in training, with frozen normalisation (:func:`normalize_for_eval`:
     the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env)."""
-    return normalize_for_eval(make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=env_kwargs), exp, stats_path)
+    venv = make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=env_kwargs, wrapper=wrapper)
+    return normalize_for_eval(venv, exp, stats_path)
+
+
+def render_modes(exp: Experiment, ref: EnvRef) -> list[str]:
+    """The render modes an env of ``exp`` declares (``metadata["render_modes"]``)."""
+    if ref.multi_agent:
+        env = ref.pettingzoo_module().parallel_env(**exp.env_kwargs)
+        modes = list(env.metadata.get("render_modes", []))
+        env.close()
+        return modes
+    return list((getattr(env_constructor(ref), "metadata", None) or {}).get("render_modes", []))

@@ -11,13 +11,14 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.env_factory import make_eval_vec, make_vec
+from sbagents.env_factory import make_eval_vec, make_vec, render_modes
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.hyperparams import Experiment
 from sbagents.rllib import evaluate_rllib_run, is_rllib_run
 from sbagents.run_dir import find_run_dir
 from sbagents.run_loading import load_run
+from sbagents.text_render import ParallelTextStepPrinter, TextStepPrinter, supports_text
 
 
 def _episode_metrics_fn(venv: VecEnv) -> Any:
@@ -66,6 +67,8 @@ def evaluate_model(
     """
     if n_episodes < 1:
         raise UsageError(f"the number of evaluation episodes must be >= 1, got {n_episodes}")
+    text = render and supports_text(render_modes(exp, ref))  # labelled text states, else the env's own 'human'
+    extra = {"render_mode": "ansi" if text else "human"} if render else {}
     if ref.multi_agent:
         from sbagents.team_eval import evaluate_team
 
@@ -74,20 +77,18 @@ def evaluate_model(
             from stable_baselines3.common.vec_env import VecNormalize
 
             vec_normalize = VecNormalize.load(str(stats_path), make_vec(exp, ref, 1, seed))
-        render_kwargs = {"render_mode": "human"} if render else {}
-        result = evaluate_team(
-            model,
-            lambda: ref.pettingzoo_module().parallel_env(**{**exp.env_kwargs, **render_kwargs}),
-            n_episodes=n_episodes,
-            deterministic=deterministic,
-            seed=seed,
-            render=render,
-            vec_normalize=vec_normalize,
-        )
+        module = ref.pettingzoo_module()
+
+        def env_fn() -> Any:
+            env = module.parallel_env(**{**exp.env_kwargs, **extra})
+            return ParallelTextStepPrinter(env) if text else env
+
+        result = evaluate_team(model, env_fn, n_episodes=n_episodes, deterministic=deterministic, seed=seed,
+                               render=render and not text, vec_normalize=vec_normalize)
         return {"env": ref.env_id, "algo": exp.algo, **result}
-    extra = {"render_mode": "human"} if render else None
-    # the reference envs (not the batched ones): their human rendering prints every step
-    venv = make_eval_vec(exp, ref, 1, seed, stats_path, vec_env="dummy", env_kwargs=extra)
+    # the reference envs (not the batched ones) render every step
+    venv = make_eval_vec(exp, ref, 1, seed, stats_path, vec_env="dummy", env_kwargs=extra,
+                         wrapper=TextStepPrinter if text else None)
     metrics_fn = _episode_metrics_fn(venv)
     step_infos: list[dict[str, Any]] = []
     successes: list[bool] = []

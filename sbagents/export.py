@@ -16,7 +16,7 @@ from sbagents.cli import ArgumentParser, add_run_arguments, run
 from sbagents.env_factory import make_eval_vec
 from sbagents.env_ids import resolve_env
 from sbagents.errors import UsageError
-from sbagents.onnx_export import ExportReport, export_run
+from sbagents.onnx_export import INT8_TOLERANCE, ExportReport, check_exportable, export_run
 from sbagents.run_loading import load_run
 
 
@@ -36,11 +36,17 @@ def export(
     Parity is checked on ``n_observations`` observations recorded with the greedy policy on an env
     built exactly as in training (same env kwargs and wrappers, frozen VecNormalize statistics).
     """
+    if n_observations < 1:
+        raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
     ref = resolve_env(env, gym_packages)
     loaded = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
     exp = loaded.experiment
     if exp.frame_stack or exp.env_wrapper:
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
+    try:
+        check_exportable(loaded.model)
+    except TypeError as exc:
+        raise UsageError(f"cannot export {algo}: {exc}") from None
     venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path)
     vec_normalize = venv if isinstance(venv, VecNormalize) else None
     names = {k: tuple(v) if (v := env_attr(venv, k)) is not None else None for k in ("obs_names", "action_names")}
@@ -61,7 +67,27 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--int8", action="store_true", help="also write policy.int8.onnx (onnxruntime quantize_dynamic)")
     p.add_argument("--out", default=None, help="output folder (default: <run dir>/export)")
     p.add_argument("--n-observations", type=int, default=1000, help="observations for the parity check")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object instead of text")
     return p
+
+
+def format_report(report: ExportReport) -> str:
+    """The human-readable export report: files, parity, whether int8 is acceptable, latency."""
+    lines = [f"wrote {report.onnx_path} ({report.onnx_bytes:,} bytes) and {report.sidecar_path}",
+             f"parity fp32: max abs action difference {report.parity_fp32:.2e} over "
+             f"{report.n_parity_observations} observations"]
+    if report.int8_path is not None and report.int8_deviation is not None:
+        limit = INT8_TOLERANCE[report.action_kind]
+        if report.action_kind == "box":
+            size = f"{100 * report.int8_deviation:.1f}% of the action range (limit {100 * limit:g}%)"
+        else:
+            size = f"a different action on {100 * report.int8_deviation:.1f}% of observations (limit {100 * limit:g}%)"
+        verdict = "acceptable" if report.int8_acceptable else "NOT acceptable: keep the fp32 policy"
+        lines.append(f"int8: {report.int8_path} ({report.int8_bytes:,} bytes), max abs action difference "
+                     f"{report.parity_int8:.2e}, {size}: {verdict}")
+    lines.append("latency (single observation): " + ", ".join(
+        f"{name} p50 {row['p50_us']:.1f} us / p99 {row['p99_us']:.1f} us" for name, row in report.latency.items()))
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,15 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         args.algo, args.env, args.log_folder, args.exp_id, args.load_best, args.int8, args.out,
         args.n_observations, tuple(args.gym_packages),
     )
-    print(f"wrote {report.onnx_path} ({report.onnx_bytes} bytes) and {report.sidecar_path}")
-    print(f"parity fp32: max abs action difference {report.parity_fp32:.2e} over {report.n_parity_observations} obs")
-    if report.int8_path is not None:
-        print(f"int8: {report.int8_path} ({report.int8_bytes} bytes), "
-              f"max abs action difference {report.parity_int8:.2e}")
-    print("latency (single observation):")
-    for name, row in report.latency.items():
-        print(f"  {name:<12} p50 {row['p50_us']:8.1f} us   p99 {row['p99_us']:8.1f} us")
-    print(json.dumps(report.to_dict()))
+    print(json.dumps(report.to_dict()) if args.json else format_report(report))
     return 0 if report.parity_fp32 <= 1e-4 else 1
 
 

@@ -15,6 +15,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
+import tempfile
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -190,6 +193,16 @@ def _sb3_actions(
     return np.asarray(actions)
 
 
+def _action_pairs(
+    model: BaseAlgorithm, onnx_path: str | Path, observations: np.ndarray, vec_normalize: VecNormalize | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(onnx actions, SB3 actions)`` as float64 arrays of the same shape ``(N, *act_shape)``."""
+    session = _session(onnx_path)
+    onnx_actions = session.run(None, {OBS_INPUT: _onnx_input(session, observations)})[0]
+    sb3_actions = _sb3_actions(model, observations, vec_normalize).astype(np.float64)
+    return onnx_actions.astype(np.float64).reshape(sb3_actions.shape), sb3_actions
+
+
 def check_parity(
     model: BaseAlgorithm,
     onnx_path: str | Path,
@@ -202,11 +215,34 @@ def check_parity(
     :param vec_normalize: the VecNormalize the model was trained with (its statistics normalize the
         SB3 side; the ONNX side has them baked in).
     """
-    session = _session(onnx_path)
-    onnx_actions = session.run(None, {OBS_INPUT: _onnx_input(session, observations)})[0]
-    sb3_actions = _sb3_actions(model, observations, vec_normalize)
-    diff = np.abs(onnx_actions.astype(np.float64).reshape(sb3_actions.shape) - sb3_actions.astype(np.float64))
+    onnx_actions, sb3_actions = _action_pairs(model, onnx_path, observations, vec_normalize)
+    diff = np.abs(onnx_actions - sb3_actions)
     return float(diff.max()) if diff.size else 0.0
+
+
+#: The largest deviation of an int8 policy called acceptable: 5% of a Box action's range (per dimension), or
+#: 1% of observations with a different Discrete action.
+INT8_TOLERANCE = {"box": 0.05, "discrete": 0.01}
+
+
+def action_deviation(
+    model: BaseAlgorithm,
+    onnx_path: str | Path,
+    observations: np.ndarray,
+    vec_normalize: VecNormalize | None = None,
+) -> float:
+    """How far the ONNX policy strays from SB3's, in units that mean something for the action space.
+
+    Box actions: the max over observations and dimensions of ``|a_onnx - a_sb3| / (high - low)`` (a share of
+    the action range); Discrete actions: the share of observations whose action differs.
+    """
+    onnx_actions, sb3_actions = _action_pairs(model, onnx_path, observations, vec_normalize)
+    space = model.action_space
+    if isinstance(space, spaces.Box):
+        width = np.asarray(space.high, dtype=np.float64) - np.asarray(space.low, dtype=np.float64)
+        rel = np.abs(onnx_actions - sb3_actions) / np.where(np.isfinite(width) & (width > 0), width, 1.0)
+        return float(rel.max()) if rel.size else 0.0
+    return float(np.mean(onnx_actions != sb3_actions)) if sb3_actions.size else 0.0
 
 
 def _percentiles(samples: list[float]) -> dict[str, float]:
@@ -299,7 +335,12 @@ def record_observations(
 
 @dataclass
 class ExportReport:
-    """What :func:`export_run` wrote and measured (``parity_*``: max abs action difference vs SB3)."""
+    """What :func:`export_run` wrote and measured.
+
+    ``parity_*``: max abs action difference vs SB3; ``int8_deviation``: :func:`action_deviation` of the int8 file,
+    ``int8_acceptable``: whether it is within :data:`INT8_TOLERANCE` for the action space (``action_kind``:
+    ``box`` or ``discrete``).
+    """
 
     onnx_path: Path
     sidecar_path: Path
@@ -308,6 +349,9 @@ class ExportReport:
     int8_path: Path | None = None
     parity_int8: float | None = None
     int8_bytes: int | None = None
+    int8_deviation: float | None = None
+    int8_acceptable: bool | None = None
+    action_kind: str = "box"
     n_parity_observations: int = 0
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
 
@@ -322,6 +366,18 @@ def _space_meta(space: spaces.Space[Any]) -> dict[str, Any]:
     assert isinstance(space, spaces.Box), f"unsupported space {space}"
     low, high = (np.asarray(b, dtype=np.float64).ravel().tolist() for b in (space.low, space.high))
     return {"type": "box", "shape": list(space.shape), "low": low, "high": high}
+
+
+def check_exportable(model: BaseAlgorithm) -> None:
+    """Raise ``TypeError`` (one line: what is wrong, what works) unless ``model`` can be exported to ONNX."""
+    if not any(p.requires_grad for p in model.policy.parameters()):
+        raise TypeError(
+            f"export writes neural-network policies to ONNX; {type(model).__name__}'s policy is a table with no "
+            "network (its values are in the model .zip)"
+        )
+    for what, space in (("observation", model.observation_space), ("action", model.action_space)):
+        if not isinstance(space, spaces.Box | spaces.Discrete):
+            raise TypeError(f"export supports Box and Discrete spaces; the {what} space is {space}")
 
 
 def export_run(
@@ -340,18 +396,47 @@ def export_run(
     """Export, quantize (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
 
     Writes ``policy.onnx`` (+ ``policy.int8.onnx``) and ``policy.json`` (env id, algo, obs/action names,
-    spaces with bounds, ONNX input/output names, parity and latency) into ``out_dir``.
+    spaces with bounds, ONNX input/output names, parity and latency) into ``out_dir``. The files are made in a
+    staging folder inside ``out_dir`` and moved in at the end, so a failure leaves no partial export.
     Parity observations are recorded from ``env`` (default ``gym.make(env_id)``) with the greedy policy.
+
+    :raises TypeError: the model cannot be exported (:func:`check_exportable`).
+    :raises ValueError: ``n_observations < 1``.
     """
+    check_exportable(model)
+    if n_observations < 1:
+        raise ValueError(f"n_observations must be >= 1, got {n_observations}")
     out = Path(out_dir)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
+    try:
+        report = _export_into(model, vec_normalize, staging, out, int8, env_id, obs_names, action_names, env,
+                              n_observations, seed, latency_n)
+        for path in staging.iterdir():
+            os.replace(path, out / path.name)
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return report
+
+
+def _export_into(
+    model: BaseAlgorithm, vec_normalize: VecNormalize | None, staging: Path, out: Path, int8: bool, env_id: str,
+    obs_names: Sequence[str] | None, action_names: Sequence[str] | None, env: gym.Env[Any, Any] | VecEnv | None,
+    n_observations: int, seed: int, latency_n: int,
+) -> ExportReport:
+    """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
     use_norm = vec_normalize is not None and vec_normalize.norm_obs
     obs_rms = vec_normalize.obs_rms if use_norm and vec_normalize is not None else None
     if obs_rms is not None and not isinstance(obs_rms, RunningMeanStd):
         raise TypeError("dict observations are not supported")
     clip_obs = vec_normalize.clip_obs if vec_normalize is not None else 10.0
     epsilon = vec_normalize.epsilon if vec_normalize is not None else 1e-8
-    onnx_path = export_onnx(model, out / "policy.onnx", obs_rms, clip_obs, epsilon)
+    onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon)
     norm = vec_normalize if use_norm else None
 
     own_env = env is None
@@ -365,16 +450,19 @@ def export_run(
 
     paths: dict[str, Path] = {"onnx": onnx_path}
     report = ExportReport(
-        onnx_path=onnx_path, sidecar_path=out / "policy.json",
+        onnx_path=out / onnx_path.name, sidecar_path=out / "policy.json",
         parity_fp32=check_parity(model, onnx_path, observations, norm),
         onnx_bytes=onnx_path.stat().st_size, n_parity_observations=len(observations),
+        action_kind="box" if isinstance(model.action_space, spaces.Box) else "discrete",
     )
     if int8:
-        int8_path = quantize_int8(onnx_path, out / "policy.int8.onnx")
+        int8_path = quantize_int8(onnx_path, staging / "policy.int8.onnx")
         paths["onnx_int8"] = int8_path
-        report.int8_path = int8_path
+        report.int8_path = out / int8_path.name
         report.int8_bytes = int8_path.stat().st_size
         report.parity_int8 = check_parity(model, int8_path, observations, norm)
+        report.int8_deviation = action_deviation(model, int8_path, observations, norm)
+        report.int8_acceptable = report.int8_deviation <= INT8_TOLERANCE[report.action_kind]
     report.latency = latency_table(model, paths, observations[0], latency_n, norm)
 
     n_obs = int(np.prod(model.observation_space.shape)) if model.observation_space.shape else 1
@@ -392,5 +480,5 @@ def export_run(
         "files": {name: p.name for name, p in paths.items()},
         "report": report.to_dict(),
     }
-    report.sidecar_path.write_text(json.dumps(sidecar, indent=2) + "\n")
+    (staging / "policy.json").write_text(json.dumps(sidecar, indent=2) + "\n")
     return report

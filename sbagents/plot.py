@@ -92,11 +92,10 @@ def load_run_curve(run_dir: Path, stem: str) -> RunCurve:
     evals = run_dir / "evaluations.npz"
     if evals.exists():
         with np.load(evals) as data:
-            curve.eval_timesteps = np.asarray(data["timesteps"], dtype=np.float64)
-            curve.eval_returns = np.asarray(data["results"], dtype=np.float64).reshape(
-                len(curve.eval_timesteps), -1
-            )
-            curve.eval_returns = curve.eval_returns.mean(axis=1)
+            timesteps = np.asarray(data["timesteps"], dtype=np.float64)
+            results = np.asarray(data["results"], dtype=np.float64).reshape(len(timesteps), -1)
+        if results.size:  # an evaluation of zero episodes has nothing to draw
+            curve.eval_timesteps, curve.eval_returns = timesteps, results.mean(axis=1)
     return curve
 
 
@@ -171,10 +170,12 @@ def plot(
     :param output: PNG path (default: ``<log_folder>/learning_curves.png``).
     :param x_axis: ``"timesteps"`` (model timesteps; evaluations are drawn too) or ``"episodes"``.
     :param window: moving-average window over training episodes (0: about 1/20 of the episodes, at least 1).
-    :param title: figure title (default: the log folder).
+    :param title: figure title (default: none; each panel is titled with its env).
     """
     if x_axis not in ("timesteps", "episodes"):
         raise UsageError(f"--x must be 'timesteps' or 'episodes', got {x_axis!r}")
+    if window < 0:
+        raise UsageError(f"--window must be >= 0 (0: automatic), got {window}")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -200,8 +201,11 @@ def plot(
         raise UsageError(
             f"the runs in {log_folder} have no finished episodes yet (no monitor rows, no evaluations)"
         )
-    fig.suptitle(title or str(log_folder), fontsize=10)
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.3 / fig.get_figheight()))
+    if title:
+        fig.suptitle(title, fontsize=10)
+        fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.3 / fig.get_figheight()))
+    else:
+        fig.tight_layout()
     out = Path(output) if output is not None else Path(log_folder) / "learning_curves.png"
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

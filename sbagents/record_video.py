@@ -79,6 +79,8 @@ def record_video(
     """
     if n_steps < 1:
         raise UsageError(f"-n/--n-steps must be >= 1, got {n_steps}")
+    if fps is not None and not fps > 0:
+        raise UsageError(f"--fps must be > 0, got {fps}")
     ref = resolve_env(env, gym_packages)
     loaded = load_run(algo, ref.env_id, log_folder, exp_id, load_best)
     exp = loaded.experiment
@@ -92,6 +94,11 @@ def record_video(
     frame_rate = fps if fps is not None else _render_fps(venv)
     venv = normalize_for_eval(venv, exp, loaded.stats_path)
     out = Path(output_dir) if output_dir is not None else loaded.run_dir / "videos"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        venv.close()
+        raise
     prefix = f"{algo}-{env_stem(ref.env_id)}"
     recorder = _Recorder(
         venv, str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix

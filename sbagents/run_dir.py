@@ -56,6 +56,8 @@ def create_run_dir(log_folder: str | Path, algo: str, env_id: str) -> Path:
 
 def find_run_dir(log_folder: str | Path, algo: str, env_id: str, exp_id: int = 0) -> Path:
     """The run dir of experiment ``exp_id`` (0 = the latest), or :class:`UsageError` listing what exists."""
+    if exp_id < 0:
+        raise UsageError(f"--exp-id must be >= 0 (0: the latest run), got {exp_id}")
     algo_dir = Path(log_folder) / algo
     stem = env_stem(env_id)
     ids = _existing_ids(algo_dir, stem)

@@ -26,7 +26,6 @@ The sidecar (``policy.json``, found next to the model unless ``--meta`` is given
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
@@ -38,7 +37,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-EXIT_BAD_MODEL = 2
+from sbagents.cli import ArgumentParser, run
+from sbagents.errors import UsageError
 
 
 class ServeError(ValueError):
@@ -118,9 +118,9 @@ class Policy:
             unknown = sorted(set(value) - set(self.obs_names))
             missing = [k for k in self.obs_names if k not in value]
             if unknown or missing:
-                raise ServeError(
-                    f"unknown keys {unknown}, missing keys {missing}; expected {list(self.obs_names)}"
-                )
+                named = (("unknown", unknown), ("missing", missing))
+                problems = [f"{what} keys {keys}" for what, keys in named if keys]
+                raise ServeError(f"{', '.join(problems)}; expected {list(self.obs_names)}")
             value = [value[k] for k in self.obs_names]
         elif self.discrete_obs and not isinstance(value, list):
             value = [value]
@@ -161,7 +161,7 @@ def serve(
         path = Path(csv_path)
         new = not path.exists() or path.stat().st_size == 0
         csv_file = path.open("a", newline="")
-        writer = csv.writer(csv_file)
+        writer = csv.writer(csv_file, lineterminator="\n")
         if new:
             writer.writerow(["timestamp", *policy.obs_names, *policy.action_names])
             csv_file.flush()
@@ -193,7 +193,7 @@ def serve(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m sbagents.serve",
         description="Serve an exported ONNX policy over stdin/stdout (JSON lines).",
     )
@@ -204,11 +204,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         policy = Policy(args.model, args.meta)
     except (OSError, ValueError) as exc:
-        print(f"sbagents.serve: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_MODEL
+        raise UsageError(str(exc)) from None
     serve(policy, sys.stdin, sys.stdout, args.csv)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run("python -m sbagents.serve", main)

@@ -16,7 +16,7 @@ from sbagents.config import parse_overrides
 from sbagents.env_ids import sbagents_env_ids
 from sbagents.showcase import describe_policy
 from sbagents.training import train
-from sbagents.trust import TrustOptions
+from sbagents.trust import TrustOptions, trust_summary_lines
 
 
 def build_parser() -> ArgumentParser:
@@ -40,7 +40,8 @@ def build_parser() -> ArgumentParser:
                    help="auto: batched numpy envs for GridWorld/TreasureHunt, else dummy")
     p.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
     p.add_argument("--num-threads", type=int, default=1, help="torch threads (default 1; <=0 keeps torch's)")
-    p.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
+    p.add_argument("-P", "--progress", action="store_true", default=None,
+                   help="show the progress bar even when stderr is not a terminal")
     p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
     p.add_argument("-i", "--trained-agent", default=None, help="continue training this model .zip")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
@@ -60,7 +61,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
     p.add_argument("--log-interval", type=int, default=-1,
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
-    p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 info, 2 debug")
+    p.add_argument("--verbose", type=int, default=1,
+                   help="0 quiet, 1 progress bar + one line per evaluation (default), 2 also SB3's log tables")
     dist = p.add_argument_group("distributed (Ray RLlib, PettingZoo envs; pip install 'sbagents[distributed]')")
     dist.add_argument("--backend", choices=["sb3", "rllib"], default="sb3", help="training library (default sb3)")
     dist.add_argument("--num-env-runners", type=int, default=None, metavar="N",
@@ -128,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = result.summary
     if result.interrupted:
         print(f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {result.run_dir}")
+        for line in trust_summary_lines(result.trust):
+            print(line)
         return 130
     print(f"run dir: {result.run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)")
     text = describe_policy(result.model, result.experiment)
@@ -138,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
         print(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
               f"{ev['n_episodes']} episodes{success}")
+    for line in trust_summary_lines(result.trust):
+        print(line)
     return 0
 
 

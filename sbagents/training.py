@@ -26,6 +26,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.algos import ALGOS, algos_for
 from sbagents.config import default_config_path, lookup_entry
+from sbagents.console import EvalReportCallback, ProgressCallback, ProgressReporter
 from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
@@ -33,7 +34,7 @@ from sbagents.evaluation import evaluate_model
 from sbagents.hyperparams import Experiment, resolve
 from sbagents.run_dir import SUMMARY_FILE, VECNORMALIZE_FILE, create_run_dir, env_stem
 from sbagents.run_loading import check_model_file, save_experiment
-from sbagents.trust import TrustOptions, trust_callbacks
+from sbagents.trust import TrustOptions, trust_callbacks, trust_results
 
 
 @dataclass
@@ -45,6 +46,7 @@ class TrainResult:
     experiment: Experiment
     summary: dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
+    trust: dict[str, Any] = field(default_factory=dict)
 
 
 def build_experiment(
@@ -70,6 +72,29 @@ def build_experiment(
     if env_kwargs:
         entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **env_kwargs}
     return resolve(algo, ref.env_id, entry, f"{path}, entry for {ref.env_id}")
+
+
+#: The smallest value each numeric run argument accepts (``log_interval`` also takes -1: automatic).
+_MINIMUM = {"eval_episodes": 1, "n_eval_envs": 1, "final_eval_episodes": 0, "log_interval": 1}
+
+
+def check_run_numbers(**values: int) -> None:
+    """Raise :class:`UsageError` naming the CLI flag when a value is below its minimum in :data:`_MINIMUM`."""
+    for name, value in values.items():
+        low = _MINIMUM[name]
+        if value < low and not (name == "log_interval" and value == -1):
+            also = " or -1 (automatic)" if name == "log_interval" else ""
+            raise UsageError(f"--{name.replace('_', '-')} must be >= {low}{also}, got {value}")
+
+
+def check_device(device: str) -> None:
+    """Raise :class:`UsageError` unless ``device`` is ``auto`` or a torch device name (``cpu``, ``cuda:0``)."""
+    if device == "auto":
+        return
+    try:
+        torch.device(device)
+    except (RuntimeError, TypeError):
+        raise UsageError(f"--device {device!r} is not a torch device; use auto, cpu, cuda or cuda:N") from None
 
 
 def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Space]:
@@ -109,9 +134,9 @@ def make_model(
 
 def _callbacks(
     exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int, eval_freq: int,
-    eval_episodes: int, n_eval_envs: int, save_freq: int, verbose: int,
+    eval_episodes: int, n_eval_envs: int, save_freq: int, reporter: ProgressReporter,
 ) -> list[BaseCallback]:
-    callbacks: list[BaseCallback] = []
+    callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
     n_vec = train_env.num_envs
     if eval_freq > 0:
         freq = max(eval_freq // n_vec, 1)
@@ -122,14 +147,15 @@ def _callbacks(
                 TeamEvalCallback(
                     lambda: ref.pettingzoo_module().parallel_env(**exp.env_kwargs),
                     n_eval_episodes=eval_episodes, eval_freq=freq, seed=seed + 10_000,
-                    best_model_save_path=str(run_dir), log_path=str(run_dir), verbose=verbose,
+                    best_model_save_path=str(run_dir), log_path=str(run_dir), verbose=0,
+                    callback_after_eval=EvalReportCallback(reporter),
                 )
             )
         else:
             callbacks.append(
                 EvalCallback(make_eval_vec(exp, ref, n_eval_envs, seed + 10_000), n_eval_episodes=eval_episodes,
                              eval_freq=freq, log_path=str(run_dir), best_model_save_path=str(run_dir),
-                             deterministic=True, verbose=0)
+                             deterministic=True, verbose=0, callback_after_eval=EvalReportCallback(reporter))
             )
     if save_freq > 0:
         callbacks.append(
@@ -157,7 +183,7 @@ def train(
     save_freq: int = -1,
     vec_env: str = "auto",
     device: str = "auto",
-    progress: bool = False,
+    progress: bool | None = None,
     tensorboard_log: str | None = None,
     trained_agent: str | Path | None = None,
     verbose: int = 1,
@@ -173,12 +199,17 @@ def train(
     :param eval_freq: env steps between evaluations (default: a tenth of the budget, at most 25,000;
         <= 0 disables periodic evaluation).
     :param final_eval_episodes: episodes of the final evaluation stored in ``summary.json`` (0 skips it).
+    :param progress: show a progress bar (None: when stderr is a terminal).
+    :param verbose: 0 prints nothing, 1 a progress bar and one line per evaluation, 2 also SB3's log tables.
     :param num_threads: torch threads (1 is far faster for small networks on few cores).
     :param trust: transparency log, safety counting, adversarial and fairness evaluation to add.
     :param log_interval: episodes (off-policy/tabular) or rollouts (on-policy) between log dumps;
         -1 picks 100 episodes or 1 rollout.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
+    check_run_numbers(eval_episodes=eval_episodes, n_eval_envs=n_eval_envs,
+                      final_eval_episodes=final_eval_episodes, log_interval=log_interval)
+    check_device(device)
     if num_threads > 0:
         torch.set_num_threads(num_threads)
     ref = resolve_env(env, tuple(gym_packages))
@@ -202,29 +233,34 @@ def train(
         save_experiment(run_dir, exp, args, command or f"python -m sbagents.train --algo {algo} --env {env}")
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env), exp, stats)
-        model = make_model(exp, train_env, seed, device, tensorboard_log, verbose, agent_path)
-        cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq, verbose)
-        cbs += trust_callbacks(trust, exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes)
+        model = make_model(exp, train_env, seed, device, tensorboard_log, max(verbose - 1, 0), agent_path)
+        reporter = ProgressReporter(exp.n_timesteps, bar=progress, quiet=verbose <= 0)
+        cbs = _callbacks(exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, n_eval_envs, save_freq,
+                         reporter)
+        trust_cbs = trust_callbacks(trust, exp, ref, run_dir, train_env, seed, eval_freq, eval_episodes, model)
     except BaseException:
         shutil.rmtree(run_dir, ignore_errors=True)
         raise
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
-    return _learn_and_save(model, exp, ref, run_dir, train_env, [*cbs, *callbacks], seed, progress,
-                           agent_path is not None, final_eval_episodes, log_interval)
+    try:
+        result = _learn_and_save(model, exp, ref, run_dir, train_env, [*cbs, *trust_cbs, *callbacks], seed,
+                                 agent_path is not None, final_eval_episodes, log_interval)
+    finally:
+        reporter.close()
+    result.trust = trust_results(trust_cbs)
+    return result
 
 
 def _learn_and_save(
     model: BaseAlgorithm, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv,
-    callbacks: list[BaseCallback], seed: int, progress: bool, resume: bool, final_eval_episodes: int,
-    log_interval: int,
+    callbacks: list[BaseCallback], seed: int, resume: bool, final_eval_episodes: int, log_interval: int,
 ) -> TrainResult:
     interrupted = False
     start, cpu_start = time.perf_counter(), time.process_time()
     steps_before = model.num_timesteps if resume else 0
     try:
-        model.learn(exp.n_timesteps, callback=callbacks, progress_bar=progress, reset_num_timesteps=not resume,
-                    log_interval=log_interval)
+        model.learn(exp.n_timesteps, callback=callbacks, reset_num_timesteps=not resume, log_interval=log_interval)
     except KeyboardInterrupt:
         interrupted = True
     finally:

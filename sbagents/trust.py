@@ -14,6 +14,7 @@ from sbagents.callbacks import (
     AdversarialEvalCallback,
     AttackSpec,
     FairnessEvalCallback,
+    ObservationAttacker,
     SafetyViolationCallback,
     TransparencyCSVCallback,
     adversarial_report,
@@ -75,27 +76,90 @@ class TrustOptions:
         return self.safety or self.cost_limit is not None or self.max_violations is not None
 
 
+def check_attacks(model: BaseAlgorithm, venv: VecEnv, specs: list[AttackSpec], flag: str) -> None:
+    """Raise :class:`UsageError` naming ``flag`` when an attack cannot run against ``model`` on ``venv``."""
+    for spec in specs:
+        try:
+            ObservationAttacker(model.policy, venv, spec)
+        except ValueError as exc:
+            raise UsageError(f"{flag} {spec.label}: {exc}") from None
+
+
 def trust_callbacks(
     opts: TrustOptions, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int,
-    eval_freq: int, eval_episodes: int,
+    eval_freq: int, eval_episodes: int, model: BaseAlgorithm,
 ) -> list[BaseCallback]:
-    """The callbacks the options ask for, writing into ``run_dir``."""
+    """The callbacks the options ask for, writing into ``run_dir`` (attacks are checked against ``model``)."""
     callbacks: list[BaseCallback] = []
     if opts.transparency_log is not None:
         path = Path(opts.transparency_log) if opts.transparency_log else run_dir / DEFAULT_TRANSPARENCY_FILE
         callbacks.append(TransparencyCSVCallback(str(path), book_header=opts.book_header))
     if opts.count_violations:
-        callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(run_dir)))
+        callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(run_dir), verbose=0))
     freq = max(eval_freq // train_env.num_envs, 1) if eval_freq > 0 else exp.n_timesteps
     if opts.adversarial:
+        venv = make_eval_vec(exp, ref, 1, seed + 20_000)
+        specs = parse_attacks(opts.adversarial, "--adversarial-eval")
+        check_attacks(model, venv, specs, "--adversarial-eval")
         callbacks.append(AdversarialEvalCallback(
-            make_eval_vec(exp, ref, 1, seed + 20_000), parse_attacks(opts.adversarial, "--adversarial-eval"),
-            eval_freq=freq, n_eval_episodes=eval_episodes, path=str(run_dir), seed=seed + 20_000))
+            venv, specs, eval_freq=freq, n_eval_episodes=eval_episodes, path=str(run_dir), seed=seed + 20_000))
     if opts.fairness:
         callbacks.append(FairnessEvalCallback(
             make_eval_vec(exp, ref, 1, seed + 30_000), parse_keys(opts.fairness), bins=opts.bins,
             eval_freq=freq, n_eval_episodes=max(eval_episodes, 30), path=str(run_dir), seed=seed + 30_000))
     return callbacks
+
+
+def trust_results(callbacks: list[BaseCallback]) -> dict[str, Any]:
+    """The final results of the trust callbacks of a run: ``safety`` (the ``safety.json`` content),
+    ``adversarial`` (the last evaluation's rows) and ``fairness`` (the last report), for those present."""
+    results: dict[str, Any] = {}
+    for cb in callbacks:
+        if isinstance(cb, SafetyViolationCallback):
+            results["safety"] = cb.summary()
+        elif isinstance(cb, AdversarialEvalCallback) and cb.last_results:
+            results["adversarial"] = cb.last_results
+        elif isinstance(cb, FairnessEvalCallback) and cb.last_report is not None:
+            results["fairness"] = cb.last_report
+    return results
+
+
+def _bucket_label(bucket: dict[str, Any], keys: list[str]) -> str:
+    return ", ".join(f"{k} {bucket[f'{k}_low']:.3g}-{bucket[f'{k}_high']:.3g}" for k in keys)
+
+
+def trust_summary_lines(results: dict[str, Any]) -> list[str]:
+    """One line per trust result (see :func:`trust_results`; also the ``evaluate`` keys ``adversarial`` and
+    ``fairness``): violations, returns under each attack, the worst fairness bucket."""
+    lines: list[str] = []
+    safety = results.get("safety")
+    if safety is not None:
+        kinds = ", ".join(f"{k} {n}" for k, n in safety["violations"].items())
+        text = (f"safety: {safety['total_violations']} violation steps{f' ({kinds})' if kinds else ''} in "
+                f"{safety['total_steps']:,} steps ({safety['violation_rate']:.3g} per 1,000)")
+        if safety["ep_cost"]["mean"] is not None:
+            text += f", mean episode cost {safety['ep_cost']['mean']:.3g}"
+        if safety["stopped"]:
+            text += f"; {safety['stop_reason']}"
+        lines.append(text)
+    rows = results.get("adversarial")
+    if rows:
+        parts = []
+        for row in rows:
+            label = "clean" if row["attack"] == "none" else row["label"]
+            success = row.get("success_rate")
+            extra = f" (success {success:.2f})" if success is not None and success == success else ""
+            parts.append(f"{label} {row['mean_return']:.2f}{extra}")
+        lines.append("mean return under attack: " + ", ".join(parts))
+    fair = results.get("fairness")
+    if fair is not None and fair.get("worst") is not None:
+        worst = fair["worst"]
+        lines.append(
+            f"fairness ({fair['metric']} by {', '.join(fair['keys'])}): worst bucket {worst['value']:.3g} "
+            f"[{worst['ci_low']:.3g}, {worst['ci_high']:.3g}] at {_bucket_label(worst, fair['keys'])} "
+            f"(n={worst['n']}), gap {fair['gap']:.3g}"
+        )
+    return lines
 
 
 def trust_report(
@@ -105,11 +169,16 @@ def trust_report(
     """Adversarial and fairness evaluation of a finished run (the ``evaluate --attack/--fairness`` flags)."""
     result: dict[str, Any] = {}
     specs = parse_attacks(attacks, "--attack")
+    keys = parse_keys(fairness)
+    if keys and bins < 1:
+        raise UsageError(f"--bins must be >= 1, got {bins}")
     if specs:
         venv = make_eval_vec(exp, ref, 1, seed, stats_path)
-        result["adversarial"] = adversarial_report(model, venv, specs, n_episodes, out_dir, seed=seed)
-        venv.close()
-    keys = parse_keys(fairness)
+        try:
+            check_attacks(model, venv, specs, "--attack")
+            result["adversarial"] = adversarial_report(model, venv, specs, n_episodes, out_dir, seed=seed)
+        finally:
+            venv.close()
     if keys:
         venv = make_eval_vec(exp, ref, 1, seed, stats_path)
         try:

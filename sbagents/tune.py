@@ -23,6 +23,7 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation")
     p.add_argument("-f", "--log-folder", default="logs", help="where the study file and outputs go")
     p.add_argument("--seed", type=int, default=0, help="first seed (trial seeds are seed..seed+n_seeds-1)")
+    p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 one line per finished trial (default)")
     return p
 
 
@@ -30,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run or resume the study, print the best trial and where its zoo entry is."""
     a = build_parser().parse_args(argv)
     result = tune(a.algo, a.env, a.n_trials, a.storage, a.study_name, a.n_jobs, a.sampler, a.pruner, a.n_seeds,
-                  a.n_timesteps, a.n_evaluations, a.eval_episodes, a.log_folder, a.seed)
+                  a.n_timesteps, a.n_evaluations, a.eval_episodes, a.log_folder, a.seed, a.verbose)
     study = result.study
     print(f"study {study.study_name}: {len(study.trials)} trials")
     if result.best_config_path.exists():

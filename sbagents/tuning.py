@@ -16,6 +16,7 @@ import numpy as np
 import optuna
 import torch
 import yaml
+from sqlalchemy.exc import SQLAlchemyError
 from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.utils import set_random_seed
 
@@ -132,37 +133,71 @@ def tune(
     eval_episodes: int = 5,
     log_folder: str | Path = "logs",
     seed: int = 0,
+    verbose: int = 1,
 ) -> TuneResult:
     """Run (or resume) an Optuna study until it holds ``n_trials`` finished trials.
 
     :param storage: an RDB URL (``postgresql://...`` lets several machines share the study); default an SQLite
         file ``<log_folder>/<algo>/<EnvId>_tune.db``.
+    :param verbose: 1 prints one line per finished trial (value or pruned, and its parameters), 0 nothing.
     :return: the study, the best trial's zoo entry (``<EnvId>_tune_best.yml``) and the history plot path.
     """
     if algo not in ALGOS:
         raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
     if sampler not in SAMPLERS or pruner not in PRUNERS:
         raise UsageError(f"--sampler must be one of {', '.join(SAMPLERS)} and --pruner one of {', '.join(PRUNERS)}")
-    if n_trials < 1 or n_seeds < 1:
-        raise UsageError("--n-trials and --n-seeds must be >= 1")
+    for flag, value in (("--n-trials", n_trials), ("--n-seeds", n_seeds), ("--n-jobs", n_jobs),
+                        ("--n-evaluations", n_evaluations), ("--eval-episodes", eval_episodes),
+                        ("-n/--n-timesteps", 1 if n_timesteps is None else n_timesteps)):
+        if value < 1:
+            raise UsageError(f"{flag} must be >= 1, got {value}")
     torch.set_num_threads(1)
     ref = resolve_env(env)
-    check_spaces(build_experiment(algo, ref, n_timesteps=n_timesteps or 1), ref)
+    probe = build_experiment(algo, ref, n_timesteps=n_timesteps)
+    if probe.n_timesteps < 1:
+        raise UsageError(f"no n_timesteps for {algo} on {ref.env_id} in its config; pass -n N")
+    check_spaces(probe, ref)
     folder = Path(log_folder) / algo
     folder.mkdir(parents=True, exist_ok=True)
     stem = env_stem(ref.env_id)
     storage = storage or f"sqlite:///{(folder / f'{stem}_tune.db').resolve()}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name=study_name or f"{algo}-{stem}", storage=storage, load_if_exists=True, direction="maximize",
-        sampler=SAMPLERS[sampler](seed=seed), pruner=PRUNERS[pruner](),
-    )
+    try:
+        study = optuna.create_study(
+            study_name=study_name or f"{algo}-{stem}", storage=storage, load_if_exists=True, direction="maximize",
+            sampler=SAMPLERS[sampler](seed=seed), pruner=PRUNERS[pruner](),
+        )
+    except (ImportError, ValueError, SQLAlchemyError) as exc:
+        reason = str(exc).strip().splitlines()[0]
+        raise UsageError(f"--storage {storage}: cannot open the study ({type(exc).__name__}: {reason})") from None
     finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    remaining = n_trials - len(study.get_trials(deepcopy=False, states=finished))
+    done = len(study.get_trials(deepcopy=False, states=finished))
+    remaining = n_trials - done
     if remaining > 0:
         objective = _objective(algo, ref, n_timesteps, n_seeds, n_evaluations, eval_episodes, seed)
-        study.optimize(objective, n_trials=remaining, n_jobs=n_jobs, catch=())
+        study.optimize(objective, n_trials=remaining, n_jobs=n_jobs, catch=(),
+                       callbacks=[_print_trial] if verbose >= 1 else [])
+    elif verbose >= 1:
+        print(f"study {study.study_name} is already complete: {done} finished trials (--n-trials {n_trials}); "
+              "raise --n-trials to run more")
     return _write_outputs(study, folder, stem, ref.env_id)
+
+
+def format_trial(trial: optuna.trial.FrozenTrial) -> str:
+    """``trial 3: value 93 | learning_rate 0.0031, gamma 0.99`` (or ``pruned at step 2``)."""
+    params = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in trial.params.items())
+    if trial.state == optuna.trial.TrialState.PRUNED:
+        step = trial.last_step
+        outcome = "pruned" if step is None else f"pruned at step {step}"
+    elif trial.value is not None:
+        outcome = f"value {trial.value:.4g}"
+    else:
+        outcome = trial.state.name.lower()
+    return f"trial {trial.number}: {outcome} | {params}"
+
+
+def _print_trial(study: optuna.Study, trial: optuna.trial.FrozenTrial) -> None:
+    print(format_trial(trial), flush=True)
 
 
 def _write_outputs(study: optuna.Study, folder: Path, stem: str, env_id: str) -> TuneResult:

@@ -20,7 +20,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sbagents.export import format_report
 from sbagents.onnx_export import (
+    INT8_TOLERANCE,
     ExportReport,
     check_parity,
     export_onnx,
@@ -134,6 +136,21 @@ def test_export_run_writes_files(exported: tuple[Path, ExportReport, BaseAlgorit
     assert meta["env_id"] == SMART and meta["action_space"]["low"] == [-1.0, -10.0]
     assert meta["files"] == {"onnx": "policy.onnx", "onnx_int8": "policy.int8.onnx"}
     assert set(meta["report"]["latency"]) == {"sb3_predict", "onnx", "onnx_int8"}
+    assert sorted(p.name for p in out.iterdir()) == ["policy.int8.onnx", "policy.json", "policy.onnx"]  # no staging
+
+
+def test_int8_verdict_uses_the_action_range(
+    exported: tuple[Path, ExportReport, BaseAlgorithm, VecNormalize]
+) -> None:
+    _, report, _, _ = exported
+    assert report.action_kind == "box" and report.int8_deviation is not None and report.parity_int8 is not None
+    # SmartHome's action ranges are 2 (thermostat) and 20 (light): the deviation is a share of them
+    assert report.parity_int8 / 20 - 1e-9 <= report.int8_deviation <= report.parity_int8 / 2 + 1e-9
+    assert report.int8_acceptable == (report.int8_deviation <= INT8_TOLERANCE["box"])
+    text = format_report(report)
+    assert f"{100 * report.int8_deviation:.1f}% of the action range (limit 5%)" in text
+    assert ("acceptable" if report.int8_acceptable else "NOT acceptable") in text
+    assert text.count("\n") == 3 and "{" not in text  # files, parity, int8, latency; no JSON dump
 
 
 BLOCKER = (
@@ -195,6 +212,7 @@ def test_serve_end_to_end(
     assert len(replies) == 8
     errors = [r for r in replies if isinstance(r, dict)]
     assert len(errors) == 5 and all("error" in e for e in errors)
+    assert errors[2]["error"].startswith("unknown keys ['Humidity']; expected")  # no empty "missing keys []"
     actions = np.array([replies[0], replies[6], replies[7]])
     obs = np.array([good[0], [named[k] for k in OBS_NAMES], good[1]])
     expected, _ = model.predict(venv.normalize_obs(obs), deterministic=True)
@@ -202,6 +220,7 @@ def test_serve_end_to_end(
     with csv_path.open() as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["timestamp", *OBS_NAMES, *ACTION_NAMES] and len(rows) == 4
+    assert b"\r" not in csv_path.read_bytes()  # plain LF lines
     assert float(rows[2][1]) == 25.0 and float(rows[3][-1]) == pytest.approx(actions[2][1], abs=1e-6)
     # appending keeps one header
     proc = _run(

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib.image as mpimg
 import numpy as np
+import pytest
 import torch
 from cli_helpers import cli
+from matplotlib.figure import Figure
 
 from sbagents.plot import find_runs, load_run_curve, plot, smooth, timesteps_per_monitor_step
 from sbagents.training import train
@@ -49,7 +52,7 @@ def test_plot_two_seeds_cli(tmp_path: Path) -> None:
         assert image.shape[0] > 200 and image.shape[1] > 400 and image[..., :3].std() > 0.05
 
 
-def test_default_output_and_all_runs(tmp_path: Path) -> None:
+def test_default_output_and_all_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     train(
         "qlearning",
         GRID,
@@ -60,8 +63,18 @@ def test_default_output_and_all_runs(tmp_path: Path) -> None:
         final_eval_episodes=0,
         verbose=0,
     )
+    titles: list[str | None] = []
+    original = Figure.savefig
+
+    def savefig(fig: Figure, *args: Any, **kwargs: Any) -> None:
+        titles.append(fig._suptitle.get_text() if fig._suptitle is not None else None)
+        original(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
     out = plot(tmp_path)
     assert out == tmp_path / "learning_curves.png" and out.stat().st_size > 5000
+    plot(tmp_path, title="two seeds")
+    assert titles == [None, "two seeds"]  # no figure title unless asked (the panels name their env)
 
 
 def test_monitor_steps_are_converted_to_model_timesteps(tmp_path: Path) -> None:

@@ -23,7 +23,7 @@ def test_train_evaluate_export_serve(tmp_path: Path) -> None:
     assert 0.0 <= report["metrics"]["criterion_share"] <= 1.0
 
     out = tmp_path / "export"
-    exported = cli("export", "--algo", "ddpg", "--env", ENV, "-f", str(tmp_path), "--int8", "--out", str(out),
+    exported = cli("export", "--algo", "ddpg", "--env", ENV, "-f", str(tmp_path), "--int8", "--out", str(out), "--json",
                    "--n-observations", "200")
     assert exported.returncode == 0, exported.stderr
     summary = last_json(exported.stdout)

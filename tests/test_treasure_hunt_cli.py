@@ -26,6 +26,15 @@ def test_train_and_evaluate_team(tmp_path: Path) -> None:
     assert again == report
     rendered = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "1", "--render")
     assert rendered.returncode == 0 and "A0" in rendered.stdout and " X " in rendered.stdout
+    blocks = rendered.stdout.split("\n\n")
+    labels = [b.splitlines()[0] for b in blocks if b.startswith("episode ")]
+    steps = [label for label in labels if ", step " in label]
+    assert labels[0] == "episode 1, start" and len(steps) == len(set(steps))  # each state printed once
+    assert steps == [f"episode 1, step {k}, reward {label.rsplit(' ', 1)[1]}" for k, label in
+                     enumerate(steps, start=1)]
+    assert labels[-1].startswith(f"episode 1 truncated after {len(steps)} steps") or \
+        labels[-1].startswith(f"episode 1 terminated after {len(steps)} steps")  # ends on the final state
+    assert 1 <= len(steps) <= 30 and not any(label.startswith("episode 2") for label in labels)
 
 
 def test_same_seed_same_team_results(tmp_path: Path) -> None:

@@ -27,6 +27,14 @@ def test_train_with_every_trust_flag_then_evaluate(tmp_path: Path) -> None:
     assert safety["total_steps"] == 1200 and safety["total_violations"] == 0
     for name in ("adversarial.csv", "adversarial.png", "fairness.csv", "fairness.png"):
         assert (run_dir / name).stat().st_size > 0, name
+    end = result.stdout.splitlines()[-3:]  # the trust results close the summary
+    assert end[0] == "safety: 0 violation steps in 1,200 steps (0 per 1,000), mean episode cost 0"
+    with open(run_dir / "adversarial.csv") as handle:
+        last = [r for r in csv.DictReader(handle) if r["timesteps"] == "1200"]
+    parts = [f"{'clean' if r['attack'] == 'none' else r['attack'] + '_' + r['eps']} {float(r['mean_return']):.2f} "
+             f"(success {float(r['success_rate']):.2f})" for r in last]
+    assert end[1] == "mean return under attack: " + ", ".join(parts)
+    assert end[2].startswith("fairness (success_rate by preferred_temp): worst bucket ")
 
     report = last_json(cli("evaluate", "--algo", "ddpg", "--env", ENV, "-f", str(tmp_path), "-n", "4", "--json",
                            "--attack", "uniform:0.1", "--fairness", "preferred_temp,preferred_light").stdout)

@@ -40,6 +40,16 @@ def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:
     assert resumed.returncode == 0, resumed.stderr
     assert finished_trials(db) == 3
     assert "study ppo-sbagents_GridWorld-v0" in resumed.stdout
+    trial_lines = [line for line in resumed.stdout.splitlines() if line.startswith("trial ")]
+    study = optuna.load_study(study_name="ppo-sbagents_GridWorld-v0", storage=f"sqlite:///{db}")
+    last = study.trials[-1]
+    assert len(trial_lines) == 1  # one line per finished trial: the one this run added
+    assert trial_lines[0].startswith(f"trial {last.number}: value {last.value:.4g} | "
+                                     f"learning_rate {last.params['learning_rate']:.3g}, ")
+    assert "[I " not in resumed.stdout + resumed.stderr  # Optuna's own log lines stay off
+
+    complete = cli("tune", *args)
+    assert complete.returncode == 0 and "is already complete: 3 finished trials (--n-trials 3)" in complete.stdout
     best = tmp_path / "ppo" / "sbagents_GridWorld-v0_tune_best.yml"
     assert (tmp_path / "ppo" / "sbagents_GridWorld-v0_tune_history.png").stat().st_size > 0
 

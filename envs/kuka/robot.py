@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 import pybullet_data
 
+from sbagents.cache import cache_dir
 from sbagents.envs.kuka.sim import BulletSim
 
 #: Number of controlled (and observed) joints; the 7th joint is held at 0.
@@ -70,7 +71,7 @@ _PUSHER_XML = f"""
 
 
 def pusher_urdf_path() -> str:
-    """Path of ``kuka_iiwa/model.urdf`` plus the pusher link, written once to the temp directory.
+    """Path of ``kuka_iiwa/model.urdf`` plus the pusher link, written once to the user's cache folder.
 
     Mesh paths are made absolute (into ``pybullet_data``); the file name carries a hash of its content
     and is written atomically, so concurrent processes can share it.
@@ -81,9 +82,10 @@ def pusher_urdf_path() -> str:
     text = text.replace('filename="meshes/', f'filename="{kuka_dir}/meshes/')
     text = text.replace("</robot>", _PUSHER_XML + "</robot>")
     digest = hashlib.sha1(text.encode()).hexdigest()[:12]
-    path = os.path.join(tempfile.gettempdir(), f"sbagents_kuka_iiwa_pusher_{digest}.urdf")
+    folder = str(cache_dir("urdf"))
+    path = os.path.join(folder, f"kuka_iiwa_pusher_{digest}.urdf")
     if not os.path.exists(path):
-        fd, tmp = tempfile.mkstemp(suffix=".urdf", dir=tempfile.gettempdir())
+        fd, tmp = tempfile.mkstemp(suffix=".urdf", dir=folder)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
         os.replace(tmp, path)

@@ -3,8 +3,9 @@
 Each kernel advances every env copy in one call: a compiled loop over envs (and agents), so a step costs
 one dispatch instead of one numpy operation per quantity. State lives in numpy arrays owned by the
 VecEnv; the kernels update it in place and write the step's outputs into fresh arrays passed in.
-``cache=True`` keeps the compiled code next to this file, so only the first import on a machine pays
-the compile time (a few seconds).
+The compiled code is cached in the per-user cache folder (:func:`sbagents.cache.cache_dir`, or numba's own
+``NUMBA_CACHE_DIR`` when set), never next to this file, so only the first import on a machine pays the
+compile time (a few seconds).
 
 Conventions: cells are flat indices ``row * size + col``; a collected treasure's cell is the sentinel
 ``n_cells``. Observation values are the float32 of the float64 values the reference envs compute in
@@ -16,11 +17,43 @@ array arguments (measured ~75 ns per call here), which per team cost more than t
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable, Iterator
+from typing import Any
+
 import numpy as np
 from numba import njit
+from numba.core import config as numba_config
+
+from sbagents.cache import cache_dir
 
 
-@njit(cache=True)
+@contextlib.contextmanager
+def _cache_in_user_folder() -> Iterator[None]:
+    """Point numba's cache at ``<cache dir>/numba`` while kernels are decorated (numba picks the cache folder
+    at decoration time), unless the user set ``NUMBA_CACHE_DIR``; numba's setting is restored afterwards."""
+    config: Any = numba_config  # numba sets its options as module attributes at import (untyped)
+    if config.CACHE_DIR:
+        yield
+        return
+    config.CACHE_DIR = str(cache_dir("numba"))
+    try:
+        yield
+    finally:
+        config.CACHE_DIR = ""
+
+
+def kernel(**options: Any) -> Callable[[Callable[..., Any]], Any]:
+    """``numba.njit(cache=True, **options)`` with the cache in the user's cache folder."""
+
+    def decorate(fn: Callable[..., Any]) -> Any:
+        with _cache_in_user_folder():
+            return njit(cache=True, **options)(fn)
+
+    return decorate
+
+
+@kernel()
 def first_invalid_action(acts: np.ndarray, n_actions: int) -> int:
     """Index of the first action outside ``0..n_actions-1``, or -1 if all are valid."""
     for i in range(acts.shape[0]):
@@ -30,7 +63,7 @@ def first_invalid_action(acts: np.ndarray, n_actions: int) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- GridWorld
-@njit(cache=True)
+@kernel()
 def gridworld_step(
     acts: np.ndarray,
     counters: np.ndarray,
@@ -92,7 +125,7 @@ def gridworld_step(
 # (the sentinel ``n_cells`` once collected) | initial treasure cells; ``counters (n, 2)`` int64 = treasures
 # collected, episode length; ``returns (n,)`` float64 team return. ``params`` int64 = (shared reward,
 # max_cycles, egocentric observation).
-@njit(cache=True)
+@kernel()
 def _write_obs(
     teams: np.ndarray,
     n_teams: int,
@@ -169,7 +202,7 @@ def _write_obs(
                 out[i, j, dim - 4 + d] = neighbours[cell, d]
 
 
-@njit(cache=True, inline="always")
+@kernel(inline="always")
 def _place_team(i: int, picks: np.ndarray, free: np.ndarray, cells: np.ndarray, n_a: int, n_t: int) -> None:
     """Team ``i``'s agents, then treasures, on the free cells ``free[picks]`` (``picks (n_a + n_t,)``)."""
     for j in range(n_a):
@@ -178,7 +211,7 @@ def _place_team(i: int, picks: np.ndarray, free: np.ndarray, cells: np.ndarray, 
         cells[i, n_a + k] = cells[i, n_a + n_t + k] = free[picks[n_a + k]]
 
 
-@njit(cache=True)
+@kernel()
 def treasure_step(
     acts: np.ndarray,
     cells: np.ndarray,
@@ -276,7 +309,7 @@ def treasure_step(
     return n_done
 
 
-@njit(cache=True)
+@kernel()
 def treasure_reset(
     picks: np.ndarray,
     free: np.ndarray,

@@ -34,9 +34,9 @@ from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 from ray.tune.registry import register_env
-from tqdm import tqdm
 
 from sbagents.config import default_config_path, lookup_entry
+from sbagents.console import ProgressReporter
 from sbagents.env_ids import PETTINGZOO_ENVS, EnvRef, resolve_env
 from sbagents.errors import UsageError
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE, RLLIB_ALGOS, SHARED_MODULE, check_address
@@ -257,7 +257,7 @@ def train_rllib(
     eval_freq: int | None = None,
     eval_episodes: int = 5,
     final_eval_episodes: int = 10,
-    progress: bool = False,
+    progress: bool | None = None,
     verbose: int = 1,
     command: str = "",
 ) -> RllibTrainResult:
@@ -338,7 +338,7 @@ _LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_expla
 
 def _train_loop(
     algo: Any, exp: RllibExperiment, run_dir: Path, state: dict[str, Any], seed: int, eval_freq: int,
-    eval_episodes: int, progress: bool, verbose: int,
+    eval_episodes: int, progress: bool | None, verbose: int,
 ) -> None:
     """``algo.train()`` until ``exp.n_timesteps`` env steps; one ``progress.csv`` row per iteration.
 
@@ -350,15 +350,15 @@ def _train_loop(
               "iter_seconds", "time_total_s", "env_steps_per_s", "eval_mean_return", "eval_treasures_per_episode"]
     fields += [f"{m}/{k}" for m in modules for k in _LEARNER_STATS]
     next_eval = eval_freq if eval_freq > 0 else math.inf
-    with (run_dir / PROGRESS_FILE).open("w", newline="") as f, \
-            tqdm(total=exp.n_timesteps, unit="step", disable=not progress) as bar:
+    reporter = ProgressReporter(exp.n_timesteps, bar=progress, quiet=verbose <= 0)
+    with (run_dir / PROGRESS_FILE).open("w", newline="") as f, contextlib.closing(reporter):
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         while state["env_steps"] < exp.n_timesteps:
             result = algo.train()
             runners = result.get("env_runners", {})
             steps = int(runners.get("num_env_steps_sampled_lifetime", state["env_steps"]))
-            bar.update(steps - state["env_steps"])
+            reporter.update(steps)
             state.update(env_steps=steps, iterations=int(result["training_iteration"]),
                          agent_steps=int(sum(runners.get("num_agent_steps_sampled_lifetime", {}).values())))
             row: dict[str, Any] = {
@@ -379,17 +379,7 @@ def _train_loop(
                 ev = evaluate_checkpoint(ckpt, exp.env_id, exp.algo, exp.env_kwargs, eval_episodes, seed=seed)
                 row.update(eval_mean_return=ev["mean_return"],
                            eval_treasures_per_episode=ev["metrics"]["treasures_per_episode"])
+                reporter.evaluation(steps, ev["mean_return"], ev["std_return"], None,
+                                    {"treasures_per_episode": ev["metrics"]["treasures_per_episode"]})
             writer.writerow(row)
             f.flush()
-            if verbose >= 1 and not progress:
-                _print_row(row, exp.n_timesteps)
-
-
-def _print_row(row: dict[str, Any], total: int) -> None:
-    ret = row["episode_return_mean"]
-    text = f"iter {row['iteration']}: {row['env_steps']}/{total} env steps, {row['env_steps_per_s']:.0f} steps/s"
-    if ret != "" and not (isinstance(ret, float) and math.isnan(ret)):
-        text += f", team return {float(ret):.1f}"
-    if row.get("eval_treasures_per_episode", "") != "":
-        text += f", eval treasures {row['eval_treasures_per_episode']:.2f}"
-    print(text, flush=True)

@@ -1,0 +1,118 @@
+"""What a person sees while a run trains: a progress bar on a terminal and one line per evaluation.
+
+SB3's own log tables are for ``--verbose 2``; by default a run shows :class:`ProgressReporter` output (the bar on
+stderr when it is a terminal or ``-P`` asks for it, evaluation lines on stdout either way) and the CLI prints a
+short summary at the end.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Mapping
+from typing import Any, TextIO
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+from tqdm import tqdm
+
+
+def format_eval_line(
+    timesteps: int, total: int, mean: float, std: float, success: float | None,
+    metrics: Mapping[str, float] | None = None, seconds: float | None = None,
+) -> str:
+    """``eval  2,000/20,000 steps  return 93.00 +- 0.00  success 1.00  (1.2 s)``."""
+    text = f"eval {timesteps:>{len(f'{total:,}')},}/{total:,} steps  return {mean:.2f} +- {std:.2f}"
+    if success is not None and not math.isnan(success):
+        text += f"  success {success:.2f}"
+    for key, value in (metrics or {}).items():
+        text += f"  {key} {value:.3g}"
+    if seconds is not None:
+        text += f"  ({seconds:.1f} s)"
+    return text
+
+
+class ProgressReporter:
+    """A progress bar (tqdm, on stderr) and evaluation lines (stdout) for one training run.
+
+    :param total: env steps the run will take.
+    :param bar: show the bar (None: only when stderr is a terminal).
+    :param quiet: print nothing at all (``--verbose 0``).
+    :param stream: where evaluation lines go.
+    """
+
+    def __init__(self, total: int, bar: bool | None = None, quiet: bool = False, stream: TextIO | None = None) -> None:
+        self.total = int(total)
+        self.quiet = quiet
+        self.stream = stream if stream is not None else sys.stdout
+        show = (sys.stderr.isatty() if bar is None else bar) and not quiet
+        self._bar: tqdm[Any] | None = tqdm(total=self.total, unit="step", dynamic_ncols=True) if show else None
+        self._done = 0
+        self._start = time.perf_counter()
+
+    def update(self, timesteps: int) -> None:
+        """Move the bar to ``timesteps`` env steps."""
+        if self._bar is not None and timesteps > self._done:
+            self._bar.update(min(timesteps, self.total) - min(self._done, self.total))
+        self._done = max(self._done, timesteps)
+
+    def evaluation(self, timesteps: int, mean: float, std: float, success: float | None = None,
+                   metrics: Mapping[str, float] | None = None) -> None:
+        """Report one evaluation: mean and std of its episode returns, success rate, scalar metrics."""
+        if self.quiet:
+            return
+        line = format_eval_line(timesteps, self.total, mean, std, success, metrics, time.perf_counter() - self._start)
+        if self._bar is not None:
+            self._bar.set_postfix_str(f"eval {mean:.2f}", refresh=False)
+            self._bar.write(line, file=self.stream)
+        else:
+            print(line, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        """Close the bar (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+class ProgressCallback(BaseCallback):
+    """Drives a :class:`ProgressReporter` from SB3's training loop (steps on every call)."""
+
+    def __init__(self, reporter: ProgressReporter) -> None:
+        super().__init__(verbose=0)
+        self.reporter = reporter
+
+    def _on_step(self) -> bool:
+        self.reporter.update(self.num_timesteps)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.reporter.close()
+
+
+class EvalReportCallback(BaseCallback):
+    """``callback_after_eval`` of an ``EvalCallback`` (or a subclass): reports its latest evaluation.
+
+    Reads the parent's ``evaluations_results[-1]`` (episode returns), its success buffer and, when the parent
+    has one, ``last_result["metrics"]`` (e.g. a team evaluation's per-episode metrics).
+    """
+
+    def __init__(self, reporter: ProgressReporter) -> None:
+        super().__init__(verbose=0)
+        self.reporter = reporter
+
+    def _on_step(self) -> bool:
+        parent = self.parent
+        if parent is None:
+            return True
+        results = getattr(parent, "evaluations_results", None)  # EvalCallback keeps them when it has a log_path
+        returns = results[-1] if results else [float(getattr(parent, "last_mean_reward", float("nan")))]
+        successes = list(getattr(parent, "_is_success_buffer", []))
+        metrics = (getattr(parent, "last_result", None) or {}).get("metrics") or {}
+        scalars = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and k != "team_return"}
+        self.reporter.evaluation(
+            self.num_timesteps, float(np.mean(returns)), float(np.std(returns)),
+            float(np.mean(successes)) if successes else None, scalars,
+        )
+        return True

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import sqlite3
 import time
 from pathlib import Path
 
@@ -13,14 +15,16 @@ STUDY_DB = "ppo/sbagents_GridWorld-v0_tune.db"
 
 
 def finished_trials(db: Path) -> int:
+    """Finished trials in the study file, read with a read-only SQLite connection: opening it through Optuna
+    while the tuner creates it would race the tuner's own schema set-up (both stamp the schema version)."""
     if not db.exists():
         return 0
     try:
-        study = optuna.load_study(study_name="ppo-sbagents_GridWorld-v0", storage=f"sqlite:///{db}")
-    except KeyError:  # the study row is not written yet
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True)) as conn:
+            (count,) = conn.execute("SELECT COUNT(*) FROM trials WHERE state IN ('COMPLETE', 'PRUNED')").fetchone()
+    except sqlite3.OperationalError:  # the tables are not created yet, or the file is locked for a moment
         return 0
-    states = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    return len(study.get_trials(deepcopy=False, states=states))
+    return int(count)
 
 
 def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:

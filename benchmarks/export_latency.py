@@ -3,7 +3,7 @@
 Builds DDPG for ``sbagents/SmartHome-v0`` from the shipped zoo config (``zoo_configs/ddpg.yml``: policy,
 64-64 net, VecNormalize of observations, action noise), trains it for ``--train-steps`` steps (0: untrained
 weights; latency does not depend on the weights, parity barely does), then exports it with
-:func:`sbagents.onnx_export.export_run` (``export_onnx`` + ``quantize_int8`` + ``check_parity`` +
+:func:`sbagents.deploy.onnx_export.export_run` (``export_onnx`` + ``quantize_int8`` + ``check_parity`` +
 ``latency_table``): parity on observations recorded with the greedy policy, single-observation latency
 p50/p99 over ``--latency-n`` calls, one torch / onnxruntime thread.
 
@@ -33,10 +33,12 @@ from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
 from benchmarks.speed import machine_info, publish  # noqa: E402
-from sbagents.env_factory import make_vec, normalize_for_training  # noqa: E402
-from sbagents.env_ids import resolve_env  # noqa: E402
-from sbagents.onnx_export import export_run  # noqa: E402
-from sbagents.training import build_experiment, make_model  # noqa: E402
+from sbagents.deploy.exporting import ExportChecks, export_run  # noqa: E402
+from sbagents.pipeline.env_factory import make_vec, normalize_for_training  # noqa: E402
+from sbagents.pipeline.env_names import resolve_env  # noqa: E402
+from sbagents.pipeline.experiment import build_experiment  # noqa: E402
+from sbagents.pipeline.models import make_model  # noqa: E402
+from sbagents.pipeline.options import TrainSpec  # noqa: E402
 
 ENV_ID = "sbagents/SmartHome-v0"
 ALGO = "ddpg"
@@ -58,9 +60,9 @@ def run(
     load_before = os.getloadavg()
     started = time.perf_counter()
     ref = resolve_env(ENV_ID)
-    exp = build_experiment(ALGO, ref)
+    exp = build_experiment(TrainSpec(ALGO, ENV_ID), ref.env_id)
     venv = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed), exp)
-    model = make_model(exp, venv, seed, "cpu", None, 0)
+    model = make_model(exp, venv, seed, "cpu")
     train_start = time.perf_counter()
     if train_steps > 0:
         model.learn(train_steps)
@@ -69,8 +71,8 @@ def run(
     record_env = gym.make(ref.env_id, **exp.env_kwargs)
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            report = export_run(model, vec_normalize, tmp, True, ref.env_id, env=record_env,
-                                n_observations=n_observations, seed=seed, latency_n=latency_n)
+            report = export_run(model, tmp, ref.env_id, env=record_env, vec_normalize=vec_normalize, int8=True,
+                                checks=ExportChecks(n_observations, seed, latency_n))
     finally:
         record_env.close()
         venv.close()

@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.speed import write_section
-from sbagents.run_dir import env_stem
-from sbagents.training import train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.pipeline.run_dir import env_stem
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -30,7 +30,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, extra: dict[str, Any]) -> dict[str, Any]:
     """Train one seed with the shipped config; return its summary plus the machine load."""
     load_before = os.getloadavg()[0]
-    result = train(algo, env, seed=seed, log_folder=log_folder, final_eval_episodes=episodes, verbose=0, **extra)
+    result = train(TrainSpec(algo, env), OutputOptions(log_folder), EvalOptions(final_eval_episodes=episodes),
+                   ExecOptions(seed=seed, verbose=0, **extra))
     return {**result.summary, "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
 
 

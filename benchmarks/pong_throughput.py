@@ -3,7 +3,7 @@
 Measures on this machine (1 torch thread):
 
 - ``env_fps``: agent steps/s of the wrapped env alone (AtariWrapper + 4-frame stack, random actions);
-- ``train_fps``: agent steps/s of ``sbagents.training.train`` with the ``atari`` zoo entry *after*
+- ``train_fps``: agent steps/s of ``sbagents.pipeline.training.train`` with the ``atari`` zoo entry *after*
   ``learning_starts`` (one gradient step of batch 32 every 4 steps, as in the 10M-step recipe);
 - the hours 10M steps (the budget of the published +20.6) would take at ``train_fps``;
 - the bytes of the default replay buffer (1e5 transitions, ``optimize_memory_usage``) and the process's
@@ -33,9 +33,10 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecTransposeImage
 
-from sbagents.env_factory import make_vec
-from sbagents.env_ids import resolve_env
-from sbagents.training import build_experiment, train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.pipeline.env_factory import make_vec
+from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.experiment import build_experiment
 
 ENV_ID = "PongNoFrameskip-v4"
 PUBLISHED_BUDGET = 10_000_000
@@ -80,7 +81,7 @@ class StepClock(BaseCallback):
 def env_fps(n_steps: int, seed: int = 0) -> float:
     """Agent steps/s of the wrapped Pong env with random actions."""
     ref = resolve_env(ENV_ID)
-    exp = build_experiment("dqn", ref)
+    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref.env_id, atari=True)
     venv = make_vec(exp, ref, 1, seed)
     venv.reset()
     rng = np.random.default_rng(seed)
@@ -95,7 +96,7 @@ def env_fps(n_steps: int, seed: int = 0) -> float:
 def default_buffer_bytes() -> dict[str, Any]:
     """Bytes of the default ``atari`` replay buffer (allocated lazily by numpy, so this is instant)."""
     ref = resolve_env(ENV_ID)
-    exp = build_experiment("dqn", ref)
+    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref.env_id, atari=True)
     venv = VecTransposeImage(make_vec(exp, ref, 1, 0))  # SB3 stores images channel-first
     kwargs = exp.algo_kwargs
     buffer = ReplayBuffer(
@@ -141,16 +142,15 @@ def report(
     run_dir: Path, md_path: Path, png_path: Path, throughput: Path | None, rss_log: Path | None
 ) -> str:
     """Write the learning curve PNG and a markdown table of a (possibly still running) Pong run."""
-    from sbagents.plot import load_run_curve, plot
+    from sbagents.pipeline.run_dir import RunRef
+    from sbagents.visualize.curves import load_run_curve, plot
 
     curve = load_run_curve(run_dir, ENV_ID)
     mon = _monitor_rows(run_dir)
     steps = curve.timesteps
     seconds = mon[:, 0]
     plot(
-        run_dir.parent.parent,
-        algo="dqn",
-        env=ENV_ID,
+        RunRef("dqn", ENV_ID, run_dir.parent.parent),
         output=png_path,
         title=f"DQN {ENV_ID}, default atari config, {int(steps[-1]):,} steps (nice 19, loaded 2-core CPU)",
     )
@@ -239,18 +239,10 @@ def main() -> None:
     clock = StepClock(args.warmup_steps)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        run = train(
-            "dqn",
-            ENV_ID,
-            n_timesteps=args.warmup_steps + args.train_steps,
-            log_folder=tmp,
-            seed=0,
-            hyperparams={"buffer_size": 10_000, "learning_starts": args.warmup_steps},
-            eval_freq=-1,
-            final_eval_episodes=0,
-            verbose=0,
-            callbacks=[clock],
-        )
+        spec = TrainSpec("dqn", ENV_ID, args.warmup_steps + args.train_steps,
+                         {"buffer_size": 10_000, "learning_starts": args.warmup_steps})
+        run = train(spec, OutputOptions(tmp), EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0),
+                    callbacks=[clock])
         result["run_seconds"] = round(time.perf_counter() - start, 1)
         result["run_fps_overall"] = run.summary["fps"]
     result["train_fps"] = round(clock.fps, 1)

@@ -21,7 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sbagents.config import parse_overrides
+from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.training import train_rllib
@@ -35,12 +36,13 @@ def run_seed(
 ) -> dict[str, Any]:
     """Train one seed and evaluate the greedy team; returns a JSON-able dict."""
     start = time.perf_counter()
-    result = train_rllib("ppo", ENV, n_timesteps=n_timesteps, log_folder=log_folder, seed=seed, hyperparams=params,
-                         num_env_runners=num_env_runners, num_threads=num_threads, eval_freq=-1,
-                         final_eval_episodes=0, verbose=0)
+    result = train_rllib(TrainSpec("ppo", ENV, n_timesteps, params), OutputOptions(log_folder),
+                         EvalOptions(-1, final_eval_episodes=0),
+                         ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0,
+                                     num_env_runners=num_env_runners))
     wall = time.perf_counter() - start
     ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, ENV, "ppo", result.experiment.env_kwargs,
-                             n_episodes=n_eval, seed=10_000 + seed)
+                             EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed))
     with (result.run_dir / PROGRESS_FILE).open() as f:
         rows = list(csv.DictReader(f))
     s = result.summary

@@ -174,7 +174,7 @@ class OnnxPredictor:
 def run(name: str, seed: int, eval_episodes: int, export_dir: Path | None = None) -> dict[str, Any]:
     """Train candidate ``name`` with ``seed``; return timings and greedy comfort metrics.
 
-    With ``export_dir``, also export the trained policy there (``sbagents.onnx_export.export_run``, with int8)
+    With ``export_dir``, also export the trained policy there (``sbagents.deploy.onnx_export.export_run``, with int8)
     and add its parity / size / latency numbers to the result.
     """
     config = CANDIDATES[name]
@@ -188,11 +188,10 @@ def run(name: str, seed: int, eval_episodes: int, export_dir: Path | None = None
     result = evaluate(model, vec_norm, eval_episodes)
     exported: dict[str, Any] = {}
     if export_dir is not None:
-        from sbagents.envs.smart_home import ACTION_NAMES, OBS_NAMES
-        from sbagents.onnx_export import export_run
+        from sbagents.deploy.exporting import export_run
 
         out_dir = export_dir / f"{name}_{seed}"
-        report = export_run(model, vec_norm, out_dir, True, ENV_ID, OBS_NAMES, ACTION_NAMES)
+        report = export_run(model, out_dir, ENV_ID, vec_normalize=vec_norm, int8=True)
         exported = {
             k: report.to_dict()[k]
             for k in ("parity_fp32", "parity_int8", "onnx_bytes", "int8_bytes", "latency", "onnx_path")

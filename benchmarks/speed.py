@@ -34,10 +34,11 @@ from stable_baselines3.common.vec_env import VecEnv
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
 from benchmarks.noop_vec_env import NoOpVecEnv
 from sbagents.batched import make_batched_vec_env
-from sbagents.env_ids import resolve_env
 from sbagents.envs.treasure_hunt_v0 import parallel_env
-from sbagents.multiagent import make_parameter_sharing_vec_env
-from sbagents.training import build_experiment
+from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
+from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.experiment import Experiment, build_experiment
+from sbagents.pipeline.options import TrainSpec
 
 ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0")
 N_ENVS = 64
@@ -51,9 +52,14 @@ def reference_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str,
     return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
 
 
+def ppo_experiment(env_id: str) -> Experiment:
+    """The shipped PPO zoo entry of ``env_id``."""
+    return build_experiment(TrainSpec("ppo", env_id), resolve_env(env_id).env_id)
+
+
 def zoo_env_kwargs(env_id: str) -> dict[str, Any]:
     """``env_kwargs`` of the PPO zoo entry of ``env_id``."""
-    return dict(build_experiment("ppo", resolve_env(env_id)).env_kwargs)
+    return dict(ppo_experiment(env_id).env_kwargs)
 
 
 def single_env_rate(env_id: str, env_kwargs: dict[str, Any], n_steps: int, seed: int = 0) -> float:
@@ -113,7 +119,7 @@ def ppo_kwargs(env_id: str, n_envs: int) -> dict[str, Any]:
     (CleanRL's ``num_minibatches`` convention): scaling out the envs then scales the data per gradient step,
     not the number of gradient steps per transition.
     """
-    exp = build_experiment("ppo", resolve_env(env_id))
+    exp = ppo_experiment(env_id)
     kwargs = dict(exp.algo_kwargs)
     if n_envs != exp.n_envs:
         kwargs["batch_size"] = max(1, kwargs.get("batch_size", 64) * n_envs // exp.n_envs)
@@ -126,7 +132,7 @@ def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, se
     Times whole rollouts, at least two and at least ``min_steps`` transitions, after one untimed rollout.
     """
     torch.set_num_threads(1)
-    exp = build_experiment("ppo", resolve_env(env_id))
+    exp = ppo_experiment(env_id)
     vec = make_vec_kind(env_id, vec_kind, n_envs, seed, exp.env_kwargs)
     model = PPO(exp.policy, vec, seed=seed, verbose=0, **ppo_kwargs(env_id, n_envs))
     rollout = model.n_steps * vec.num_envs
@@ -156,7 +162,7 @@ def run(rounds: int = 3, quick: bool = False) -> dict[str, Any]:
     scale = 0.25 if quick else 1.0
     for env_id in ENV_IDS:
         kwargs = zoo_env_kwargs(env_id)
-        n_cfg = build_experiment("ppo", resolve_env(env_id)).n_envs
+        n_cfg = ppo_experiment(env_id).n_envs
         # vec steps per measurement: ~0.3-0.5 s each on this machine
         ref_steps, batched_steps = (200, 3000) if env_id == "treasure_hunt_v0" else (1000, 20_000)
         fns: dict[str, Callable[[], float]] = {
@@ -254,7 +260,7 @@ def markdown(results: dict[str, Any]) -> str:
     lines += [
         "",
         "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "
-        "`sbagents.multiagent.ParameterSharingVecEnv`. Medians of interleaved rounds. *No-op* is "
+        "`sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv`. Medians of interleaved rounds. *No-op* is "
         "`benchmarks.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
         "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",
     ]

@@ -2,10 +2,10 @@
 
 Per seed: train ``ppo`` on ``treasure_hunt_v0`` (``zoo_configs/ppo.yml``, optional ``--params`` overrides),
 timing ``model.learn`` only, then evaluate the deterministic team on 100 seeded episodes
-(:func:`sbagents.team_eval.evaluate_team`, eval seed ``10000 + seed``) on the reference env.
+(:func:`sbagents.multiagent.team_eval.evaluate_team`, eval seed ``10000 + seed``) on the reference env.
 Target: >= 4.5 of 5 treasures per episode on every seed in <= 90 s of training.
 
-Two paths, same numbers: ``--via train`` runs :func:`sbagents.training.train` with ``vec_env="batched"``
+Two paths, same numbers: ``--via train`` runs :func:`sbagents.pipeline.training.train` with ``vec_env="batched"``
 (once the env factory supports it; the script checks the model really trained on the batched env);
 ``--via direct`` builds the experiment from the zoo config and trains SB3 PPO on
 :func:`sbagents.batched.make_batched_vec_env` itself; ``auto`` (default) picks ``train`` when available.
@@ -30,10 +30,11 @@ from stable_baselines3.common.utils import set_random_seed
 
 from benchmarks.speed import write_section
 from sbagents.batched import BatchedTreasureHuntVecEnv, make_batched_vec_env
-from sbagents.env_ids import resolve_env
 from sbagents.envs.treasure_hunt_v0 import parallel_env
-from sbagents.team_eval import evaluate_team
-from sbagents.training import build_experiment
+from sbagents.multiagent.team_eval import evaluate_team
+from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.experiment import build_experiment
+from sbagents.pipeline.options import TrainSpec
 
 ENV = "treasure_hunt_v0"
 
@@ -41,10 +42,10 @@ ENV = "treasure_hunt_v0"
 def train_supports_batched() -> bool:
     """Whether the env factory builds a batched VecEnv for ``vec_env="batched"``."""
     try:
-        from sbagents.env_factory import make_vec
+        from sbagents.pipeline.env_factory import make_vec
 
         ref = resolve_env(ENV)
-        probe = make_vec(build_experiment("ppo", ref), ref, 1, None, vec_env="batched")
+        probe = make_vec(build_experiment(TrainSpec("ppo", ENV), ref.env_id), ref, 1, None, vec_env="batched")
     except Exception:  # noqa: BLE001 - not wired yet (unknown vec_env) or any factory error
         return False
     probe.close()
@@ -55,13 +56,13 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
     """Train one seed and evaluate the deterministic team; returns a JSON-able dict."""
     torch.set_num_threads(1)
     ref = resolve_env(ENV)
-    exp = build_experiment("ppo", ref, hyperparams=params)
+    exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref.env_id)
     if via == "train":
-        from sbagents.training import train
+        from sbagents.api import EvalOptions, ExecOptions, OutputOptions, train
 
         with tempfile.TemporaryDirectory() as logs:
-            result = train("ppo", ENV, seed=seed, hyperparams=params, log_folder=logs, vec_env="batched",
-                           eval_freq=-1, final_eval_episodes=0, verbose=0)
+            result = train(TrainSpec("ppo", ENV, hyperparams=params), OutputOptions(logs),
+                           EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=seed, vec_env="batched", verbose=0))
             model, train_s = result.model, float(result.summary["train_seconds"])
             if not isinstance(model.get_env().unwrapped, BatchedTreasureHuntVecEnv):  # type: ignore[union-attr]
                 raise RuntimeError("train(vec_env='batched') did not use the batched VecEnv")

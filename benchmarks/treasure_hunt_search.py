@@ -2,7 +2,7 @@
 
 One run = train ``algo`` with the given hyperparameters for ``n_timesteps`` env (agent) steps, measure the
 wall time of ``model.learn`` only, then evaluate the deterministic team on 100 seeded episodes
-(:func:`sbagents.team_eval.evaluate_team`). Prints one JSON line per seed and a summary line.
+(:func:`sbagents.multiagent.team_eval.evaluate_team`). Prints one JSON line per seed and a summary line.
 
 Example (the final PPO config)::
 
@@ -25,8 +25,8 @@ import torch
 from stable_baselines3 import DQN, PPO
 
 from sbagents.envs.treasure_hunt_v0 import parallel_env
-from sbagents.multiagent import make_parameter_sharing_vec_env
-from sbagents.team_eval import evaluate_team
+from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
+from sbagents.multiagent.team_eval import evaluate_team
 
 ALGOS: dict[str, Any] = {"ppo": PPO, "dqn": DQN}
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}

@@ -16,8 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.speed import write_section
-from sbagents.evaluation import evaluate
-from sbagents.training import train
+from sbagents.api import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
 
 RESULTS = Path(__file__).resolve().parent / "results"
 ENV = "sbagents/SmartHome-v0"
@@ -62,8 +61,10 @@ def main() -> None:
     parser.add_argument("--write", default="BENCHMARKS.md")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as logs:
-        train("ddpg", ENV, seed=0, log_folder=logs, verbose=0, final_eval_episodes=0)
-        report = evaluate("ddpg", ENV, log_folder=logs, n_episodes=args.episodes, attacks=ATTACKS, fairness=FAIRNESS)
+        train(TrainSpec("ddpg", ENV), OutputOptions(logs), EvalOptions(final_eval_episodes=0),
+              ExecOptions(seed=0, verbose=0))
+        report = evaluate(RunRef("ddpg", ENV, logs),
+                          EvaluateOptions(n_episodes=args.episodes, attacks=ATTACKS, fairness=FAIRNESS))
         run_dir = next(Path(logs).glob("ddpg/*_1"))
         RESULTS.mkdir(exist_ok=True)
         for name in ("adversarial.png", "fairness.png", "adversarial.csv", "fairness.csv"):

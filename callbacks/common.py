@@ -33,7 +33,7 @@ def find_vec_normalize(venv: VecEnv) -> VecNormalize | None:
 def agent_layout(venv: VecEnv) -> tuple[int, list[str] | None]:
     """``(n_agents, agent names)`` of a parameter-sharing VecEnv, ``(1, None)`` for a plain one.
 
-    A multi-agent VecEnv (``sbagents.multiagent.ParameterSharingVecEnv``) exposes ``n_agents`` and
+    A multi-agent VecEnv (``sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv``) exposes ``n_agents`` and
     ``possible_agents``; slot ``k`` is agent ``k % n_agents`` of env ``k // n_agents``.
     """
     base = venv.unwrapped

@@ -44,7 +44,7 @@ def sync_normalization(train_env: VecEnv | None, eval_env: VecEnv) -> None:
 
 
 def run_episodes(
-    model: BaseAlgorithm,
+    model: BaseAlgorithm | Any | None,
     env: VecEnv,
     n_episodes: int,
     deterministic: bool = True,
@@ -52,6 +52,9 @@ def run_episodes(
     act: Callable[[Any], np.ndarray] | None = None,
 ) -> list[EpisodeResult]:
     """Run ``n_episodes`` episodes of ``model`` on ``env`` and return them in completion order.
+
+    This is the one episode runner of sbagents: evaluation of single-agent and team (parameter-sharing) VecEnvs,
+    attacks, fairness, and the RLlib backend's policies (``model=None`` with an ``act`` function).
 
     Episodes are spread over the envs as in SB3's ``evaluate_policy`` (env ``i`` runs
     ``(n_episodes + i) // n_envs`` of them) so short episodes do not dominate. Rewards are unnormalized
@@ -76,11 +79,16 @@ def run_episodes(
     if vn is not None:
         vn.training = False
     if act is None:
+        if model is None:
+            raise ValueError("run_episodes needs a model or an act function")
+        policy_model = model
 
         def act(o: Any) -> np.ndarray:
-            return model.predict(o, deterministic=deterministic)[0]
+            return policy_model.predict(o, deterministic=deterministic)[0]
 
-    model.policy.set_training_mode(False)
+    policy = getattr(model, "policy", None)  # any object with predict() will do; SB3 policies go to eval mode
+    if policy is not None:
+        policy.set_training_mode(False)
     episodes: list[EpisodeResult] = []
     try:
         if seed is not None:

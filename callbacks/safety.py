@@ -17,7 +17,7 @@ SAFETY_FILE = "safety.json"
 
 
 def step_violation(info: Mapping[str, Any]) -> tuple[str | None, float]:
-    """``(violation type or None, cost)`` of one step's ``info`` (DESIGN.md contract).
+    """``(violation type or None, cost)`` of one step's ``info`` (the info-key contract in docs/architecture.md).
 
     A step violates when ``info["violation"]`` is truthy (its ``str`` is the type) or ``info["cost"] > 0``
     (type ``"cost"`` when no ``violation`` names it). The cost is ``info["cost"]``, or 1.0 for a named

@@ -1,6 +1,6 @@
 """GridWorld from chapter 2 of the book, as a Gymnasium environment.
 
-Spec (``../shared/SPECS.md`` section 1): a 5x5 grid, start (0, 0), goal (4, 4), obstacles on the
+Spec (docs/envs.md, GridWorld): a 5x5 grid, start (0, 0), goal (4, 4), obstacles on the
 diagonal (1, 1), (2, 2), (3, 3). Cells are ``(row, col)`` and observations are ``row * n_cols + col``.
 
 Deviations from the book, all documented in the README table:

@@ -1,6 +1,6 @@
 """SmartHome from the book's final project, as a Gymnasium environment.
 
-Spec (``../shared/SPECS.md`` section 5). The agent controls a thermostat and a light dimmer for a user
+Spec (docs/envs.md, SmartHome). The agent controls a thermostat and a light dimmer for a user
 with their own preferred temperature and light level.
 
 - State: temperature (18-28 C), light level (0-100 lux), hour of day (0-23), preferred temperature,

@@ -1,6 +1,6 @@
 """CooperativeTreasureHunt from chapter 4 of the book, as a PettingZoo ``ParallelEnv``.
 
-Spec (``../shared/SPECS.md`` section 2): a 10x10 grid, agents ``agent_0 .. agent_{n-1}`` (3 by default),
+Spec (docs/envs.md, CooperativeTreasureHunt): a 10x10 grid, agents ``agent_0 .. agent_{n-1}`` (3 by default),
 5 treasures, 10 fixed obstacles. Actions ``Discrete(5)``: 0 up (row-1), 1 down (row+1), 2 left (col-1),
 3 right (col+1), 4 stay. Agents move in index order within a step. Rewards per agent and step:
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 #: Gymnasium ID -> entry point. Multi-agent PettingZoo envs are listed in
-#: :data:`sbagents.env_ids.PETTINGZOO_ENVS` instead.
+#: :data:`sbagents.pipeline.env_names.PETTINGZOO_ENVS` instead.
 GYM_ENVS: dict[str, str] = {
     "sbagents/GridWorld-v0": "sbagents.envs.gridworld:GridWorldEnv",
     "sbagents/SmartHome-v0": "sbagents.envs.smart_home:SmartHomeEnv",

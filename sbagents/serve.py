@@ -1,208 +1,61 @@
-"""On-device decision loop: one JSON observation per stdin line -> one JSON action per stdout line.
+"""``python -m sbagents.serve``: serve an exported policy over stdin/stdout, one JSON line per decision.
 
 Usage::
 
     python -m sbagents.serve --model policy.onnx [--meta policy.json] [--csv decisions.csv]
+    python -m sbagents.serve --algo ddpg --env SmartHome-v0 [-f logs] [--exp-id K] [--int8]   # a run's export
 
-Needs only numpy and onnxruntime: this module imports neither torch, SB3 nor gymnasium (the ONNX file
-from :func:`sbagents.onnx_export.export_run` has normalization and action rescaling baked in).
-
-Protocol:
-
-- Input: each non-blank line is a JSON list of numbers (``obs_dim`` of them; a single integer for a
-  Discrete observation), or a JSON object keyed by exactly the sidecar's ``obs_names``. Blank lines are
-  skipped.
-- Output: for every other line exactly one line on stdout: the action as a JSON list of floats (Box) or
-  an int (Discrete), or ``{"error": "<reason>"}`` for a malformed line (bad JSON, wrong length, unknown
-  or missing keys, non-numbers, NaN/inf). Serving goes on after an error. stdout is flushed per line.
-- ``--csv``: every served decision is appended as ``timestamp, <obs_names>, <action_names>``
-  (header written when the file is new or empty) and flushed per line.
-- Exit status: 0 at end of input; 2 with one line on stderr when the model or sidecar is missing or
-  invalid.
-
-The sidecar (``policy.json``, found next to the model unless ``--meta`` is given) supplies
-``obs_names`` / ``action_names``; without it only lists are accepted and columns are ``obs_i``/``action_i``.
+With ``--model`` it needs only numpy and onnxruntime (no torch, SB3 or gymnasium): an edge device installs those
+two and copies the export folder. The protocol is in :mod:`sbagents.deploy.serving`. Exit status: 0 at end of input;
+2 with one line on stderr when the model or sidecar is missing or invalid.
 """
 
 from __future__ import annotations
 
-import csv
-import json
-import math
 import sys
 from collections.abc import Sequence
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, TextIO
 
-import numpy as np
-
-from sbagents.cli import ArgumentParser, run
+from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
+from sbagents.deploy.serving import Policy, serve
 from sbagents.errors import UsageError
 
 
-class ServeError(ValueError):
-    """A malformed observation line (reported to the client, serving continues)."""
+def build_parser() -> ArgumentParser:
+    """The ``serve`` argument parser."""
+    p = ArgumentParser(prog="python -m sbagents.serve",
+                       description="Serve an exported ONNX policy over stdin/stdout (JSON lines).")
+    p.add_argument("--model", default=None, help="policy.onnx or policy.int8.onnx (or pick a run's export below)")
+    p.add_argument("--meta", default=None, help="sidecar JSON (default: policy.json next to the model)")
+    p.add_argument("--csv", default=None, help="append every decision to this CSV file")
+    run_flags = p.add_argument_group("or a run's export (<run dir>/export, made by python -m sbagents.export)")
+    add_run_arguments(run_flags, required=False, load_best=False)
+    run_flags.add_argument("--int8", action="store_true", help="serve policy.int8.onnx")
+    return p
 
 
-class Policy:
-    """An ONNX policy plus the names from its sidecar.
-
-    :param model_path: ONNX file with input ``(batch, obs_dim)`` float32 (or ``(batch,)`` int64).
-    :param meta_path: sidecar JSON; default ``policy.json`` next to the model, if it exists.
-    :raises FileNotFoundError, ValueError: the model or sidecar cannot be loaded.
-    """
-
-    def __init__(self, model_path: str | Path, meta_path: str | Path | None = None) -> None:
-        import onnxruntime as ort
-
-        path = Path(model_path)
-        if not path.is_file():
-            raise FileNotFoundError(f"model file not found: {path}")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = 1
-        options.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise ValueError(f"invalid ONNX model {path}: {exc}".splitlines()[0]) from exc
-        inp = self.session.get_inputs()[0]
-        self.input_name = inp.name
-        self.discrete_obs = "int64" in inp.type
-        shape = inp.shape[1:]
-        if self.discrete_obs:
-            self.obs_dim = 1
-        elif all(isinstance(d, int) for d in shape):
-            self.obs_dim = int(np.prod(shape)) if shape else 1
-        else:
-            raise ValueError(f"model input {inp.name} has a non-static observation shape {inp.shape}")
-        self.obs_shape = tuple(int(d) for d in shape)
-        out = self.session.get_outputs()[0]
-        self.discrete_action = "int64" in out.type
-        self.act_dim = 1 if self.discrete_action else int(np.prod([int(d) for d in out.shape[1:]] or [1]))
-        meta = self._load_meta(path, meta_path)
-        self.obs_names: tuple[str, ...] = tuple(
-            meta.get("obs_names") or (f"obs_{i}" for i in range(self.obs_dim))
-        )
-        self.action_names: tuple[str, ...] = tuple(
-            meta.get("action_names") or (f"action_{i}" for i in range(self.act_dim))
-        )
-        if len(self.obs_names) != self.obs_dim or len(self.action_names) != self.act_dim:
-            raise ValueError(
-                f"sidecar names ({len(self.obs_names)} obs, {len(self.action_names)} action) do not "
-                f"match the model ({self.obs_dim} obs, {self.act_dim} action)"
-            )
-
-    @staticmethod
-    def _load_meta(model_path: Path, meta_path: str | Path | None) -> dict[str, Any]:
-        meta_file = Path(meta_path) if meta_path is not None else model_path.parent / "policy.json"
-        if not meta_file.is_file():
-            if meta_path is not None:
-                raise FileNotFoundError(f"sidecar not found: {meta_file}")
-            return {}
-        try:
-            meta = json.loads(meta_file.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"invalid sidecar {meta_file}: {exc}") from exc
-        if not isinstance(meta, dict):
-            raise ValueError(f"invalid sidecar {meta_file}: not a JSON object")
-        return meta
-
-    def parse(self, line: str) -> list[float]:
-        """One observation line -> ``obs_dim`` finite numbers (raises :class:`ServeError`)."""
-        try:
-            value = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise ServeError(f"bad JSON: {exc.msg}") from None
-        if isinstance(value, dict):
-            unknown = sorted(set(value) - set(self.obs_names))
-            missing = [k for k in self.obs_names if k not in value]
-            if unknown or missing:
-                named = (("unknown", unknown), ("missing", missing))
-                problems = [f"{what} keys {keys}" for what, keys in named if keys]
-                raise ServeError(f"{', '.join(problems)}; expected {list(self.obs_names)}")
-            value = [value[k] for k in self.obs_names]
-        elif self.discrete_obs and not isinstance(value, list):
-            value = [value]
-        if not isinstance(value, list):
-            raise ServeError("observation must be a JSON list or object")
-        if len(value) != self.obs_dim:
-            raise ServeError(f"expected {self.obs_dim} values, got {len(value)}")
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ServeError(f"not a finite number: {v!r}")
-            if self.discrete_obs and float(v) != int(v):
-                raise ServeError(f"discrete observation must be an integer, got {v!r}")
-        return [float(v) for v in value]
-
-    def act(self, obs: Sequence[float]) -> list[float] | int:
-        """Action for one observation: a list of floats (Box) or an int (Discrete)."""
-        x: np.ndarray
-        if self.discrete_obs:
-            x = np.asarray([int(obs[0])], dtype=np.int64)
-        else:
-            x = np.asarray(obs, dtype=np.float32).reshape((1, *self.obs_shape))
-        action = self.session.run(None, {self.input_name: x})[0]
-        if self.discrete_action:
-            return int(np.asarray(action).reshape(-1)[0])
-        return [float(a) for a in np.asarray(action).reshape(-1)]
-
-
-def serve(
-    policy: Policy, lines: TextIO, out: TextIO, csv_path: str | Path | None = None
-) -> tuple[int, int]:
-    """Run the loop until ``lines`` ends.
-
-    :return: ``(n_served, n_errors)``.
-    """
-    served = errors = 0
-    csv_file = writer = None
-    if csv_path is not None:
-        path = Path(csv_path)
-        new = not path.exists() or path.stat().st_size == 0
-        csv_file = path.open("a", newline="")
-        writer = csv.writer(csv_file, lineterminator="\n")
-        if new:
-            writer.writerow(["timestamp", *policy.obs_names, *policy.action_names])
-            csv_file.flush()
-    try:
-        for line in lines:
-            if not line.strip():
-                continue
-            try:
-                obs = policy.parse(line)
-            except ServeError as exc:
-                errors += 1
-                out.write(json.dumps({"error": str(exc)}) + "\n")
-                out.flush()
-                continue
-            action = policy.act(obs)
-            out.write(json.dumps(action) + "\n")
-            out.flush()
-            served += 1
-            if writer is not None and csv_file is not None:
-                stamp = datetime.now(timezone.utc).isoformat()  # noqa: UP017 (py3.10 target)
-                acts = action if isinstance(action, list) else [action]
-                writer.writerow([stamp, *obs, *acts])
-                csv_file.flush()
-    finally:
-        if csv_file is not None:
-            csv_file.close()
-    return served, errors
+def model_file(model: str | None, algo: str | None, run_dir: Path | None, int8: bool) -> Path:
+    """The ONNX file to serve: ``--model``, or the export of the run ``--algo/--env`` pick."""
+    if model is not None:
+        if algo is not None:
+            raise UsageError("give --model or --algo/--env, not both")
+        return Path(model)
+    if run_dir is None:
+        raise UsageError("the following arguments are required: --model (or --algo and --env of an exported run)")
+    path = run_dir / "export" / ("policy.int8.onnx" if int8 else "policy.onnx")
+    if not path.exists():
+        raise UsageError(f"{path} does not exist; export the run first (python -m sbagents.export --algo {algo} "
+                         f"--env ...{' --int8' if int8 else ''})")
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point; returns the exit status."""
-    parser = ArgumentParser(
-        prog="python -m sbagents.serve",
-        description="Serve an exported ONNX policy over stdin/stdout (JSON lines).",
-    )
-    parser.add_argument("--model", required=True, help="policy.onnx or policy.int8.onnx")
-    parser.add_argument("--meta", default=None, help="sidecar JSON (default: policy.json next to the model)")
-    parser.add_argument("--csv", default=None, help="append every decision to this CSV file")
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
+    run_dir = run_ref(args).run_dir() if args.model is None and args.algo is not None else None
+    path = model_file(args.model, args.algo, run_dir, args.int8)
     try:
-        policy = Policy(args.model, args.meta)
+        policy = Policy(path, args.meta)
     except (OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     serve(policy, sys.stdin, sys.stdout, args.csv)

@@ -1,4 +1,4 @@
-"""``python -m sbagents.train``: a thin argparse shell over :func:`sbagents.training.train`.
+"""``python -m sbagents.train``: parses the flags into option groups and calls :func:`sbagents.pipeline.backends.train`.
 
 Flag names follow RL Zoo's ``train.py`` where they overlap. With no arguments it trains the book's first
 agent (tabular Q-learning) on GridWorld and prints the learned path.
@@ -9,14 +9,17 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from typing import Any
 
 from sbagents.algos import ALGOS
-from sbagents.cli import ArgumentParser, run
-from sbagents.config import parse_overrides
-from sbagents.env_ids import sbagents_env_ids
-from sbagents.showcase import describe_policy
-from sbagents.training import train
-from sbagents.trust import TrustOptions, trust_summary_lines
+from sbagents.cli_common import ArgumentParser, run
+from sbagents.pipeline.backends import train
+from sbagents.pipeline.console import train_summary_lines
+from sbagents.pipeline.env_names import sbagents_env_ids
+from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.trust import TrustOptions, trust_summary_lines
+from sbagents.pipeline.zoo_config import parse_overrides
+from sbagents.visualize.showcase import describe_policy
 
 
 def build_parser() -> ArgumentParser:
@@ -72,79 +75,37 @@ def build_parser() -> ArgumentParser:
     return p
 
 
-def main_rllib(args: argparse.Namespace, parser: ArgumentParser, command: str) -> int:
-    """The ``--backend rllib`` branch: check the flags, then :func:`sbagents.rllib.training.train_rllib`."""
-    from sbagents.rllib import check_train_args, require_ray
-
-    check_train_args(args, {a.dest: a.default for a in parser._actions})
-    require_ray()
-    from sbagents.rllib.training import train_rllib
-
-    result = train_rllib(
-        args.algo, args.env, n_timesteps=args.n_timesteps, log_folder=args.log_folder, seed=args.seed,
-        hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,
-        env_kwargs=parse_overrides(args.env_kwargs, "--env-kwargs"), num_env_runners=args.num_env_runners,
-        address=args.address, num_threads=args.num_threads, eval_freq=args.eval_freq,
-        eval_episodes=args.eval_episodes, final_eval_episodes=args.final_eval_episodes, progress=args.progress,
-        verbose=args.verbose, command=command,
-    )
-    summary = result.summary
-    if result.interrupted:
-        print(f"interrupted after {summary['n_timesteps']} env steps; checkpoint and logs saved in {result.run_dir}")
-        return 130
-    print(f"run dir: {result.run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} env steps/s)")
-    if summary["eval"]:
-        ev = summary["eval"]
-        print(f"evaluation: mean team return {ev['mean_return']:.2f} +- {ev['std_return']:.2f}, "
-              f"{ev['metrics']['treasures_per_episode']:.2f} treasures/episode over {ev['n_episodes']} episodes")
-    return 0
+def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
+    """The option groups of :func:`sbagents.pipeline.backends.train` from the parsed flags."""
+    return {
+        "spec": TrainSpec(args.algo, args.env, args.n_timesteps, parse_overrides(args.hyperparams, "-params"),
+                          args.conf_file, parse_overrides(args.env_kwargs, "--env-kwargs"),
+                          tuple(args.gym_packages), args.trained_agent),
+        "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command),
+        "evaluation": EvalOptions(args.eval_freq, args.eval_episodes, args.n_eval_envs, args.final_eval_episodes),
+        "execution": ExecOptions(args.seed, args.backend, args.vec_env, args.device, args.num_threads, args.progress,
+                                 args.verbose, args.log_interval, args.num_env_runners, args.address),
+        "trust": TrustOptions(args.transparency_log, args.safety, args.cost_limit, args.max_violations,
+                              args.adversarial_eval, args.fairness, args.bins,
+                              book_header=args.transparency_format == "book"),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, train, print where the run went and its evaluation."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     if args.list:
         print("envs:  " + "  ".join(sbagents_env_ids()))
         print("algos: " + "  ".join(ALGOS))
         return 0
     command = "python -m sbagents.train " + shlex.join(sys.argv[1:] if argv is None else argv)
-    if args.backend == "rllib":
-        return main_rllib(args, parser, command)
-    if args.address is not None or args.num_env_runners is not None:
-        parser.error("--address and --num-env-runners need --backend rllib")
-    result = train(
-        args.algo, args.env, n_timesteps=args.n_timesteps, log_folder=args.log_folder, seed=args.seed,
-        hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,
-        env_kwargs=parse_overrides(args.env_kwargs, "--env-kwargs"), eval_freq=args.eval_freq,
-        eval_episodes=args.eval_episodes, n_eval_envs=args.n_eval_envs,
-        final_eval_episodes=args.final_eval_episodes, save_freq=args.save_freq, vec_env=args.vec_env,
-        device=args.device, progress=args.progress, tensorboard_log=args.tensorboard_log,
-        trained_agent=args.trained_agent, verbose=args.verbose, num_threads=args.num_threads,
-        log_interval=args.log_interval,
-        gym_packages=args.gym_packages, command=command,
-        trust=TrustOptions(args.transparency_log, args.safety, args.cost_limit, args.max_violations,
-                           args.adversarial_eval, args.fairness, args.bins,
-                           book_header=args.transparency_format == "book"),
-    )
-    summary = result.summary
-    if result.interrupted:
-        print(f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {result.run_dir}")
-        for line in trust_summary_lines(result.trust):
-            print(line)
-        return 130
-    print(f"run dir: {result.run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)")
-    text = describe_policy(result.model, result.experiment)
-    if text:
-        print(text)
-    if summary["eval"]:
-        ev = summary["eval"]
-        success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
-        print(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
-              f"{ev['n_episodes']} episodes{success}")
-    for line in trust_summary_lines(result.trust):
-        print(line)
-    return 0
+    result = train(**options_from_args(args, command))
+    lines = train_summary_lines(result.summary, result.run_dir, result.interrupted)
+    if result.model is not None and not result.interrupted:
+        text = describe_policy(result.model, result.experiment)
+        lines[1:1] = [text] if text else []
+    print("\n".join([*lines, *trust_summary_lines(result.trust)]))
+    return 130 if result.interrupted else 0
 
 
 if __name__ == "__main__":

@@ -1,9 +1,13 @@
-"""``python -m sbagents.tune``: a thin argparse shell over :func:`sbagents.tuning.tune` (Optuna)."""
+"""``python -m sbagents.tune``: an Optuna search over an algorithm's hyperparameters.
+
+Parses the flags and calls :func:`sbagents.pipeline.tuning.tune`.
+"""
 
 from __future__ import annotations
 
-from sbagents.cli import ArgumentParser, run
-from sbagents.tuning import PRUNERS, SAMPLERS, tune
+from sbagents.cli_common import ArgumentParser, run
+from sbagents.pipeline.options import StudyOptions, TrainSpec
+from sbagents.pipeline.tuning import PRUNERS, SAMPLERS, tune
 
 
 def build_parser() -> ArgumentParser:
@@ -23,6 +27,7 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--eval-episodes", type=int, default=5, help="episodes per evaluation")
     p.add_argument("-f", "--log-folder", default="logs", help="where the study file and outputs go")
     p.add_argument("--seed", type=int, default=0, help="first seed (trial seeds are seed..seed+n_seeds-1)")
+    p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     p.add_argument("--verbose", type=int, default=1, help="0 quiet, 1 one line per finished trial (default)")
     return p
 
@@ -30,12 +35,13 @@ def build_parser() -> ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run or resume the study, print the best trial and where its zoo entry is."""
     a = build_parser().parse_args(argv)
-    result = tune(a.algo, a.env, a.n_trials, a.storage, a.study_name, a.n_jobs, a.sampler, a.pruner, a.n_seeds,
-                  a.n_timesteps, a.n_evaluations, a.eval_episodes, a.log_folder, a.seed, a.verbose)
-    study = result.study
-    print(f"study {study.study_name}: {len(study.trials)} trials")
+    spec = TrainSpec(a.algo, a.env, n_timesteps=a.n_timesteps, gym_packages=tuple(a.gym_packages))
+    study = StudyOptions(a.n_trials, a.storage, a.study_name, a.n_jobs, a.sampler, a.pruner, a.n_seeds,
+                         a.n_evaluations, a.eval_episodes)
+    result = tune(spec, study, a.log_folder, a.seed, a.verbose)
+    print(f"study {result.study.study_name}: {len(result.study.trials)} trials")
     if result.best_config_path.exists():
-        print(f"best objective {study.best_value:.4g} (trial {study.best_trial.number}); "
+        print(f"best objective {result.study.best_value:.4g} (trial {result.study.best_trial.number}); "
               f"zoo entry: {result.best_config_path}")
     print(f"history plot: {result.history_plot_path}")
     return 0

@@ -1,7 +1,7 @@
 """Batched VecEnvs (``sbagents.batched``) vs the reference VecEnvs, step by step.
 
 References: GridWorld -> ``make_vec_env`` (DummyVecEnv of Monitor-wrapped envs);
-TreasureHunt -> :class:`sbagents.multiagent.ParameterSharingVecEnv`. Random seeds and random actions;
+TreasureHunt -> :class:`sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv`. Random seeds and random actions;
 observations, rewards, dones and infos (Monitor's wall-clock ``t`` aside) must be identical, including
 across auto-resets, and so must the monitor CSVs.
 """
@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env import VecEnv
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
 from sbagents.batched import BatchedGridWorldVecEnv, BatchedTreasureHuntVecEnv, make_batched_vec_env
 from sbagents.envs.treasure_hunt_v0 import parallel_env
-from sbagents.multiagent import make_parameter_sharing_vec_env
+from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
 
 GW = "sbagents/GridWorld-v0"
 TH = "treasure_hunt_v0"

@@ -31,6 +31,13 @@ def _section(text: str, name: str) -> str:
     return text[text.index(start) + len(start) : text.index(end)]
 
 
+def _cells(section: str) -> list[list[str]]:
+    """The cells of every Markdown table row in ``section`` (header and body rows; separator rows dropped)."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in section.splitlines()
+            if line.startswith("|")]
+    return [r for r in rows if not all(set(c) <= set("-: ") for c in r)]
+
+
 def _md_file(tmp_path: Path) -> Path:
     path = tmp_path / "BENCH.md"
     path.write_text("# Benchmarks\n\n" + OTHER)
@@ -46,7 +53,6 @@ def test_recorded_table_from_real_results(tmp_path: Path) -> None:
     text = md.read_text()
     assert OTHER in text  # other sections stay
     section = _section(text, "recorded-learning")
-    assert "## Learning results recorded by the learning benchmarks" in section
     for name in learning_files:  # key metric range recomputed from the file itself
         runs: list[dict[str, Any]] = json.loads((RESULTS / name).read_text())
         env, algo = runs[0]["env"], runs[0]["algo"]
@@ -68,7 +74,7 @@ def test_recorded_table_from_real_results(tmp_path: Path) -> None:
     th_row = by_file["treasure_hunt_learning.json"]
     assert th_row["metric_range"].startswith(f"{min(r['treasures'] for r in th['runs']):.2f}")
     assert "`python -m benchmarks.treasure_hunt_learning --seeds 0 1 2`" in section
-    assert section.count("\n| ") == len(rows) + 1  # header + one line per file
+    assert len(_cells(section)) == len(rows) + 1  # header + one row per file
 
 
 def test_recorded_generic_env_and_uncommitted_file(tmp_path: Path) -> None:
@@ -91,13 +97,16 @@ def test_callback_overhead_tiny(tmp_path: Path) -> None:
     grid = results["results"]["GridWorld"]
     assert list(grid) == list(callback_overhead.VARIANTS)
     assert grid["none"]["overhead_pct"] == 0.0
-    assert all(r["fps_cpu"] > 100 and r["fps_wall"] > 100 and len(r["samples"]) == 1 for r in grid.values())
+    assert all(len(r["samples"]) == 1 for r in grid.values())  # one repeat asked, one sample each
+    for row in grid.values():  # the overhead is the fps drop against the no-callback run of the same round
+        assert row["overhead_pct"] == pytest.approx(100 * (1 - row["fps_cpu"] / grid["none"]["fps_cpu"]), abs=0.1)
     assert json.loads(raw.read_text())["timesteps"] == 1024
     section = _section(md.read_text(), "callback-overhead")
     assert "`python -m benchmarks.callback_overhead --timesteps 1024 --repeats 1 --envs GridWorld`" in section
-    assert "load average before/after" in section and "Target: at most 10%." in section
-    assert "| env | callbacks | fps (CPU time) | overhead | fps (wall) |" in section
-    assert f"| GridWorld | transparency .csv.gz | {grid['transparency .csv.gz']['fps_cpu']:,.0f} |" in section
+    by_variant = {r[1]: r for r in _cells(section)[1:] if r[0] == "GridWorld"}
+    assert set(by_variant) == set(grid)
+    for name, row in grid.items():  # the table shows the measured numbers
+        assert f"{row['fps_cpu']:,.0f}" in by_variant[name]
     with pytest.raises(ValueError, match="unknown"):
         callback_overhead.run(envs=["Pong"])
 
@@ -110,11 +119,11 @@ def test_export_latency_tiny(tmp_path: Path) -> None:
     assert 0 < results["files"]["onnx_int8"] < results["files"]["onnx"]
     lat = results["latency"]
     assert set(lat) == {"sb3_predict", "onnx", "onnx_int8"}
-    assert all(0 < row["p50_us"] <= row["p99_us"] for row in lat.values())
     assert results["action_bounds"] == [[-1.0, 1.0], [-10.0, 10.0]]
     section = _section(md.read_text(), "export-latency")
-    assert f"| `policy.onnx` (fp32) | {results['files']['onnx']:,} B |" in section
-    assert f"{lat['sb3_predict']['p50_us']:.1f} us" in section
+    cells = [c for row in _cells(section) for c in row]
+    assert f"{results['files']['onnx']:,} B" in cells and f"{results['files']['onnx_int8']:,} B" in cells
+    assert all(f"{row['p50_us']:.1f} us" in cells for row in lat.values())  # the table shows the measured numbers
     cmd = "python -m benchmarks.export_latency --train-steps 0 --latency-n 30 --n-observations 50 --seed 0"
     assert f"`{cmd}`" in section
     assert "untrained weights" in section and OTHER in md.read_text()
@@ -168,9 +177,11 @@ def test_speed_markdown_has_ratios() -> None:
             "ppo_fps": {"reference_8": 2e4, "batched_8": 2.2e4, "noop_8": 2.4e4, "reference_64": 5e4,
                         "batched_64": 6e4, "noop_64": 7e4}}},
     }
-    text = speed.markdown(results)
-    assert "| sbagents/GridWorld-v0 | 64 | 2048 | 50,000 | 60,000 | 1.20x | 70,000 | 1.40x |" in text
-    assert "| 30.0x | 15,000,000 | 60.0x |" in text
+    rows = _cells(speed.markdown(results))
+    ppo_64 = next(r for r in rows if r[:2] == ["sbagents/GridWorld-v0", "64"])
+    assert {"1.20x", "1.40x"} <= set(ppo_64)  # batched / reference and no-op / reference at 64 envs
+    stepping = next(r for r in rows if "7,500,000" in r)
+    assert {"30.0x", "60.0x"} <= set(stepping)  # 7.5e6 / 2.5e5 and 1.5e7 / 2.5e5
 
 
 def test_noop_vec_env_replays_a_step_with_fresh_outputs() -> None:

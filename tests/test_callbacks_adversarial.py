@@ -148,7 +148,7 @@ def test_callback_logs_and_writes(tmp_path: Path) -> None:
 
 
 def test_multi_agent_team_episodes() -> None:
-    multiagent = pytest.importorskip("sbagents.multiagent")
+    multiagent = pytest.importorskip("sbagents.multiagent.parameter_sharing")
     from sbagents.envs import treasure_hunt_v0
 
     venv = multiagent.make_parameter_sharing_vec_env(treasure_hunt_v0.parallel_env, n_envs=2, seed=0)

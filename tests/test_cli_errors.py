@@ -1,6 +1,6 @@
 """Every CLI fed malformed values: one clear line on stderr, exit code 2, no traceback, nothing left behind.
 
-The matrix runs each CLI's ``main`` in this process through :func:`sbagents.cli.run` (the same error handling as
+The matrix runs each CLI's ``main`` in this process through :func:`sbagents.cli_common.run` (the same error handling as
 ``python -m``, without an interpreter start per case); one case per CLI also goes through a real subprocess.
 """
 
@@ -12,9 +12,8 @@ from pathlib import Path
 import pytest
 from cli_helpers import cli
 
-from sbagents.cli import run
-from sbagents.export import export
-from sbagents.training import train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, export, train
+from sbagents.cli_common import run
 
 GRID = "sbagents/GridWorld-v0"
 
@@ -39,10 +38,10 @@ def check_error(code: int, stderr: str, expected: str) -> None:
 def logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A log folder with a tabular and a neural GridWorld run, the neural one exported."""
     folder = tmp_path_factory.mktemp("logs")
-    train("qlearning", GRID, log_folder=folder, seed=0, verbose=0, final_eval_episodes=0)
-    train("ppo", GRID, n_timesteps=256, log_folder=folder, seed=0, verbose=0, final_eval_episodes=0,
-          hyperparams={"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1})
-    export("ppo", GRID, folder, n_observations=10)
+    quiet = (OutputOptions(folder), EvalOptions(final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+    train(TrainSpec("qlearning", GRID), *quiet)
+    train(TrainSpec("ppo", GRID, 256, {"n_envs": 2, "n_steps": 64, "batch_size": 64, "n_epochs": 1}), *quiet)
+    export(RunRef("ppo", GRID, folder), n_observations=10)
     return folder
 
 
@@ -157,7 +156,7 @@ def _other_cli_cases(logs: Path, tmp: Path) -> list[tuple[str, list[str], str]]:
         ("plot", ["-f", str(logs), "--algo", "nope"], "no runs for nope"),
         ("plot", ["-f", str(logs), "--x", "steps"], "argument --x: invalid choice"),
         ("tune", ["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp), "-n", "0"],
-         "-n/--n-timesteps must be >= 1, got 0"),
+         "-n/--n-timesteps must be a positive integer, got 0"),
         ("tune", ["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp), "--n-jobs", "0"],
          "--n-jobs must be >= 1, got 0"),
         ("tune", ["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp), "--n-evaluations", "0"],

@@ -9,9 +9,9 @@ import torch.nn as nn
 from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 
-from sbagents.config import lookup_entry, parse_overrides
 from sbagents.errors import UsageError
-from sbagents.hyperparams import resolve
+from sbagents.pipeline.experiment import resolve
+from sbagents.pipeline.zoo_config import lookup_entry, parse_overrides
 
 GRID = "sbagents/GridWorld-v0"
 
@@ -127,7 +127,7 @@ def test_shipped_configs_parse() -> None:
         algo = path.stem
         if algo.startswith("rllib_"):
             continue  # Ray RLlib entries (--backend rllib), checked in tests/test_rllib.py
-        from sbagents.config import load_yaml
+        from sbagents.pipeline.zoo_config import load_yaml
 
         for env_id, entry in load_yaml(path).items():
             exp = resolve(algo, env_id, dict(entry), str(path))

@@ -1,4 +1,4 @@
-"""GridWorld against SPECS.md section 1, transition by transition."""
+"""GridWorld against its specification (docs/envs.md), transition by transition."""
 
 from __future__ import annotations
 

@@ -16,8 +16,8 @@ from sbagents.envs.kuka import (
     RobustPickAndPlaceEnv,
     SafetyZone,
 )
+from sbagents.envs.kuka.scripted import ScriptedPusher, run_episode
 from sbagents.envs.kuka.tasks import SAFETY_ZONES
-from sbagents.scripted import ScriptedPusher, run_episode
 
 torch.set_num_threads(1)
 

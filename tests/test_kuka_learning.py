@@ -13,9 +13,9 @@ import pytest
 import torch
 from stable_baselines3 import DDPG, HerReplayBuffer
 
-from sbagents.config import lookup_entry
-from sbagents.hyperparams import resolve
-from sbagents.training import train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.pipeline.experiment import resolve
+from sbagents.pipeline.zoo_config import lookup_entry
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "benchmarks" / "configs"
@@ -56,9 +56,9 @@ def test_book_ddpg_entry_runs(tmp_path: Path) -> None:
                   lookup_entry(CONFIGS / "kuka_ddpg.yml", "sbagents/PickAndPlace-v0"), "kuka_ddpg.yml")
     assert exp.algo_kwargs["policy_kwargs"]["net_arch"] == [256, 128]
     assert exp.algo_kwargs["batch_size"] == 64
-    result = train("ddpg", "sbagents/PickAndPlace-v0", n_timesteps=150, log_folder=tmp_path, seed=0,
-                   conf_file=CONFIGS / "kuka_ddpg.yml", hyperparams={"learning_starts": 100},
-                   eval_freq=-1, final_eval_episodes=0, verbose=0)
+    spec = TrainSpec("ddpg", "sbagents/PickAndPlace-v0", 150, {"learning_starts": 100}, CONFIGS / "kuka_ddpg.yml")
+    result = train(spec, OutputOptions(tmp_path), EvalOptions(-1, final_eval_episodes=0),
+                   ExecOptions(seed=0, verbose=0))
     model = result.model
     assert isinstance(model, DDPG) and model.num_timesteps == 150
     assert model.actor.mu[0].in_features == 12  # book observation Box(12)

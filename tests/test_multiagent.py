@@ -14,8 +14,12 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.monitor import Monitor
 
 from sbagents.envs import treasure_hunt_v0
-from sbagents.multiagent import PETTINGZOO_ENVS, ParameterSharingVecEnv, make_parameter_sharing_vec_env
-from sbagents.team_eval import TeamEvalCallback, evaluate_team
+from sbagents.multiagent.parameter_sharing import (
+    PETTINGZOO_ENVS,
+    ParameterSharingVecEnv,
+    make_parameter_sharing_vec_env,
+)
+from sbagents.multiagent.team_eval import TeamEvalCallback, evaluate_team
 
 STAY, RIGHT = 4, 3
 EGO = {"observation": "egocentric"}
@@ -142,8 +146,8 @@ def test_evaluate_team_oracle_and_determinism() -> None:
 def test_short_ppo_learn_and_team_eval_callback(tmp_path: Path) -> None:
     vec = make_parameter_sharing_vec_env(treasure_hunt_v0.parallel_env, n_envs=2, seed=0, env_kwargs=EGO)
     cb = TeamEvalCallback(
-        lambda: treasure_hunt_v0.parallel_env(**EGO), n_eval_episodes=3, eval_freq=64, log_path=str(tmp_path),
-        best_model_save_path=str(tmp_path), seed=0, verbose=0,
+        ParameterSharingVecEnv([lambda: treasure_hunt_v0.parallel_env(**EGO)]), n_eval_episodes=3, eval_freq=64,
+        log_path=str(tmp_path), best_model_save_path=str(tmp_path), seed=0, verbose=0,
     )  # fmt: skip
     model = PPO("MlpPolicy", vec, n_steps=64, batch_size=64, n_epochs=1, seed=0, verbose=0)
     model.learn(total_timesteps=2 * 6 * 64, callback=cb)
@@ -155,7 +159,6 @@ def test_short_ppo_learn_and_team_eval_callback(tmp_path: Path) -> None:
     assert buffer is not None and len(buffer) == 4 and all(e["l"] == 50 for e in buffer)
 
 
-@pytest.mark.slow
 def test_ppo_beats_random_on_small_budget() -> None:
     """Random play collects ~1.9 treasures/episode; a short seeded PPO run must reach >= 3.5."""
     env_kwargs = EGO

@@ -12,8 +12,8 @@ import torch
 from cli_helpers import cli
 from matplotlib.figure import Figure
 
-from sbagents.plot import find_runs, load_run_curve, plot, smooth, timesteps_per_monitor_step
-from sbagents.training import train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, train
+from sbagents.visualize.curves import find_runs, load_run_curve, plot, smooth, timesteps_per_monitor_step
 
 torch.set_num_threads(1)
 GRID = "sbagents/GridWorld-v0"
@@ -22,18 +22,9 @@ STEM = "sbagents_GridWorld-v0"
 
 def test_plot_two_seeds_cli(tmp_path: Path) -> None:
     for seed in (0, 1):
-        train(
-            "qlearning",
-            GRID,
-            n_timesteps=3000,
-            log_folder=tmp_path,
-            seed=seed,
-            eval_freq=500,
-            eval_episodes=2,
-            final_eval_episodes=0,
-            verbose=0,
-        )
-    groups = find_runs(tmp_path, "qlearning", "GridWorld-v0")
+        train(TrainSpec("qlearning", GRID, 3000), OutputOptions(tmp_path), EvalOptions(500, 2, final_eval_episodes=0),
+              ExecOptions(seed=seed, verbose=0))
+    groups = find_runs(RunRef("qlearning", "GridWorld-v0", tmp_path))
     assert list(groups) == [("qlearning", STEM)] and len(groups["qlearning", STEM]) == 2
     curves = [load_run_curve(d, STEM) for d in groups["qlearning", STEM]]
     for c in curves:
@@ -53,16 +44,8 @@ def test_plot_two_seeds_cli(tmp_path: Path) -> None:
 
 
 def test_default_output_and_all_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    train(
-        "qlearning",
-        GRID,
-        n_timesteps=1000,
-        log_folder=tmp_path,
-        seed=0,
-        eval_freq=-1,
-        final_eval_episodes=0,
-        verbose=0,
-    )
+    train(TrainSpec("qlearning", GRID, 1000), OutputOptions(tmp_path), EvalOptions(-1, final_eval_episodes=0),
+          ExecOptions(seed=0, verbose=0))
     titles: list[str | None] = []
     original = Figure.savefig
 
@@ -71,9 +54,9 @@ def test_default_output_and_all_runs(tmp_path: Path, monkeypatch: pytest.MonkeyP
         original(fig, *args, **kwargs)
 
     monkeypatch.setattr(Figure, "savefig", savefig)
-    out = plot(tmp_path)
+    out = plot(RunRef(None, None, tmp_path))
     assert out == tmp_path / "learning_curves.png" and out.stat().st_size > 5000
-    plot(tmp_path, title="two seeds")
+    plot(RunRef(None, None, tmp_path), title="two seeds")
     assert titles == [None, "two seeds"]  # no figure title unless asked (the panels name their env)
 
 

@@ -10,8 +10,7 @@ import pytest
 import torch
 from cli_helpers import cli
 
-from sbagents.record_video import record_video
-from sbagents.training import train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, record_video, train
 
 torch.set_num_threads(1)
 GRID = "sbagents/GridWorld-v0"
@@ -21,7 +20,8 @@ GRID = "sbagents/GridWorld-v0"
 def grid_logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One run of the book's agent (tabular Q-learning, about a second)."""
     logs = tmp_path_factory.mktemp("grid")
-    train("qlearning", GRID, log_folder=logs, seed=0, verbose=0, final_eval_episodes=0)
+    train(TrainSpec("qlearning", GRID), OutputOptions(logs), EvalOptions(final_eval_episodes=0),
+          ExecOptions(seed=0, verbose=0))
     return logs
 
 
@@ -50,18 +50,9 @@ def test_default_output_folder_and_stochastic(grid_logs: Path) -> None:
 
 def test_treasure_hunt_team_video(tmp_path: Path) -> None:
     small = {"n_envs": 2, "n_steps": 256, "batch_size": 512}
-    train(
-        "ppo",
-        "treasure_hunt_v0",
-        n_timesteps=1536,
-        log_folder=tmp_path,
-        seed=0,
-        hyperparams=small,
-        eval_freq=-1,
-        final_eval_episodes=0,
-        verbose=0,
-    )
-    path = record_video("ppo", "treasure_hunt_v0", log_folder=tmp_path, n_steps=12, output_dir=tmp_path / "v")
+    train(TrainSpec("ppo", "treasure_hunt_v0", 1536, small), OutputOptions(tmp_path),
+          EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+    path = record_video(RunRef("ppo", "treasure_hunt_v0", tmp_path), n_steps=12, output_dir=tmp_path / "v")
     frames = iio.imread(path)
     assert frames.shape[1:] == (320, 320, 3) and frames.shape[0] >= 12
 

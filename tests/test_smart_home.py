@@ -1,4 +1,4 @@
-"""Tests of the SmartHome environment (SPECS.md section 5)."""
+"""Tests of the SmartHome environment (docs/envs.md, SmartHome)."""
 
 from __future__ import annotations
 
@@ -205,7 +205,6 @@ def test_invalid_arguments() -> None:
         SmartHomeEnv(render_mode="video")
 
 
-@pytest.mark.slow
 def test_ddpg_learns_comfort() -> None:
     """The book's algorithm (DDPG, 64-64, VecNormalize obs) masters the task on a small seeded budget.
 

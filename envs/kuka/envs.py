@@ -2,7 +2,7 @@
 
 ``PickAndPlaceEnv`` (``sbagents/PickAndPlace-v0``), ``RobustPickAndPlaceEnv``
 (``sbagents/RobustPickAndPlace-v0``) and the goal-conditioned ``PickAndPlaceGoalEnv``
-(``sbagents/PickAndPlaceGoal-v0``, for HER). Spec: ``SPECS.md`` sections 3 and 4.
+(``sbagents/PickAndPlaceGoal-v0``, for HER). Spec: docs/envs.md (PickAndPlace, RobustPickAndPlace).
 
 Book behaviour kept: gravity -9.81, plane, fixed-base iiwa at the origin with joints reset to 0,
 ``block.urdf`` at (0.5, 0), target (0.5, 0.5), observation Box(12) = 6 joint angles + block position +

@@ -33,7 +33,7 @@ def make_batched_vec_env(
 
     - ``"sbagents/GridWorld-v0"``: like ``make_vec_env(env_id, n_envs, seed, monitor_dir=...)``
       (``n_envs`` slots, monitor files ``<monitor_dir>/<i>.monitor.csv``).
-    - ``"treasure_hunt_v0"``: like :func:`sbagents.multiagent.make_parameter_sharing_vec_env`
+    - ``"treasure_hunt_v0"``: like :func:`sbagents.multiagent.parameter_sharing.make_parameter_sharing_vec_env`
       (``n_envs * n_agents`` slots, team episodes in ``<monitor_dir>/0.monitor.csv``).
 
     :param seed: env ``i`` is reset with ``seed + i`` at the first reset (``None``: random).

@@ -1,6 +1,6 @@
 """Batched CooperativeTreasureHunt: the parameter-sharing VecEnv of ``n_envs`` teams, stepped as arrays.
 
-Equivalent, step by step, to :class:`sbagents.multiagent.ParameterSharingVecEnv` over ``n_envs``
+Equivalent, step by step, to :class:`sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` over ``n_envs``
 :class:`~sbagents.envs.treasure_hunt.CooperativeTreasureHunt` envs: slot ``k`` is agent ``k % n_agents`` of
 env ``k // n_agents``; same ``float32`` observations (``book`` or ``egocentric``), rewards, dones, infos
 (``treasures_collected`` and ``event`` every step; at episode end ``is_success``, ``terminal_observation``,

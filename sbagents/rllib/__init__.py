@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import importlib.util
 import socket
-from argparse import Namespace
 from pathlib import Path
 from typing import Any
 
@@ -31,23 +30,23 @@ MODULE_SUBDIR = ("learner_group", "learner", "rl_module")
 SHARED_MODULE = "shared"
 NEEDS_RAY = "--backend rllib needs Ray: pip install 'sbagents[distributed]'"
 
-#: ``train`` flags (argparse dest -> flag) that the RLlib backend does not implement.
-UNSUPPORTED_TRAIN_FLAGS: dict[str, str] = {
-    "trained_agent": "-i/--trained-agent",
-    "tensorboard_log": "-tb/--tensorboard-log",
-    "save_freq": "--save-freq",
-    "vec_env": "--vec-env",
-    "n_eval_envs": "--n-eval-envs",
-    "log_interval": "--log-interval",
-    "gym_packages": "--gym-packages",
-    "transparency_log": "--transparency-log",
-    "transparency_format": "--transparency-format",
-    "safety": "--safety",
-    "cost_limit": "--cost-limit",
-    "max_violations": "--max-violations",
-    "adversarial_eval": "--adversarial-eval",
-    "fairness": "--fairness",
-    "bins": "--bins",
+#: Options (group, field) the RLlib backend does not implement -> their ``train`` flag.
+UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
+    ("spec", "trained_agent"): "-i/--trained-agent",
+    ("spec", "gym_packages"): "--gym-packages",
+    ("output", "tensorboard_log"): "-tb/--tensorboard-log",
+    ("output", "save_freq"): "--save-freq",
+    ("evaluation", "n_eval_envs"): "--n-eval-envs",
+    ("execution", "vec_env"): "--vec-env",
+    ("execution", "log_interval"): "--log-interval",
+    ("trust", "transparency_log"): "--transparency-log",
+    ("trust", "book_header"): "--transparency-format",
+    ("trust", "safety"): "--safety",
+    ("trust", "cost_limit"): "--cost-limit",
+    ("trust", "max_violations"): "--max-violations",
+    ("trust", "adversarial"): "--adversarial-eval",
+    ("trust", "fairness"): "--fairness",
+    ("trust", "bins"): "--bins",
 }
 
 
@@ -70,29 +69,6 @@ def is_rllib_run(run_dir: str | Path) -> bool:
     return (Path(run_dir) / CHECKPOINT_DIR).is_dir()
 
 
-def evaluate_rllib_run(
-    run_dir: Path,
-    algo: str,
-    env_id: str,
-    n_episodes: int = 10,
-    deterministic: bool = True,
-    seed: int | None = 0,
-    render: bool = False,
-    unsupported: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """``python -m sbagents.evaluate`` on an RLlib run dir (see :func:`sbagents.rllib.evaluation.evaluate_run`).
-
-    :param unsupported: evaluate flags (flag -> value) that RLlib runs do not support; any truthy one is an error.
-    """
-    given = [flag for flag, value in (unsupported or {}).items() if value]
-    if given:
-        raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
-    require_ray("evaluating an RLlib run")
-    from sbagents.rllib.evaluation import evaluate_run
-
-    return evaluate_run(run_dir, algo, env_id, n_episodes, deterministic, seed, render)
-
-
 def check_address(address: str | None, timeout: float = 5.0) -> None:
     """Raise :class:`UsageError` unless the Ray cluster at ``address`` accepts a TCP connection.
 
@@ -110,22 +86,25 @@ def check_address(address: str | None, timeout: float = 5.0) -> None:
         raise UsageError(f"cannot reach the Ray cluster at {address}: {exc.strerror or exc}") from None
 
 
-def check_train_args(args: Namespace, defaults: dict[str, Any]) -> None:
-    """Reject ``train`` CLI arguments the RLlib backend cannot honour (one-line :class:`UsageError`).
+def check_options(groups: dict[str, Any]) -> None:
+    """Reject options the RLlib backend cannot honour (one-line :class:`UsageError` naming their flags).
 
-    :param args: parsed ``python -m sbagents.train`` arguments with ``backend == "rllib"``.
-    :param defaults: the parser's default per dest, to tell which unsupported flags were given.
+    :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``,
+        ``trust``); a field that differs from its dataclass default counts as given.
     """
-    if args.num_env_runners is not None and args.num_env_runners < 0:
-        raise UsageError(f"--num-env-runners must be >= 0, got {args.num_env_runners}")
-    if args.algo not in RLLIB_ALGOS:
-        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {args.algo!r}")
-    given = [flag for dest, flag in UNSUPPORTED_TRAIN_FLAGS.items() if getattr(args, dest) != defaults.get(dest)]
+    given = []
+    for (group, name), flag in UNSUPPORTED_OPTIONS.items():
+        options = groups.get(group)
+        if options is not None and getattr(options, name) != getattr(type(options)(), name):
+            given.append(flag)
     if given:
         raise UsageError(f"{', '.join(given)} not supported with --backend rllib")
-    if args.device not in ("auto", "cpu"):
-        raise UsageError(f"--backend rllib trains on the CPU here; got --device {args.device}")
-    check_address(args.address)
+    execution, spec = groups["execution"], groups["spec"]
+    if spec.algo not in RLLIB_ALGOS:
+        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {spec.algo!r}")
+    if execution.device not in ("auto", "cpu"):
+        raise UsageError(f"--backend rllib trains on the CPU here; got --device {execution.device}")
+    check_address(execution.address)
 
 
 __all__ = [
@@ -136,8 +115,7 @@ __all__ = [
     "RLLIB_ALGOS",
     "SHARED_MODULE",
     "check_address",
-    "check_train_args",
-    "evaluate_rllib_run",
+    "check_options",
     "is_rllib_run",
     "ray_available",
     "require_ray",

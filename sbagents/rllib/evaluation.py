@@ -1,8 +1,9 @@
 """Evaluating an RLlib run: greedy team episodes with the checkpoint's RLModule(s), without starting Ray.
 
-The summary has the shape of :func:`sbagents.evaluation.summarize` / the SB3 team evaluation (``env``,
-``algo``, ``n_episodes``, ``mean_return``, ``std_return``, ``mean_length``, ``success_rate`` and
-``metrics = {"treasures_per_episode", "team_return"}``); team return = the sum of all agents' rewards.
+The episodes are played by the same runner and summarized as the SB3 team evaluation
+(:func:`sbagents.multiagent.team_eval.evaluate_team`): ``env``, ``algo``, ``n_episodes``, ``mean_return``,
+``std_return``, ``mean_length``, ``success_rate`` and ``metrics = {"treasures_per_episode", "team_return"}``;
+team return = the sum of all agents' rewards.
 """
 
 from __future__ import annotations
@@ -21,11 +22,14 @@ from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.multi_rl_module import MultiRLModule
 from ray.rllib.core.rl_module.rl_module import RLModule
 
-from sbagents.env_ids import PETTINGZOO_ENVS
 from sbagents.errors import UsageError
-from sbagents.evaluation import summarize
+from sbagents.multiagent.parameter_sharing import ParameterSharingVecEnv
+from sbagents.multiagent.team_eval import evaluate_team
+from sbagents.pipeline.env_names import PETTINGZOO_ENVS
+from sbagents.pipeline.options import EvaluateOptions
+from sbagents.pipeline.run_dir import load_run_config
 from sbagents.rllib import CHECKPOINT_DIR, MODULE_SUBDIR, SHARED_MODULE
-from sbagents.run_loading import load_run_config
+from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
 
 
 def load_modules(checkpoint: str | Path) -> dict[str, RLModule]:
@@ -94,6 +98,24 @@ def act(
     return actions
 
 
+def slot_actor(
+    modules: Mapping[str, RLModule], agents: list[str], deterministic: bool = True,
+    rng: np.random.Generator | None = None,
+) -> Callable[[np.ndarray], np.ndarray]:
+    """An ``act`` for :func:`sbagents.callbacks.rollout.run_episodes` on a parameter-sharing VecEnv: observations
+    ``(n_envs * n_agents, obs_dim)`` (slot ``k`` is ``agents[k % n_agents]``) -> actions ``(n_envs * n_agents,)``."""
+    n = len(agents)
+
+    def act_slots(obs: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(obs), dtype=np.int64)
+        for base in range(0, len(obs), n):
+            actions = act(modules, {a: obs[base + j] for j, a in enumerate(agents)}, deterministic, rng)
+            out[base:base + n] = [actions[a] for a in agents]
+        return out
+
+    return act_slots
+
+
 def evaluate_modules(
     modules: Mapping[str, RLModule],
     env_fn: Callable[[], ParallelEnv],
@@ -103,76 +125,49 @@ def evaluate_modules(
     deterministic: bool = True,
     seed: int | None = 0,
 ) -> dict[str, Any]:
-    """Run ``n_episodes`` team episodes (one env, sequentially) and summarize them.
+    """Play ``n_episodes`` team episodes (one env, sequentially) with the modules and summarize them.
 
     :param seed: seed of the first reset (later resets continue the env's RNG) -> reproducible returns.
     """
     if n_episodes < 1:
         raise UsageError(f"the number of evaluation episodes must be >= 1, got {n_episodes}")
-    env = env_fn()
-    for agent in env.possible_agents:
-        if not isinstance(env.action_space(agent), spaces.Discrete):
-            raise UsageError(f"RLlib evaluation supports Discrete actions; {agent} has {env.action_space(agent)}")
-    rng = np.random.default_rng(seed)
-    returns: list[float] = []
-    lengths: list[int] = []
-    successes: list[bool] = []
-    treasures: list[float] = []
+    venv = ParameterSharingVecEnv([env_fn])
     try:
-        for episode in range(n_episodes):
-            obs, _ = env.reset(seed=seed if episode == 0 else None)
-            total, length = 0.0, 0
-            info: dict[str, Any] = {}
-            while env.agents:
-                obs, rewards, _, _, infos = env.step(act(modules, obs, deterministic, rng))
-                total += float(sum(rewards.values()))
-                length += 1
-                info = next(iter(infos.values()), {})
-            returns.append(total)
-            lengths.append(length)
-            successes.append(bool(info.get("is_success", False)))
-            treasures.append(float(info.get("treasures_collected", np.nan)))
+        for agent in venv.possible_agents:
+            space = venv.envs[0].action_space(agent)
+            if not isinstance(space, spaces.Discrete):
+                raise UsageError(f"RLlib evaluation supports Discrete actions; {agent} has {space}")
+        actor = slot_actor(modules, list(venv.possible_agents), deterministic, np.random.default_rng(seed))
+        result = evaluate_team(None, venv, n_episodes, deterministic, seed, act=actor)
     finally:
-        env.close()
-    return summarize(env_id, algo, returns, lengths, successes,
-                     {"treasures_per_episode": treasures, "team_return": returns})
+        venv.close()
+    return {"env": env_id, "algo": algo, **result}
 
 
 def _env_fn(env_id: str, env_kwargs: Mapping[str, Any], render: bool = False) -> Callable[[], ParallelEnv]:
     if env_id not in PETTINGZOO_ENVS:
         raise UsageError(f"RLlib runs are PettingZoo envs ({', '.join(PETTINGZOO_ENVS)}); got {env_id}")
     module = importlib.import_module(PETTINGZOO_ENVS[env_id])
-    kwargs = {**env_kwargs, **({"render_mode": "human"} if render else {})}
-    return lambda: module.parallel_env(**kwargs)
+    if not render:
+        return lambda: module.parallel_env(**env_kwargs)
+    text = supports_text(module.parallel_env(**env_kwargs).metadata.get("render_modes"))
+    kwargs = {**env_kwargs, "render_mode": "ansi" if text else "human"}
+    return lambda: ParallelTextStepPrinter(module.parallel_env(**kwargs)) if text else module.parallel_env(**kwargs)
 
 
 def evaluate_checkpoint(
-    checkpoint: str | Path,
-    env_id: str,
-    algo: str,
-    env_kwargs: Mapping[str, Any],
-    n_episodes: int = 10,
-    deterministic: bool = True,
-    seed: int | None = 0,
-    render: bool = False,
+    checkpoint: str | Path, env_id: str, algo: str, env_kwargs: Mapping[str, Any],
+    options: EvaluateOptions | None = None,
 ) -> dict[str, Any]:
     """Evaluate the modules of an RLlib checkpoint on a fresh ``env_id`` built with ``env_kwargs``."""
+    options = options or EvaluateOptions()
     modules = load_modules(checkpoint)
-    return evaluate_modules(modules, _env_fn(env_id, env_kwargs, render), env_id, algo, n_episodes,
-                            deterministic, seed)
+    return evaluate_modules(modules, _env_fn(env_id, env_kwargs, options.render), env_id, algo, options.n_episodes,
+                            options.deterministic, options.seed)
 
 
-def evaluate_run(
-    run_dir: str | Path,
-    algo: str,
-    env_id: str,
-    n_episodes: int = 10,
-    deterministic: bool = True,
-    seed: int | None = 0,
-    render: bool = False,
-) -> dict[str, Any]:
+def evaluate_run(run_dir: str | Path, algo: str, env_id: str, options: EvaluateOptions) -> dict[str, Any]:
     """Evaluate a finished (or interrupted) RLlib run dir of ``python -m sbagents.train --backend rllib``."""
     run_dir = Path(run_dir)
     entry = load_run_config(run_dir, env_id)
-    return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, env_id, algo, entry.get("env_kwargs") or {}, n_episodes,
-                               deterministic, seed, render)
+    return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, env_id, algo, entry.get("env_kwargs") or {}, options)

@@ -1,213 +1,38 @@
 """Training a PettingZoo env with Ray RLlib PPO: :func:`train_rllib` (``python -m sbagents.train --backend rllib``).
 
-Flow: zoo entry (``zoo_configs/rllib_<algo>.yml``) + CLI overrides -> :class:`RllibExperiment` -> RLlib
-``AlgorithmConfig`` (new API stack: RLModule / Learner / EnvRunner) -> Ray (a local instance sized for this
-machine, or the cluster at ``address``) -> run dir with ``rllib_checkpoint/``, ``progress.csv`` and
-``summary.json``. Ctrl-C / SIGTERM stop training but still leave a checkpoint and ``summary.json``
-(``interrupted: true``); Ray is shut down in every case.
+Flow: :class:`TrainSpec` + ``zoo_configs/rllib_<algo>.yml`` -> :class:`~sbagents.rllib.experiment.RllibExperiment`
+-> RLlib ``AlgorithmConfig`` -> Ray (a local instance sized for this machine, or the cluster at ``address``) -> run
+dir with ``rllib_checkpoint/``, ``progress.csv`` and ``summary.json``, through the same run life as SB3 runs
+(:mod:`sbagents.pipeline.lifecycle`). Ctrl-C / SIGTERM stop training but still leave a checkpoint and
+``summary.json`` (``interrupted: true``); Ray is shut down in every case.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
-import dataclasses
-import importlib
-import json
 import logging
 import math
-import shutil
 import signal
 import threading
-import time
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import ray
 import torch
-from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
-from ray.rllib.algorithms.ppo import PPOConfig
-from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
-from ray.rllib.env.multi_agent_env import MultiAgentEnv
-from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
-from ray.tune.registry import register_env
 
-from sbagents.config import default_config_path, lookup_entry
-from sbagents.console import ProgressReporter
-from sbagents.env_ids import PETTINGZOO_ENVS, EnvRef, resolve_env
 from sbagents.errors import UsageError
-from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE, RLLIB_ALGOS, SHARED_MODULE, check_address
+from sbagents.pipeline.console import ProgressReporter
+from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
+from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.training import TrainResult, default_command
+from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE, check_address
 from sbagents.rllib.evaluation import evaluate_checkpoint
-from sbagents.run_dir import SUMMARY_FILE, create_run_dir
-from sbagents.run_loading import save_run_config
+from sbagents.rllib.experiment import RllibExperiment, build_config, build_experiment
 
-#: Zoo-entry keys that describe the experiment (the rest go to RLlib).
-EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "model")
-#: Zoo-entry keys passed to ``AlgorithmConfig.env_runners``.
-ENV_RUNNER_KEYS = ("num_env_runners", "num_envs_per_env_runner", "rollout_fragment_length")
-#: Zoo-entry keys passed to ``PPOConfig.training`` (``lr`` may be ``lin_<x>``: linear decay to 0).
-TRAINING_KEYS = ("lr", "gamma", "lambda_", "train_batch_size_per_learner", "minibatch_size", "num_epochs",
-                 "entropy_coeff", "clip_param", "vf_clip_param", "vf_loss_coeff", "grad_clip", "grad_clip_by",
-                 "use_kl_loss", "kl_coeff", "kl_target", "shuffle_batch_per_epoch")
-POLICY_MODES = ("shared", "per_agent")
 _OBJECT_STORE_BYTES = 256 * 1024**2  # the rollouts here are small; Ray's default takes 30% of the RAM
-
-
-@dataclass
-class RllibExperiment:
-    """A resolved RLlib experiment; ``hyperparams`` is the plain entry as written to ``config.yml``.
-
-    :param n_timesteps: env steps to sample (one step of the parallel env = one step for every agent).
-    :param policies: ``"shared"`` (one module for every agent) or ``"per_agent"`` (one module per agent id).
-    """
-
-    algo: str
-    env_id: str
-    n_timesteps: int
-    env_kwargs: dict[str, Any]
-    policies: str
-    env_runners: dict[str, Any]
-    training: dict[str, Any]
-    model: dict[str, Any]
-    hyperparams: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def num_env_runners(self) -> int:
-        """Env runner actors (0: sample in the driver process)."""
-        return int(self.env_runners.get("num_env_runners", 2))
-
-
-@dataclass
-class RllibTrainResult:
-    """What :func:`train_rllib` produced."""
-
-    run_dir: Path
-    experiment: RllibExperiment
-    summary: dict[str, Any]
-    interrupted: bool = False
-
-
-def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) -> RllibExperiment:
-    """Validate a zoo entry and split it into env runner, training and model settings.
-
-    :param where: file and entry named in errors.
-    """
-    accepted = (*EXPERIMENT_KEYS, *ENV_RUNNER_KEYS, *TRAINING_KEYS)
-    unknown = sorted(set(entry) - set(accepted))
-    if unknown:
-        raise UsageError(f"{where}: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(accepted)}")
-    policies = entry.get("policies", "shared")
-    if policies not in POLICY_MODES:
-        raise UsageError(f"{where}: policies must be one of {', '.join(POLICY_MODES)}, got {policies!r}")
-    model = dict(entry.get("model") or {})
-    model_fields = {f.name for f in dataclasses.fields(DefaultModelConfig)}
-    if set(model) - model_fields:
-        bad = ", ".join(sorted(set(model) - model_fields))
-        raise UsageError(f"{where}: unknown model key(s) {bad}; accepted: {', '.join(sorted(model_fields))}")
-    n_timesteps = int(entry.get("n_timesteps", 0))
-    training = {k: entry[k] for k in TRAINING_KEYS if k in entry}
-    lr = training.get("lr")
-    if isinstance(lr, str):
-        if not lr.startswith("lin_"):
-            raise UsageError(f"{where}: lr must be a number or lin_<x>, got {lr!r}")
-        try:
-            start = float(lr[4:])
-        except ValueError:
-            raise UsageError(f"{where}: lr {lr!r} is not lin_<number>") from None
-        training["lr"] = [[0, start], [max(n_timesteps, 1), 0.0]]
-    runners = {k: entry[k] for k in ENV_RUNNER_KEYS if k in entry}
-    if int(runners.get("num_env_runners", 2)) < 0:
-        raise UsageError(f"{where}: num_env_runners must be >= 0")
-    return RllibExperiment(algo, env_id, n_timesteps, dict(entry.get("env_kwargs") or {}), policies, runners,
-                           training, model, dict(entry))
-
-
-def build_experiment(
-    algo: str,
-    ref: EnvRef,
-    conf_file: str | Path | None = None,
-    hyperparams: Mapping[str, Any] | None = None,
-    n_timesteps: int | None = None,
-    env_kwargs: Mapping[str, Any] | None = None,
-    num_env_runners: int | None = None,
-) -> RllibExperiment:
-    """The zoo entry for ``ref`` in ``zoo_configs/rllib_<algo>.yml`` (or ``conf_file``) with the CLI overrides."""
-    if algo not in RLLIB_ALGOS:
-        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {algo!r}")
-    if not ref.multi_agent:
-        raise UsageError(f"--backend rllib trains PettingZoo envs ({', '.join(PETTINGZOO_ENVS)}); got {ref.env_id}")
-    if n_timesteps is not None and n_timesteps < 1:
-        raise UsageError(f"-n/--n-timesteps must be a positive integer, got {n_timesteps}")
-    path = Path(conf_file) if conf_file is not None else default_config_path(f"rllib_{algo}")
-    if conf_file is not None and not path.exists():
-        raise UsageError(f"config file {path} does not exist")
-    entry = lookup_entry(path, ref.env_id)
-    entry.update(hyperparams or {})
-    if n_timesteps is not None:
-        entry["n_timesteps"] = n_timesteps
-    if num_env_runners is not None:
-        entry["num_env_runners"] = num_env_runners
-    if env_kwargs:
-        entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **env_kwargs}
-    exp = resolve_entry(algo, ref.env_id, entry, f"{path}, entry for {ref.env_id}")
-    if exp.n_timesteps < 1:
-        raise UsageError(f"no n_timesteps for {algo} on {ref.env_id} in {path}; pass -n N")
-    return exp
-
-
-def make_env(config: Mapping[str, Any]) -> MultiAgentEnv:
-    """RLlib env creator (runs in every env runner): the PettingZoo ``parallel_env`` as a ``MultiAgentEnv``.
-
-    :param config: ``module`` (PettingZoo module path), ``env_kwargs`` and ``num_threads`` (torch threads of
-        the env runner process; <= 0 keeps torch's default).
-    """
-    threads = int(config.get("num_threads", 1))
-    if threads > 0 and torch.get_num_threads() != threads:
-        torch.set_num_threads(threads)
-    module = importlib.import_module(config["module"])
-    return ParallelPettingZooEnv(module.parallel_env(**config.get("env_kwargs", {})))
-
-
-def _to_shared(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: shared
-    return SHARED_MODULE
-
-
-def _to_own(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: per_agent
-    return str(agent_id)
-
-
-def build_config(exp: RllibExperiment, seed: int, num_threads: int = 1) -> AlgorithmConfig:
-    """The RLlib ``PPOConfig`` of ``exp`` (one local learner in the driver, ``num_env_runners`` samplers)."""
-    module_name = PETTINGZOO_ENVS[exp.env_id]
-    try:
-        probe = importlib.import_module(module_name).parallel_env(**exp.env_kwargs)
-    except (TypeError, ValueError) as exc:
-        raise UsageError(f"invalid env_kwargs for {exp.env_id}: {exc}") from None
-    agents = list(probe.possible_agents)
-    probe.close()
-    env_name = f"sbagents_{exp.env_id}"
-    register_env(env_name, make_env)
-    if exp.policies == "shared":
-        policies, mapping = {SHARED_MODULE}, _to_shared
-    else:
-        policies, mapping = set(agents), _to_own
-    env_config = {"module": module_name, "env_kwargs": exp.env_kwargs, "num_threads": num_threads}
-    try:
-        return (
-            PPOConfig()
-            .environment(env_name, env_config=env_config)
-            .env_runners(**{"num_env_runners": 2, **exp.env_runners})
-            .learners(num_learners=0)
-            .multi_agent(policies=policies, policy_mapping_fn=mapping)
-            .training(**exp.training)
-            .rl_module(model_config=DefaultModelConfig(**exp.model))
-            .debugging(seed=seed, log_level="ERROR")
-        )
-    except (TypeError, ValueError) as exc:
-        raise UsageError(f"invalid RLlib settings for {exp.algo} on {exp.env_id}: {exc}") from None
 
 
 @contextlib.contextmanager
@@ -242,104 +67,73 @@ def ray_session(address: str | None, num_env_runners: int, num_threads: int = 1,
 
 
 def train_rllib(
-    algo: str,
-    env: str,
-    *,
-    n_timesteps: int | None = None,
-    log_folder: str | Path = "logs",
-    seed: int = -1,
-    hyperparams: Mapping[str, Any] | None = None,
-    conf_file: str | Path | None = None,
-    env_kwargs: Mapping[str, Any] | None = None,
-    num_env_runners: int | None = None,
-    address: str | None = None,
-    num_threads: int = 1,
-    eval_freq: int | None = None,
-    eval_episodes: int = 5,
-    final_eval_episodes: int = 10,
-    progress: bool | None = None,
-    verbose: int = 1,
-    command: str = "",
-) -> RllibTrainResult:
-    """Train ``algo`` on the PettingZoo env ``env`` with RLlib and write a run directory.
+    spec: TrainSpec,
+    output: OutputOptions | None = None,
+    evaluation: EvalOptions | None = None,
+    execution: ExecOptions | None = None,
+) -> TrainResult:
+    """Train ``spec.algo`` on the PettingZoo env ``spec.env`` with RLlib and write a run directory.
 
-    :param n_timesteps: env steps to sample (default: the config's).
-    :param num_env_runners: RLlib env runner actors (default: the config's; 0 samples in the driver).
-    :param address: Ray cluster to join (``auto``, ``host:6379`` or ``ray://host:10001``); None starts a local
-        Ray instance.
-    :param num_threads: torch threads of the learner and of every env runner (<= 0 keeps torch's default).
-    :param eval_freq: env steps between greedy team evaluations (written to ``progress.csv``; default a tenth
-        of the budget, at most 25,000; <= 0 disables).
-    :param final_eval_episodes: greedy team episodes evaluated after training into ``summary["eval"]``.
-    :return: run dir, experiment and summary; ``interrupted`` after Ctrl-C/SIGTERM (checkpoint still saved).
+    ``execution.num_env_runners`` (default: the config's; 0 samples in the driver) and ``execution.address``
+    (``auto``, ``host:6379`` or ``ray://host:10001``; None starts a local Ray) size the Ray side;
+    ``execution.num_threads`` is the torch thread count of the learner and of every env runner. Periodic greedy team
+    evaluations go to ``progress.csv``.
+
+    :return: run dir, experiment and summary (``model`` is None: the policy is in ``rllib_checkpoint/``);
+        ``interrupted`` after Ctrl-C/SIGTERM (the checkpoint is still saved).
     """
-    for name in ("ray.rllib", "ray._common.deprecation") if verbose < 2 else ():  # RLlib's API-stack notices
+    output, evaluation, execution = output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions()
+    for group in (spec, evaluation, execution):
+        group.validate()
+    for name in ("ray.rllib", "ray._common.deprecation") if execution.verbose < 2 else ():  # API-stack notices
         logging.getLogger(name).setLevel(logging.ERROR)
-    check_address(address)
-    ref = resolve_env(env)
-    exp = build_experiment(algo, ref, conf_file, hyperparams, n_timesteps, env_kwargs, num_env_runners)
-    if num_threads > 0:
-        torch.set_num_threads(num_threads)
-    if seed < 0:
-        seed = int(np.random.default_rng().integers(2**31 - 1))
-    if eval_freq is None:
-        eval_freq = min(25_000, max(exp.n_timesteps // 10, 1))
-    config = build_config(exp, seed, num_threads)
-    run_dir = create_run_dir(log_folder, algo, ref.env_id)
-    args = {"algo": algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": exp.n_timesteps,
-            "log_folder": str(log_folder), "eval_freq": eval_freq, "eval_episodes": eval_episodes,
-            "num_env_runners": exp.num_env_runners, "address": address, "num_threads": num_threads}
-    save_run_config(run_dir, exp.env_id, exp.hyperparams, args,  # RL Zoo layout, as the SB3 runs
-                    command or f"python -m sbagents.train --backend rllib --env {env}")
-    interrupted = False
+    check_address(execution.address)
+    ref = resolve_env(spec.env, spec.gym_packages)
+    exp = build_experiment(spec, ref, execution.num_env_runners)
+    if execution.num_threads > 0:
+        torch.set_num_threads(execution.num_threads)
+    seed = draw_seed(execution.seed)
+    config = build_config(exp, seed, execution.num_threads)
+    args = {"algo": spec.algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": exp.n_timesteps,
+            "log_folder": str(output.log_folder), "eval_freq": evaluation.frequency(exp.n_timesteps),
+            "eval_episodes": evaluation.eval_episodes, "num_env_runners": exp.num_env_runners,
+            "address": execution.address, "num_threads": execution.num_threads}
+    command = output.command or default_command(spec, execution)
     done: dict[str, Any] = {"env_steps": 0, "agent_steps": 0, "iterations": 0}  # updated every iteration
-    try:
-        with ray_session(address, exp.num_env_runners, num_threads, verbose):
+    clock = LearningClock()
+    with contextlib.ExitStack() as ray_scope:
+        with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
+            ray_scope.enter_context(ray_session(execution.address, exp.num_env_runners, execution.num_threads,
+                                                execution.verbose))
             try:
                 algo_obj = config.build_algo()
             except (ValueError, TypeError) as exc:
-                raise UsageError(f"invalid RLlib settings for {algo} on {ref.env_id}: {exc}") from None
-            start, cpu_start = time.perf_counter(), time.process_time()
-            try:
-                _train_loop(algo_obj, exp, run_dir, done, seed, eval_freq, eval_episodes, progress, verbose)
-            except KeyboardInterrupt:  # Ctrl-C / SIGTERM: keep what was learned
-                interrupted = True
-            except BaseException:
-                algo_obj.stop()
-                raise
-            seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
-            try:
-                algo_obj.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
-            finally:
-                algo_obj.stop()
-    except BaseException:
-        if not (run_dir / CHECKPOINT_DIR).is_dir():
-            shutil.rmtree(run_dir, ignore_errors=True)  # nothing trained: do not leave a half-made run dir
-        raise
+                raise UsageError(f"invalid RLlib settings for {spec.algo} on {ref.env_id}: {exc}") from None
+            ray_scope.callback(algo_obj.stop)
+        try:
+            with clock:
+                _train_loop(algo_obj, exp, run_dir, done, seed, evaluation, execution)
+        finally:
+            algo_obj.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
     steps = int(done["env_steps"])
-    summary: dict[str, Any] = {
-        "algo": algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": steps,
-        "n_agent_steps": int(done["agent_steps"]), "iterations": int(done["iterations"]),
-        "train_seconds": round(seconds, 3), "train_cpu_seconds": round(cpu_seconds, 3),
-        "fps": round(steps / max(seconds, 1e-9), 1), "policies": exp.policies,
-        "num_env_runners": exp.num_env_runners, "address": address, "num_threads": num_threads,
-        "ray_version": ray.__version__, "checkpoint": CHECKPOINT_DIR, "interrupted": interrupted, "eval": None,
-    }
-    (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
-    if not interrupted and final_eval_episodes > 0:
-        summary["eval"] = evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref.env_id, algo, exp.env_kwargs,
-                                              n_episodes=final_eval_episodes, seed=seed)
-        (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
-    return RllibTrainResult(run_dir, exp, summary, interrupted)
+    summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "backend": "rllib",
+               "n_agent_steps": int(done["agent_steps"]), "iterations": int(done["iterations"]),
+               "policies": exp.policies, "num_env_runners": exp.num_env_runners, "address": execution.address,
+               "num_threads": execution.num_threads, "ray_version": ray.__version__, "checkpoint": CHECKPOINT_DIR}
+
+    def final_eval() -> dict[str, Any]:
+        return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref.env_id, spec.algo, exp.env_kwargs,
+                                   EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed))
+
+    finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
+    return TrainResult(run_dir, None, exp, summary, clock.interrupted)
 
 
 _LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var")
 
 
-def _train_loop(
-    algo: Any, exp: RllibExperiment, run_dir: Path, state: dict[str, Any], seed: int, eval_freq: int,
-    eval_episodes: int, progress: bool | None, verbose: int,
-) -> None:
+def _train_loop(algo: Any, exp: RllibExperiment, run_dir: Path, state: dict[str, Any], seed: int,
+                evaluation: EvalOptions, execution: ExecOptions) -> None:
     """``algo.train()`` until ``exp.n_timesteps`` env steps; one ``progress.csv`` row per iteration.
 
     ``state`` (``env_steps``, ``agent_steps``, ``iterations``) is updated after every iteration, so it is
@@ -349,8 +143,9 @@ def _train_loop(
     fields = ["iteration", "env_steps", "agent_steps", "episodes", "episode_return_mean", "episode_len_mean",
               "iter_seconds", "time_total_s", "env_steps_per_s", "eval_mean_return", "eval_treasures_per_episode"]
     fields += [f"{m}/{k}" for m in modules for k in _LEARNER_STATS]
+    eval_freq = evaluation.frequency(exp.n_timesteps)
     next_eval = eval_freq if eval_freq > 0 else math.inf
-    reporter = ProgressReporter(exp.n_timesteps, bar=progress, quiet=verbose <= 0)
+    reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
     with (run_dir / PROGRESS_FILE).open("w", newline="") as f, contextlib.closing(reporter):
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
@@ -376,7 +171,8 @@ def _train_loop(
             if steps >= next_eval and steps < exp.n_timesteps:
                 next_eval = steps - steps % eval_freq + eval_freq
                 ckpt = algo.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
-                ev = evaluate_checkpoint(ckpt, exp.env_id, exp.algo, exp.env_kwargs, eval_episodes, seed=seed)
+                ev = evaluate_checkpoint(ckpt, exp.env_id, exp.algo, exp.env_kwargs,
+                                         EvaluateOptions(n_episodes=evaluation.eval_episodes, seed=seed))
                 row.update(eval_mean_return=ev["mean_return"],
                            eval_treasures_per_episode=ev["metrics"]["treasures_per_episode"])
                 reporter.evaluation(steps, ev["mean_return"], ev["std_return"], None,

@@ -21,12 +21,16 @@ from sbagents.callbacks import (
     fairness_report,
     parse_attack_spec,
 )
-from sbagents.env_factory import make_eval_vec
-from sbagents.env_ids import EnvRef
 from sbagents.errors import UsageError
-from sbagents.hyperparams import Experiment
+from sbagents.pipeline.env_factory import make_eval_vec
+from sbagents.pipeline.models import RunContext
+from sbagents.pipeline.options import EvaluateOptions
+from sbagents.pipeline.run_dir import LoadedRun
 
 DEFAULT_TRANSPARENCY_FILE = "transparency.csv"
+#: Seed offsets of the attack and fairness evaluation envs (distinct from training and periodic evaluation).
+ADVERSARIAL_SEED_OFFSET = 20_000
+FAIRNESS_SEED_OFFSET = 30_000
 
 
 def parse_attacks(spec: str | None, flag: str) -> list[AttackSpec]:
@@ -85,28 +89,27 @@ def check_attacks(model: BaseAlgorithm, venv: VecEnv, specs: list[AttackSpec], f
             raise UsageError(f"{flag} {spec.label}: {exc}") from None
 
 
-def trust_callbacks(
-    opts: TrustOptions, exp: Experiment, ref: EnvRef, run_dir: Path, train_env: VecEnv, seed: int,
-    eval_freq: int, eval_episodes: int, model: BaseAlgorithm,
-) -> list[BaseCallback]:
-    """The callbacks the options ask for, writing into ``run_dir`` (attacks are checked against ``model``)."""
+def trust_callbacks(opts: TrustOptions, ctx: RunContext) -> list[BaseCallback]:
+    """The callbacks the options ask for, writing into the run dir (attacks are checked against the model)."""
+    exp, ref, run_dir, seed = ctx.exp, ctx.ref, ctx.run_dir, ctx.seed
     callbacks: list[BaseCallback] = []
     if opts.transparency_log is not None:
         path = Path(opts.transparency_log) if opts.transparency_log else run_dir / DEFAULT_TRANSPARENCY_FILE
         callbacks.append(TransparencyCSVCallback(str(path), book_header=opts.book_header))
     if opts.count_violations:
         callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(run_dir), verbose=0))
-    freq = max(eval_freq // train_env.num_envs, 1) if eval_freq > 0 else exp.n_timesteps
+    freq = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else exp.n_timesteps
     if opts.adversarial:
-        venv = make_eval_vec(exp, ref, 1, seed + 20_000)
+        venv = make_eval_vec(exp, ref, 1, seed + ADVERSARIAL_SEED_OFFSET)
         specs = parse_attacks(opts.adversarial, "--adversarial-eval")
-        check_attacks(model, venv, specs, "--adversarial-eval")
-        callbacks.append(AdversarialEvalCallback(
-            venv, specs, eval_freq=freq, n_eval_episodes=eval_episodes, path=str(run_dir), seed=seed + 20_000))
+        check_attacks(ctx.model, venv, specs, "--adversarial-eval")
+        callbacks.append(AdversarialEvalCallback(venv, specs, eval_freq=freq, n_eval_episodes=ctx.eval_episodes,
+                                                 path=str(run_dir), seed=seed + ADVERSARIAL_SEED_OFFSET))
     if opts.fairness:
         callbacks.append(FairnessEvalCallback(
-            make_eval_vec(exp, ref, 1, seed + 30_000), parse_keys(opts.fairness), bins=opts.bins,
-            eval_freq=freq, n_eval_episodes=max(eval_episodes, 30), path=str(run_dir), seed=seed + 30_000))
+            make_eval_vec(exp, ref, 1, seed + FAIRNESS_SEED_OFFSET), parse_keys(opts.fairness), bins=opts.bins,
+            eval_freq=freq, n_eval_episodes=max(ctx.eval_episodes, 30), path=str(run_dir),
+            seed=seed + FAIRNESS_SEED_OFFSET))
     return callbacks
 
 
@@ -162,29 +165,27 @@ def trust_summary_lines(results: dict[str, Any]) -> list[str]:
     return lines
 
 
-def trust_report(
-    model: BaseAlgorithm, exp: Experiment, ref: EnvRef, stats_path: Path | None, out_dir: Path,
-    attacks: str | None = None, fairness: str | None = None, bins: int = 3, n_episodes: int = 10, seed: int = 0,
-) -> dict[str, Any]:
-    """Adversarial and fairness evaluation of a finished run (the ``evaluate --attack/--fairness`` flags)."""
+def trust_report(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]:
+    """Adversarial and fairness evaluation of a finished run (``evaluate --attack/--fairness``): the ``adversarial``
+    rows and the ``fairness`` report, written as CSV + PNG into the run dir."""
+    model, exp, ref, seed = run.model, run.experiment, run.env, options.seed or 0
     result: dict[str, Any] = {}
-    specs = parse_attacks(attacks, "--attack")
-    keys = parse_keys(fairness)
-    if keys and bins < 1:
-        raise UsageError(f"--bins must be >= 1, got {bins}")
+    specs = parse_attacks(options.attacks, "--attack")
+    keys = parse_keys(options.fairness)
     if specs:
-        venv = make_eval_vec(exp, ref, 1, seed, stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path)
         try:
             check_attacks(model, venv, specs, "--attack")
-            result["adversarial"] = adversarial_report(model, venv, specs, n_episodes, out_dir, seed=seed)
+            result["adversarial"] = adversarial_report(model, venv, specs, options.n_episodes, run.run_dir, seed=seed)
         finally:
             venv.close()
     if keys:
-        venv = make_eval_vec(exp, ref, 1, seed, stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path)
         try:
-            result["fairness"] = fairness_report(model, venv, keys, bins, n_episodes, out_dir, seed=seed)
+            result["fairness"] = fairness_report(model, venv, keys, options.bins, options.n_episodes, run.run_dir,
+                                                 seed=seed)
         except (KeyError, ValueError) as exc:
-            raise UsageError(f"--fairness {fairness}: {exc}") from None
+            raise UsageError(f"--fairness {options.fairness}: {exc}") from None
         finally:
             venv.close()
     return result

@@ -1,4 +1,4 @@
-"""Turning a raw zoo entry (plain YAML data) into a validated experiment description.
+"""Turning a zoo entry (plain YAML data) plus the CLI overrides into a validated SB3 experiment description.
 
 Classes and functions are named by import path (``package.module.Name`` or ``package.module:Name``) or by a
 short name from a fixed table; nothing is ``eval``'d.
@@ -17,8 +17,9 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
-from sbagents.config import ZOO_KEYS
 from sbagents.errors import UsageError
+from sbagents.pipeline.options import TrainSpec
+from sbagents.pipeline.zoo_config import ZOO_KEYS, spec_entry
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh,
@@ -213,3 +214,13 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str) -> Exper
         algo_kwargs=algo_kwargs,
         hyperparams=dict(entry),
     )
+
+
+def build_experiment(spec: TrainSpec, env_id: str, atari: bool = False) -> Experiment:
+    """The :class:`Experiment` of ``spec`` on ``env_id``: its zoo entry (``zoo_configs/<algo>.yml`` or
+    ``spec.conf_file``; the ``atari`` entry applies to Atari ids) with the overrides, validated."""
+    if spec.algo not in ALGOS:
+        raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
+    entry, where = spec_entry(spec, spec.algo, env_id, atari)
+    return resolve(spec.algo, env_id, entry, where)
+

@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from sbagents.errors import UsageError
+from sbagents.pipeline.options import TrainSpec
 
 #: Keys of a zoo entry that configure the experiment rather than the algorithm constructor.
 ZOO_KEYS: frozenset[str] = frozenset(
@@ -109,3 +110,23 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
             ) from None
         result[key] = value
     return result
+
+
+def spec_entry(spec: TrainSpec, config_name: str, env_id: str, atari: bool = False) -> tuple[dict[str, Any], str]:
+    """The zoo entry of ``env_id`` with the spec's overrides (``-params``, ``-n``, ``--env-kwargs``) applied, and
+    where it came from (file and entry, for error messages). Shared by every backend's experiment builder.
+
+    :param config_name: the shipped file to read when ``spec.conf_file`` is None (``zoo_configs/<name>.yml``).
+    """
+    spec.validate()
+    path = Path(spec.conf_file) if spec.conf_file is not None else default_config_path(config_name)
+    if spec.conf_file is not None and not path.exists():
+        raise UsageError(f"config file {path} does not exist")
+    entry = lookup_entry(path, env_id, atari)
+    entry.update(spec.hyperparams)
+    if spec.n_timesteps is not None:
+        entry["n_timesteps"] = spec.n_timesteps
+    if spec.env_kwargs:
+        entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **spec.env_kwargs}
+    return entry, f"{path}, entry for {env_id}"
+

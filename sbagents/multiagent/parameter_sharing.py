@@ -25,7 +25,7 @@ from stable_baselines3.common.monitor import ResultsWriter
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
-from sbagents.env_ids import PETTINGZOO_ENVS  # noqa: F401  (re-exported: the CLI's multi-agent env names)
+from sbagents.pipeline.env_names import PETTINGZOO_ENVS  # noqa: F401  (re-exported: the CLI's multi-agent env names)
 
 
 class ParameterSharingVecEnv(VecEnv):

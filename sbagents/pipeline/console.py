@@ -116,3 +116,32 @@ class EvalReportCallback(BaseCallback):
             float(np.mean(successes)) if successes else None, scalars,
         )
         return True
+
+
+def format_evaluation(summary: Mapping[str, Any]) -> str:
+    """An evaluation summary (``evaluate``) as a two-column text table, trust results included."""
+    rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
+                                      "success_rate")]
+    rows += [(f"metrics.{k}", v) for k, v in summary["metrics"].items()]
+    rows += [(f"attack.{r['label']}.mean_return", r["mean_return"]) for r in summary.get("adversarial", [])]
+    if "fairness" in summary:
+        fair = summary["fairness"]
+        rows += [("fairness.metric", fair["metric"]), ("fairness.worst_bucket_value", fair["worst"]["value"]),
+                 ("fairness.gap", fair["gap"])]
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: bool) -> list[str]:
+    """The lines ``train`` ends with: where the run went, its speed and its final evaluation."""
+    if interrupted:
+        return [f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {run_dir}"]
+    lines = [f"run dir: {run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)"]
+    ev = summary.get("eval")
+    if ev:
+        success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
+        metrics = "".join(f", {k} {v:.3g}" for k, v in ev["metrics"].items() if k != "team_return")
+        lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
+                     f"{ev['n_episodes']} episodes{success}{metrics}")
+    return lines
+

@@ -1,94 +1,65 @@
 """Team evaluation of a parameter-shared policy: :func:`evaluate_team` and :class:`TeamEvalCallback`.
 
-Team return = the sum of all agents' rewards over an episode; one result per team episode.
+Team return = the sum of all agents' rewards over an episode; one result per team episode. The episodes are
+played by :func:`sbagents.callbacks.rollout.run_episodes`, the runner every evaluation in sbagents uses.
 """
 
 from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.callbacks import EvalCallback
-from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
-from sbagents.multiagent import ParameterSharingVecEnv
+from sbagents.callbacks.rollout import EpisodeResult, run_episodes
+from sbagents.multiagent.parameter_sharing import ParameterSharingVecEnv
+
+
+def team_summary(episodes: Sequence[EpisodeResult]) -> dict[str, Any]:
+    """``n_episodes``, ``mean_return``/``std_return`` (team return = sum over agents), ``mean_length``,
+    ``success_rate`` (share of episodes whose last step reports ``is_success``) and ``metrics`` =
+    ``{"treasures_per_episode", "team_return"}`` (NaN treasures if the env reports none)."""
+    returns = [e.ret for e in episodes]
+    treasures = [float(e.info.get("treasures_collected", np.nan)) for e in episodes]
+    return {
+        "n_episodes": len(episodes),
+        "mean_return": float(np.mean(returns)),
+        "std_return": float(np.std(returns)),
+        "mean_length": float(np.mean([e.length for e in episodes])),
+        "success_rate": float(np.mean([bool(e.success) for e in episodes])),
+        "metrics": {"treasures_per_episode": float(np.mean(treasures)), "team_return": float(np.mean(returns))},
+    }
 
 
 def evaluate_team(
     model: Any,
-    env_fn: Callable[[], ParallelEnv],
+    env: VecEnv | Callable[[], ParallelEnv],
     n_episodes: int = 10,
     deterministic: bool = True,
     seed: int | None = None,
-    render: bool = False,
-    vec_normalize: VecNormalize | None = None,
+    act: Callable[[Any], np.ndarray] | None = None,
 ) -> dict[str, Any]:
-    """Run ``n_episodes`` team episodes (one env, sequentially) with a parameter-shared policy.
+    """Play ``n_episodes`` team episodes (one team, sequentially) and summarize them.
 
-    :param model: anything with SB3's ``predict(obs, deterministic=...)``.
-    :param env_fn: zero-argument constructor of the ``ParallelEnv``.
+    :param model: an SB3 model (``predict``), or None with ``act``.
+    :param env: one ``ParameterSharingVecEnv`` team (under a frozen ``VecNormalize`` when the run normalized), or
+        a zero-argument ``ParallelEnv`` constructor (a team VecEnv is built and closed here).
     :param seed: seed of the first reset (then the env's RNG continues) -> reproducible returns.
-    :param render: call the env's ``render()`` every step (create it with a ``render_mode``).
-    :param vec_normalize: if given, observations are normalized with its (frozen) statistics.
-    :return: ``n_episodes``, ``mean_return``/``std_return`` (team return = sum over agents),
-        ``mean_length``, ``success_rate`` (share of episodes with ``is_success``) and
-        ``metrics`` = ``{"treasures_per_episode", "team_return"}`` (NaN treasures if the env reports none).
+    :param act: maps an observation batch ``(n_agents, *obs_shape)`` to actions (default ``model.predict``).
+    :return: :func:`team_summary` of the episodes.
     """
-    ep = _run_team_episodes(model, env_fn, n_episodes, deterministic, seed, render, vec_normalize)
-    return _summary(ep)
-
-
-def _run_team_episodes(
-    model: Any,
-    env_fn: Callable[[], ParallelEnv],
-    n_episodes: int,
-    deterministic: bool,
-    seed: int | None,
-    render: bool,
-    vec_normalize: VecNormalize | None,
-) -> dict[str, list[Any]]:
-    """Per-episode ``returns``, ``lengths``, ``successes``, ``treasures`` (see :func:`evaluate_team`)."""
-    vec = ParameterSharingVecEnv([env_fn])
-    if seed is not None:
-        vec.seed(seed)
-    ep: dict[str, list[Any]] = {"returns": [], "lengths": [], "successes": [], "treasures": []}
-    obs: Any = vec.reset()
+    if isinstance(env, VecEnv):
+        return team_summary(run_episodes(model, env, n_episodes, deterministic, seed, act))
+    venv = ParameterSharingVecEnv([env])
     try:
-        while len(ep["returns"]) < n_episodes:
-            if vec_normalize is not None:
-                obs = vec_normalize.normalize_obs(obs)
-            actions, _ = model.predict(obs, deterministic=deterministic)
-            obs, _, dones, infos = vec.step(actions)
-            if render:
-                vec.envs[0].render()
-            if dones[0]:
-                info = infos[0]
-                ep["returns"].append(float(info["episode"]["r"]))
-                ep["lengths"].append(int(info["episode"]["l"]))
-                ep["successes"].append(bool(info.get("is_success", False)))
-                ep["treasures"].append(float(info.get("treasures", np.nan)))
+        return team_summary(run_episodes(model, venv, n_episodes, deterministic, seed, act))
     finally:
-        vec.close()
-    return ep
-
-
-def _summary(ep: dict[str, list[Any]]) -> dict[str, Any]:
-    returns = ep["returns"]
-    return {
-        "n_episodes": len(returns),
-        "mean_return": float(np.mean(returns)),
-        "std_return": float(np.std(returns)),
-        "mean_length": float(np.mean(ep["lengths"])),
-        "success_rate": float(np.mean(ep["successes"])),
-        "metrics": {
-            "treasures_per_episode": float(np.mean(ep["treasures"])),
-            "team_return": float(np.mean(returns)),
-        },
-    }
+        venv.close()
 
 
 class TeamEvalCallback(EvalCallback):
@@ -99,14 +70,15 @@ class TeamEvalCallback(EvalCallback):
     ``(n_evals, n_eval_episodes)``, ``ep_lengths``, ``successes``) to ``log_path``. Logs ``eval/mean_reward``,
     ``eval/mean_ep_length``, ``eval/success_rate`` and ``eval/treasures_per_episode``.
 
-    :param env_fn: zero-argument constructor of the evaluation ``ParallelEnv``.
+    :param eval_env: a one-team parameter-sharing VecEnv (its ``VecNormalize`` statistics are synced from the
+        training env before every evaluation).
     :param eval_freq: evaluate every ``eval_freq`` calls of ``_on_step`` (i.e. vec steps, not env steps).
     :param seed: seed of each evaluation (the same episodes every time; ``None``: fresh ones).
     """
 
     def __init__(
         self,
-        env_fn: Callable[[], ParallelEnv],
+        eval_env: VecEnv,
         n_eval_episodes: int = 5,
         eval_freq: int = 10000,
         log_path: str | None = None,
@@ -118,7 +90,7 @@ class TeamEvalCallback(EvalCallback):
         verbose: int = 1,
     ) -> None:
         super().__init__(
-            ParameterSharingVecEnv([env_fn]),
+            eval_env,
             callback_on_new_best=callback_on_new_best,
             callback_after_eval=callback_after_eval,
             n_eval_episodes=n_eval_episodes,
@@ -129,10 +101,8 @@ class TeamEvalCallback(EvalCallback):
             verbose=verbose,
             warn=False,
         )
-        self.env_fn = env_fn
         self.eval_seed = seed
         self.last_result: dict[str, Any] = {}
-        self._returns: list[list[float]] = []
 
     def _init_callback(self) -> None:
         with warnings.catch_warnings():  # the eval env is the reference VecEnv; the training one may be batched
@@ -142,15 +112,13 @@ class TeamEvalCallback(EvalCallback):
     def _on_step(self) -> bool:
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
-        vec_norm = self.model.get_vec_normalize_env()
-        result = _run_team_episodes(
-            self.model, self.env_fn, self.n_eval_episodes, self.deterministic, self.eval_seed, False, vec_norm
-        )
-        self.last_result = _summary(result)
+        sync_envs_normalization(self.training_env, self.eval_env)
+        episodes = run_episodes(self.model, self.eval_env, self.n_eval_episodes, self.deterministic, self.eval_seed)
+        self.last_result = team_summary(episodes)
         self.evaluations_timesteps.append(self.num_timesteps)
-        self.evaluations_results.append(result["returns"])
-        self.evaluations_length.append(result["lengths"])
-        self._is_success_buffer = list(result["successes"])
+        self.evaluations_results.append([e.ret for e in episodes])
+        self.evaluations_length.append([e.length for e in episodes])
+        self._is_success_buffer = [bool(e.success) for e in episodes]
         self.evaluations_successes.append(self._is_success_buffer)
         if self.log_path is not None:
             np.savez(
@@ -168,11 +136,6 @@ class TeamEvalCallback(EvalCallback):
         self.logger.record("eval/treasures_per_episode", self.last_result["metrics"]["treasures_per_episode"])
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(self.num_timesteps)
-        if self.verbose >= 1:
-            print(
-                f"Eval num_timesteps={self.num_timesteps}, team return={mean_reward:.2f}, "
-                f"treasures={self.last_result['metrics']['treasures_per_episode']:.2f}"
-            )
         continue_training = True
         if mean_reward > self.best_mean_reward:
             self.best_mean_reward = mean_reward

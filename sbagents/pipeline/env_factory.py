@@ -1,4 +1,4 @@
-"""Building the vectorised training and evaluation envs of an :class:`~sbagents.hyperparams.Experiment`."""
+"""Building the vectorised training and evaluation envs of an :class:`~sbagents.pipeline.experiment.Experiment`."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
-from sbagents.env_ids import EnvRef
 from sbagents.errors import UsageError
-from sbagents.hyperparams import Experiment
+from sbagents.pipeline.env_names import EnvRef
+from sbagents.pipeline.experiment import Experiment
 
 VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
     "dummy": DummyVecEnv,
@@ -106,7 +106,7 @@ def make_vec(
 
     :param n_envs: number of copies (for multi-agent envs: copies of the whole team).
     :param vec_env: ``auto``, ``dummy``, ``subproc`` or ``batched`` (see :func:`vec_env_kind`); multi-agent envs
-        use :class:`~sbagents.multiagent.ParameterSharingVecEnv` unless batched.
+        use :class:`~sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` unless batched.
     :param env_kwargs: extra env kwargs on top of the experiment's (e.g. ``render_mode``).
     :param wrapper: an extra outermost wrapper of every env copy (a Gymnasium wrapper, or a PettingZoo parallel
         wrapper for multi-agent envs); it rules out the batched VecEnvs.
@@ -144,7 +144,7 @@ def _make_base_vec(
 
         venv = make_batched_vec_env(ref.env_id, n_envs, seed, kwargs, monitor)
     elif ref.multi_agent:
-        from sbagents.multiagent import make_parameter_sharing_vec_env
+        from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
 
         make_env = ref.pettingzoo_module().parallel_env
         if wrapper is not None:

@@ -1,4 +1,5 @@
-"""Shared pieces of the argparse shells: error handling, ``key:value`` flags, signals."""
+"""What the CLI modules (``python -m sbagents.<command>``) share: one-line errors and exit codes, SIGTERM as
+Ctrl-C, and the flags that pick a finished run. Importing it needs neither torch nor gymnasium (``serve``)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from types import FrameType
 from typing import NoReturn
 
 from sbagents.errors import UsageError
+from sbagents.pipeline.run_dir import RunRef
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -21,14 +23,31 @@ class ArgumentParser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def add_run_arguments(parser: argparse.ArgumentParser) -> None:
-    """The flags that pick a finished run: ``--algo --env -f --exp-id --load-best --gym-packages``."""
-    parser.add_argument("--algo", required=True, help="algorithm of the run")
-    parser.add_argument("--env", required=True, help="env id of the run")
+def add_run_arguments(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, required: bool = True, exp_id: bool = True,
+    load_best: bool = True,
+) -> None:
+    """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
+    ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` for commands on one run.
+
+    :param required: ``--algo`` and ``--env`` must be given (else they filter, as for ``plot``).
+    """
+    parser.add_argument("--algo", required=required, default=None,
+                        help="algorithm of the run" if required else "algorithm of the run(s) (default: any)")
+    parser.add_argument("--env", required=required, default=None,
+                        help="env id of the run" if required else "env id of the run(s) (default: any)")
     parser.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
-    parser.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
-    parser.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
+    if exp_id:
+        parser.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
+    if load_best:
+        parser.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+
+
+def run_ref(args: argparse.Namespace) -> RunRef:
+    """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
+    return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
+                  tuple(args.gym_packages))
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:

@@ -8,7 +8,7 @@ interrupted study resumes and several machines can share one study through a ser
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +21,14 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
-from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
-from sbagents.env_ids import EnvRef, resolve_env
 from sbagents.errors import UsageError
-from sbagents.run_dir import env_stem
-from sbagents.training import build_experiment, check_spaces, make_model
+from sbagents.pipeline.env_factory import make_eval_vec, make_vec, normalize_for_training
+from sbagents.pipeline.env_names import EnvRef, resolve_env
+from sbagents.pipeline.experiment import build_experiment
+from sbagents.pipeline.models import check_spaces, make_model
+from sbagents.pipeline.options import StudyOptions, TrainSpec
+from sbagents.pipeline.run_dir import env_stem
+from sbagents.pipeline.training import EVAL_SEED_OFFSET
 
 SAMPLERS = {"tpe": optuna.samplers.TPESampler, "random": optuna.samplers.RandomSampler}
 PRUNERS = {"median": optuna.pruners.MedianPruner, "halving": optuna.pruners.SuccessiveHalvingPruner,
@@ -88,25 +91,24 @@ class TuneResult:
     history_plot_path: Path
 
 
-def _objective(algo: str, ref: EnvRef, n_timesteps: int | None, n_seeds: int, n_evaluations: int,
-               eval_episodes: int, seed: int) -> Any:
+def _objective(spec: TrainSpec, ref: EnvRef, study: StudyOptions, seed: int) -> Any:
     def objective(trial: optuna.Trial) -> float:
-        params = sample_params(trial, algo)
-        exp = build_experiment(algo, ref, hyperparams=params, n_timesteps=n_timesteps)
+        params = sample_params(trial, spec.algo)
+        exp = build_experiment(replace(spec, hyperparams={**spec.hyperparams, **params}), ref.env_id, ref.is_atari)
         trial.set_user_attr("config", exp.hyperparams)
         bests: list[float] = []
-        for k in range(n_seeds):
+        for k in range(study.n_seeds):
             run_seed = seed + k
             set_random_seed(run_seed)
             env = normalize_for_training(make_vec(exp, ref, exp.n_envs, run_seed), exp)
-            eval_env = make_eval_vec(exp, ref, 1, run_seed + 10_000)
+            eval_env = make_eval_vec(exp, ref, 1, run_seed + EVAL_SEED_OFFSET)
             try:
-                model = make_model(exp, env, run_seed, "cpu", None, 0)
+                model = make_model(exp, env, run_seed, "cpu")
             except UsageError as exc:
                 raise optuna.TrialPruned(str(exc)) from None
-            freq = max(exp.n_timesteps // (n_evaluations * env.num_envs), 1)
-            callback = _BestEval(trial, k * n_evaluations, bests, eval_env=eval_env, eval_freq=freq,
-                                 n_eval_episodes=eval_episodes, deterministic=True, verbose=0)
+            freq = max(exp.n_timesteps // (study.n_evaluations * env.num_envs), 1)
+            callback = _BestEval(trial, k * study.n_evaluations, bests, eval_env=eval_env, eval_freq=freq,
+                                 n_eval_episodes=study.eval_episodes, deterministic=True, verbose=0)
             model.learn(exp.n_timesteps, callback=callback)
             env.close()
             eval_env.close()
@@ -119,68 +121,54 @@ def _objective(algo: str, ref: EnvRef, n_timesteps: int | None, n_seeds: int, n_
 
 
 def tune(
-    algo: str,
-    env: str,
-    n_trials: int = 20,
-    storage: str | None = None,
-    study_name: str | None = None,
-    n_jobs: int = 1,
-    sampler: str = "tpe",
-    pruner: str = "median",
-    n_seeds: int = 1,
-    n_timesteps: int | None = None,
-    n_evaluations: int = 5,
-    eval_episodes: int = 5,
-    log_folder: str | Path = "logs",
-    seed: int = 0,
+    spec: TrainSpec, study: StudyOptions | None = None, log_folder: str | Path = "logs", seed: int = 0,
     verbose: int = 1,
 ) -> TuneResult:
-    """Run (or resume) an Optuna study until it holds ``n_trials`` finished trials.
+    """Run (or resume) an Optuna study over ``spec.algo``'s hyperparameters on ``spec.env`` until it holds
+    ``study.n_trials`` finished trials. ``spec.n_timesteps`` is the budget of every training run.
 
-    :param storage: an RDB URL (``postgresql://...`` lets several machines share the study); default an SQLite
-        file ``<log_folder>/<algo>/<EnvId>_tune.db``.
+    :param study: the study's size, storage, sampler and pruner. Its default storage is an SQLite file
+        ``<log_folder>/<algo>/<EnvId>_tune.db``; a server URL (``postgresql://...``) lets several machines share it.
+    :param seed: first training seed (trial seeds are ``seed .. seed + n_seeds - 1``) and the sampler's seed.
     :param verbose: 1 prints one line per finished trial (value or pruned, and its parameters), 0 nothing.
     :return: the study, the best trial's zoo entry (``<EnvId>_tune_best.yml``) and the history plot path.
     """
-    if algo not in ALGOS:
-        raise UsageError(f"unknown algo {algo!r}; available: {', '.join(ALGOS)}")
-    if sampler not in SAMPLERS or pruner not in PRUNERS:
+    study = study or StudyOptions()
+    if spec.algo not in ALGOS:
+        raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
+    if study.sampler not in SAMPLERS or study.pruner not in PRUNERS:
         raise UsageError(f"--sampler must be one of {', '.join(SAMPLERS)} and --pruner one of {', '.join(PRUNERS)}")
-    for flag, value in (("--n-trials", n_trials), ("--n-seeds", n_seeds), ("--n-jobs", n_jobs),
-                        ("--n-evaluations", n_evaluations), ("--eval-episodes", eval_episodes),
-                        ("-n/--n-timesteps", 1 if n_timesteps is None else n_timesteps)):
-        if value < 1:
-            raise UsageError(f"{flag} must be >= 1, got {value}")
+    study.validate()
+    spec.validate()
     torch.set_num_threads(1)
-    ref = resolve_env(env)
-    probe = build_experiment(algo, ref, n_timesteps=n_timesteps)
+    ref = resolve_env(spec.env, spec.gym_packages)
+    probe = build_experiment(spec, ref.env_id, ref.is_atari)
     if probe.n_timesteps < 1:
-        raise UsageError(f"no n_timesteps for {algo} on {ref.env_id} in its config; pass -n N")
+        raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     check_spaces(probe, ref)
-    folder = Path(log_folder) / algo
+    folder = Path(log_folder) / spec.algo
     folder.mkdir(parents=True, exist_ok=True)
     stem = env_stem(ref.env_id)
-    storage = storage or f"sqlite:///{(folder / f'{stem}_tune.db').resolve()}"
+    storage = study.storage or f"sqlite:///{(folder / f'{stem}_tune.db').resolve()}"
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
-        study = optuna.create_study(
-            study_name=study_name or f"{algo}-{stem}", storage=storage, load_if_exists=True, direction="maximize",
-            sampler=SAMPLERS[sampler](seed=seed), pruner=PRUNERS[pruner](),
+        optuna_study = optuna.create_study(
+            study_name=study.study_name or f"{spec.algo}-{stem}", storage=storage, load_if_exists=True,
+            direction="maximize", sampler=SAMPLERS[study.sampler](seed=seed), pruner=PRUNERS[study.pruner](),
         )
     except (ImportError, ValueError, SQLAlchemyError) as exc:
         reason = str(exc).strip().splitlines()[0]
         raise UsageError(f"--storage {storage}: cannot open the study ({type(exc).__name__}: {reason})") from None
     finished = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    done = len(study.get_trials(deepcopy=False, states=finished))
-    remaining = n_trials - done
+    done = len(optuna_study.get_trials(deepcopy=False, states=finished))
+    remaining = study.n_trials - done
     if remaining > 0:
-        objective = _objective(algo, ref, n_timesteps, n_seeds, n_evaluations, eval_episodes, seed)
-        study.optimize(objective, n_trials=remaining, n_jobs=n_jobs, catch=(),
-                       callbacks=[_print_trial] if verbose >= 1 else [])
+        optuna_study.optimize(_objective(spec, ref, study, seed), n_trials=remaining, n_jobs=study.n_jobs,
+                              catch=(), callbacks=[_print_trial] if verbose >= 1 else [])
     elif verbose >= 1:
-        print(f"study {study.study_name} is already complete: {done} finished trials (--n-trials {n_trials}); "
-              "raise --n-trials to run more")
-    return _write_outputs(study, folder, stem, ref.env_id)
+        print(f"study {optuna_study.study_name} is already complete: {done} finished trials "
+              f"(--n-trials {study.n_trials}); raise --n-trials to run more")
+    return _write_outputs(optuna_study, folder, stem, ref.env_id)
 
 
 def format_trial(trial: optuna.trial.FrozenTrial) -> str:

@@ -1,0 +1,223 @@
+"""Exporting a trained policy for the edge: ``policy.onnx`` (+ ``policy.int8.onnx``) and the ``policy.json``
+sidecar, with the parity and latency report (:func:`export_run`; :func:`export` for a finished run dir, the library
+side of ``python -m sbagents.export``).
+
+The files are made in a staging folder inside the output folder and moved in at the end, so a failure leaves no
+partial export.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from sbagents.callbacks.common import env_attr
+from sbagents.deploy.onnx_export import ACTION_OUTPUT, OBS_INPUT, check_exportable, export_onnx, quantize_int8
+from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
+from sbagents.errors import UsageError
+from sbagents.pipeline.env_factory import make_eval_vec
+from sbagents.pipeline.run_dir import RunRef, load_run
+
+
+@dataclass
+class ExportReport:
+    """What :func:`export_run` wrote and measured.
+
+    ``parity_*``: max abs action difference vs SB3; ``int8_deviation``: :func:`action_deviation` of the int8 file,
+    ``int8_acceptable``: whether it is within :data:`INT8_TOLERANCE` for the action space (``action_kind``:
+    ``box`` or ``discrete``).
+    """
+
+    onnx_path: Path
+    sidecar_path: Path
+    parity_fp32: float
+    onnx_bytes: int
+    int8_path: Path | None = None
+    parity_int8: float | None = None
+    int8_bytes: int | None = None
+    int8_deviation: float | None = None
+    int8_acceptable: bool | None = None
+    action_kind: str = "box"
+    n_parity_observations: int = 0
+    latency: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (paths as str)."""
+        return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class ExportChecks:
+    """How much :func:`export_run` measures: parity observations (recorded with the greedy policy from ``seed``)
+    and latency calls per file."""
+
+    n_observations: int = 1000
+    seed: int = 0
+    latency_n: int = 1000
+
+
+def _space_meta(space: spaces.Space[Any]) -> dict[str, Any]:
+    if isinstance(space, spaces.Discrete):
+        return {"type": "discrete", "n": int(space.n), "start": int(space.start)}
+    assert isinstance(space, spaces.Box), f"unsupported space {space}"
+    low, high = (np.asarray(b, dtype=np.float64).ravel().tolist() for b in (space.low, space.high))
+    return {"type": "box", "shape": list(space.shape), "low": low, "high": high}
+
+
+def _names(env: gym.Env[Any, Any] | VecEnv, attr: str) -> list[str] | None:
+    value = env_attr(env, attr) if isinstance(env, VecEnv) else getattr(env.unwrapped, attr, None)
+    return list(value) if value is not None else None
+
+
+def export_run(
+    model: BaseAlgorithm,
+    out_dir: str | Path,
+    env_id: str,
+    env: gym.Env[Any, Any] | VecEnv | None = None,
+    vec_normalize: VecNormalize | None = None,
+    int8: bool = False,
+    checks: ExportChecks | None = None,
+) -> ExportReport:
+    """Export ``model``, quantize it (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
+
+    Writes ``policy.onnx`` (+ ``policy.int8.onnx``) and ``policy.json`` (env id, algo, obs/action names from the
+    env's ``obs_names``/``action_names``, spaces with bounds, ONNX input/output names, parity and latency) into
+    ``out_dir``.
+
+    :param env: where parity observations are recorded (default ``gym.make(env_id)``); a ``VecNormalize`` env also
+        supplies the normalization statistics.
+    :param vec_normalize: the statistics the model was trained with, when ``env`` does not carry them.
+    :raises TypeError: the model cannot be exported (:func:`check_exportable`).
+    :raises ValueError: ``checks.n_observations < 1``.
+    """
+    checks = checks or ExportChecks()
+    check_exportable(model)
+    if checks.n_observations < 1:
+        raise ValueError(f"n_observations must be >= 1, got {checks.n_observations}")
+    out = Path(out_dir)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
+    own_env = env is None
+    rec_env = gym.make(env_id) if env is None else env
+    if vec_normalize is None and isinstance(rec_env, VecNormalize):
+        vec_normalize = rec_env
+    try:
+        report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks)
+        for path in staging.iterdir():
+            os.replace(path, out / path.name)
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        if own_env:
+            rec_env.close()
+    return report
+
+
+def _export_into(
+    model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv,
+    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks,
+) -> ExportReport:
+    """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
+    norm = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
+    obs_rms = norm.obs_rms if norm is not None else None
+    if obs_rms is not None and not isinstance(obs_rms, RunningMeanStd):
+        raise TypeError("dict observations are not supported")
+    clip_obs = vec_normalize.clip_obs if vec_normalize is not None else 10.0
+    epsilon = vec_normalize.epsilon if vec_normalize is not None else 1e-8
+    onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon)
+    plain_norm = None if isinstance(env, VecNormalize) else norm
+    observations = record_observations(env, model, checks.n_observations, checks.seed, vec_normalize=plain_norm)
+
+    paths: dict[str, Path] = {"onnx": onnx_path}
+    report = ExportReport(
+        onnx_path=out / onnx_path.name, sidecar_path=out / "policy.json",
+        parity_fp32=check_parity(model, onnx_path, observations, norm),
+        onnx_bytes=onnx_path.stat().st_size, n_parity_observations=len(observations),
+        action_kind="box" if isinstance(model.action_space, spaces.Box) else "discrete",
+    )
+    if int8:
+        int8_path = quantize_int8(onnx_path, staging / "policy.int8.onnx")
+        paths["onnx_int8"] = int8_path
+        report.int8_path = out / int8_path.name
+        report.int8_bytes = int8_path.stat().st_size
+        report.parity_int8 = check_parity(model, int8_path, observations, norm)
+        report.int8_deviation = action_deviation(model, int8_path, observations, norm)
+        report.int8_acceptable = report.int8_deviation <= INT8_TOLERANCE[report.action_kind]
+    report.latency = latency_table(model, paths, observations[0], checks.latency_n, norm)
+
+    n_obs = int(np.prod(model.observation_space.shape)) if model.observation_space.shape else 1
+    n_act = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
+    sidecar = {
+        "env_id": env_id,
+        "algo": type(model).__name__.lower(),
+        "obs_names": _names(env, "obs_names") or [f"obs_{i}" for i in range(n_obs)],
+        "action_names": _names(env, "action_names") or [f"action_{i}" for i in range(n_act)],
+        "observation_space": _space_meta(model.observation_space),
+        "action_space": _space_meta(model.action_space),
+        "input_name": OBS_INPUT,
+        "output_name": ACTION_OUTPUT,
+        "obs_normalization_baked_in": obs_rms is not None,
+        "files": {name: p.name for name, p in paths.items()},
+        "report": report.to_dict(),
+    }
+    (staging / "policy.json").write_text(json.dumps(sidecar, indent=2) + "\n")
+    return report
+
+
+def export(run: RunRef, int8: bool = False, out: str | Path | None = None, n_observations: int = 1000) -> ExportReport:
+    """Export a finished run to ONNX in ``out`` (default: ``<run dir>/export``).
+
+    Parity is checked on ``n_observations`` observations recorded with the greedy policy on an env built exactly
+    as in training (same env kwargs and wrappers, frozen VecNormalize statistics).
+    """
+    if n_observations < 1:
+        raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
+    loaded = load_run(run)
+    exp, ref = loaded.experiment, loaded.env
+    if exp.frame_stack or exp.env_wrapper:
+        raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
+    try:
+        check_exportable(loaded.model)
+    except TypeError as exc:
+        raise UsageError(f"cannot export {run.algo}: {exc}") from None
+    venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path)
+    try:
+        return export_run(loaded.model, out or loaded.run_dir / "export", ref.env_id, env=venv, int8=int8,
+                          checks=ExportChecks(n_observations=n_observations))
+    finally:
+        venv.close()
+
+
+def format_report(report: ExportReport) -> str:
+    """The human-readable export report: files, parity, whether int8 is acceptable, latency."""
+    lines = [f"wrote {report.onnx_path} ({report.onnx_bytes:,} bytes) and {report.sidecar_path}",
+             f"parity fp32: max abs action difference {report.parity_fp32:.2e} over "
+             f"{report.n_parity_observations} observations"]
+    if report.int8_path is not None and report.int8_deviation is not None:
+        limit = INT8_TOLERANCE[report.action_kind]
+        if report.action_kind == "box":
+            size = f"{100 * report.int8_deviation:.1f}% of the action range (limit {100 * limit:g}%)"
+        else:
+            size = f"a different action on {100 * report.int8_deviation:.1f}% of observations (limit {100 * limit:g}%)"
+        verdict = "acceptable" if report.int8_acceptable else "NOT acceptable: keep the fp32 policy"
+        lines.append(f"int8: {report.int8_path} ({report.int8_bytes:,} bytes), max abs action difference "
+                     f"{report.parity_int8:.2e}, {size}: {verdict}")
+    lines.append("latency (single observation): " + ", ".join(
+        f"{name} p50 {row['p50_us']:.1f} us / p99 {row['p99_us']:.1f} us" for name, row in report.latency.items()))
+    return "\n".join(lines)

@@ -1,0 +1,175 @@
+"""Export a trained SB3 policy to ONNX (optionally int8) for torch-free inference (``sbagents.serve``).
+
+The exported graph maps a raw observation batch to the action ``model.predict(deterministic=True)``
+returns: VecNormalize observation normalization (``clip((obs - mean) / sqrt(var + eps), -clip, clip)``),
+the deterministic policy, tanh squashing and rescaling to the Box bounds (or clipping, for unsquashed
+Gaussian policies) are all inside the graph. Discrete actions come out as the int64 argmax index;
+Discrete observations go in as an int64 index (one-hot inside the graph).
+
+We use the legacy TorchScript exporter (``dynamo=False``): it needs no ``onnxscript`` and traces SB3's
+distributions as they are; its deprecation warning is silenced locally. Argument validation of
+``torch.distributions`` is switched off while tracing (it would add data-dependent checks) and restored.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+OBS_INPUT = "obs"
+ACTION_OUTPUT = "action"
+ONNX_OPSET = 17
+
+
+class OnnxPolicy(torch.nn.Module):
+    """Raw observation ``(batch, obs_dim)`` (or ``(batch,)`` int64 for Discrete) -> action
+    ``(batch, act_dim)`` float32 for Box, ``(batch,)`` int64 for Discrete.
+
+    :param model: the trained SB3 algorithm.
+    :param obs_rms: VecNormalize observation statistics to bake in (None: no normalization).
+    :param clip_obs: VecNormalize ``clip_obs``.
+    :param epsilon: VecNormalize ``epsilon``.
+    """
+
+    obs_mean: torch.Tensor
+    obs_scale: torch.Tensor
+    act_low: torch.Tensor
+    act_high: torch.Tensor
+
+    def __init__(
+        self,
+        model: BaseAlgorithm,
+        obs_rms: RunningMeanStd | None = None,
+        clip_obs: float = 10.0,
+        epsilon: float = 1e-8,
+    ) -> None:
+        super().__init__()
+        self.policy = model.policy
+        self.action_space = model.action_space
+        self.clip_obs = float(clip_obs)
+        self.normalize = obs_rms is not None
+        if obs_rms is not None:
+            self.register_buffer("obs_mean", torch.as_tensor(obs_rms.mean, dtype=torch.float32))
+            scale = np.sqrt(obs_rms.var + epsilon)
+            self.register_buffer("obs_scale", torch.as_tensor(scale, dtype=torch.float32))
+        self.box = isinstance(self.action_space, spaces.Box)
+        if self.box:
+            assert isinstance(self.action_space, spaces.Box)
+            self.register_buffer("act_low", torch.as_tensor(self.action_space.low, dtype=torch.float32))
+            self.register_buffer("act_high", torch.as_tensor(self.action_space.high, dtype=torch.float32))
+        self.squash = bool(getattr(self.policy, "squash_output", False))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.normalize:
+            obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
+        action = self.policy._predict(obs, deterministic=True)
+        if not self.box:
+            return action.long()
+        action = action.float().reshape((-1, *self.act_low.shape))
+        if self.squash:
+            return self.act_low + 0.5 * (action + 1.0) * (self.act_high - self.act_low)
+        return torch.max(torch.min(action, self.act_high), self.act_low)
+
+
+def _dummy_obs(space: spaces.Space[Any]) -> torch.Tensor:
+    if isinstance(space, spaces.Discrete):
+        return torch.zeros((1,), dtype=torch.int64)
+    if isinstance(space, spaces.Box):
+        return torch.as_tensor(space.sample()[None], dtype=torch.float32)
+    raise TypeError(f"only Box and Discrete observation spaces can be exported, got {space}")
+
+
+def export_onnx(
+    model: BaseAlgorithm,
+    out_path: str | Path,
+    obs_rms: RunningMeanStd | None = None,
+    clip_obs: float = 10.0,
+    epsilon: float = 1e-8,
+) -> Path:
+    """Write ``model``'s deterministic policy (with normalization and action rescaling baked in) as ONNX.
+
+    :param model: a DQN, PPO, A2C, SAC, TD3 or DDPG model (Box or Discrete actions).
+    :param out_path: destination ``.onnx`` file (parents are created).
+    :param obs_rms: ``VecNormalize.obs_rms`` when the model was trained on normalized observations.
+    :param clip_obs: ``VecNormalize.clip_obs``.
+    :param epsilon: ``VecNormalize.epsilon``.
+    :return: the written path. Input ``obs`` ``(batch, *obs_shape)`` float32 (int64 ``(batch,)`` for
+        Discrete observations), output ``action`` ``(batch, *act_shape)`` float32 or ``(batch,)`` int64.
+    """
+    if not isinstance(model.action_space, spaces.Box | spaces.Discrete):
+        raise TypeError(f"only Box and Discrete action spaces can be exported, got {model.action_space}")
+    if obs_rms is not None and not isinstance(obs_rms, RunningMeanStd):
+        raise TypeError("obs_rms must be a RunningMeanStd (dict observations are not supported)")
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    device = model.policy.device
+    wrapper = OnnxPolicy(model, obs_rms, clip_obs, epsilon).cpu().eval()  # moves model.policy to CPU
+    model.policy.set_training_mode(False)
+    dummy = _dummy_obs(model.observation_space)
+    validate = torch.distributions.Distribution._validate_args
+    torch.distributions.Distribution.set_default_validate_args(False)
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", FutureWarning)
+            warnings.simplefilter("ignore", torch.jit.TracerWarning)
+            torch.onnx.export(
+                wrapper,
+                (dummy,),
+                str(out),
+                dynamo=False,
+                input_names=[OBS_INPUT],
+                output_names=[ACTION_OUTPUT],
+                dynamic_axes={OBS_INPUT: {0: "batch"}, ACTION_OUTPUT: {0: "batch"}},
+                opset_version=ONNX_OPSET,
+            )
+    finally:
+        torch.distributions.Distribution.set_default_validate_args(validate)
+        model.policy.to(device)  # back where the caller had it
+    return out
+
+
+def quantize_int8(src: str | Path, dst: str | Path) -> Path:
+    """Dynamic int8 weight quantization of an ONNX file (``onnxruntime.quantization``, QInt8 weights)."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    dst = Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    # onnxruntime logs a root-logger hint about shape pre-processing; it changes nothing for these MLPs
+    # (measured: identical int8 weights), so drop that one message while quantizing.
+    hint = _DropMessage("Please consider to run pre-processing")
+    logging.getLogger().addFilter(hint)
+    try:
+        quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8)
+    finally:
+        logging.getLogger().removeFilter(hint)
+    return dst
+
+
+class _DropMessage(logging.Filter):
+    def __init__(self, prefix: str) -> None:
+        super().__init__()
+        self.prefix = prefix
+
+    def filter(self, record: logging.LogRecord) -> bool:  # noqa: D102
+        return not str(record.msg).startswith(self.prefix)
+
+
+def check_exportable(model: BaseAlgorithm) -> None:
+    """Raise ``TypeError`` (one line: what is wrong, what works) unless ``model`` can be exported to ONNX."""
+    if not any(p.requires_grad for p in model.policy.parameters()):
+        raise TypeError(
+            f"export writes neural-network policies to ONNX; {type(model).__name__}'s policy is a table with no "
+            "network (its values are in the model .zip)"
+        )
+    for what, space in (("observation", model.observation_space), ("action", model.action_space)):
+        if not isinstance(space, spaces.Box | spaces.Discrete):
+            raise TypeError(f"export supports Box and Discrete spaces; the {what} space is {space}")

@@ -1,0 +1,82 @@
+"""The one place that picks the training library: SB3 (:mod:`sbagents.pipeline.training`) or Ray RLlib
+(:mod:`sbagents.rllib`), for training (``execution.backend``) and for evaluating a finished run (an RLlib run dir
+holds ``rllib_checkpoint/``). Nothing of :mod:`sbagents.rllib` is imported for an SB3 run, and Ray only when a run
+asks for RLlib.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sbagents.errors import UsageError
+from sbagents.pipeline.evaluation import evaluate_sb3_run
+from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.run_dir import RunRef, load_run
+from sbagents.pipeline.training import TrainResult, train_sb3
+from sbagents.pipeline.trust import TrustOptions, parse_attacks
+
+
+def train(
+    spec: TrainSpec,
+    output: OutputOptions | None = None,
+    evaluation: EvalOptions | None = None,
+    execution: ExecOptions | None = None,
+    trust: TrustOptions | None = None,
+    callbacks: Sequence[BaseCallback] = (),
+) -> TrainResult:
+    """Train ``spec.algo`` on ``spec.env`` and write a run directory (``python -m sbagents.train``).
+
+    :param spec: what to train.
+    :param output: where to write (default: ``logs/``).
+    :param evaluation: periodic and final evaluation.
+    :param execution: seed, backend (``sb3`` or ``rllib``), vec env, device, threads, verbosity.
+    :param trust: transparency log, safety counting, attacks and fairness during training (SB3 only).
+    :param callbacks: extra SB3 callbacks (SB3 only).
+    :return: the run dir, the model (SB3) and the summary; ``interrupted`` after Ctrl-C/SIGTERM.
+    """
+    execution = execution or ExecOptions()
+    execution.validate()
+    if execution.backend == "rllib":
+        from sbagents.rllib import check_options, require_ray
+
+        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution,
+                       "trust": trust})
+        if callbacks:
+            raise UsageError("SB3 callbacks do not apply to --backend rllib")
+        require_ray()
+        from sbagents.rllib.training import train_rllib
+
+        return train_rllib(spec, output, evaluation, execution)
+    return train_sb3(spec, output, evaluation, execution, trust, callbacks)
+
+
+#: ``evaluate`` options RLlib runs do not support -> their flag.
+_RLLIB_UNSUPPORTED = {"attacks": "--attack", "fairness": "--fairness"}
+
+
+def evaluate(run: RunRef, options: EvaluateOptions | None = None) -> dict[str, Any]:
+    """Evaluate a finished run of ``python -m sbagents.train`` (RL Zoo's ``enjoy``), whichever backend made it.
+
+    :return: the ``evaluate --json`` summary (with ``adversarial`` / ``fairness`` when the options ask for them;
+        their CSV + PNG files are written into the run dir).
+    """
+    from sbagents.rllib import is_rllib_run, require_ray  # light: no Ray is imported
+
+    options = options or EvaluateOptions()
+    options.validate()
+    parse_attacks(options.attacks, "--attack")
+    run_dir = run.run_dir()
+    if is_rllib_run(run_dir):  # python -m sbagents.train --backend rllib
+        given = [flag for name, flag in _RLLIB_UNSUPPORTED.items() if getattr(options, name)]
+        given += ["--load-best"] if run.load_best else []
+        if given:
+            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
+        require_ray("evaluating an RLlib run")
+        from sbagents.rllib.evaluation import evaluate_run
+
+        assert run.algo is not None
+        return evaluate_run(run_dir, run.algo, run.env_ref().env_id, options)
+    return evaluate_sb3_run(load_run(run), options)

@@ -1,0 +1,116 @@
+"""Evaluating a trained SB3 model: mean/std return, success rate and env-specific episode metrics.
+
+The summary dict is the ``evaluate --json`` contract (docs/architecture.md); the RLlib backend builds the same
+one with :func:`summarize`.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecEnv
+
+from sbagents.pipeline.env_factory import make_eval_vec, render_modes
+from sbagents.pipeline.env_names import EnvRef
+from sbagents.pipeline.experiment import Experiment
+from sbagents.pipeline.options import EvaluateOptions
+from sbagents.pipeline.run_dir import LoadedRun
+from sbagents.visualize.text_render import ParallelTextStepPrinter, TextStepPrinter, supports_text
+
+
+def _episode_metrics_fn(venv: VecEnv) -> Any:
+    """The env's ``episode_metrics(step_infos) -> dict`` hook, if it has one."""
+    try:
+        return venv.get_attr("episode_metrics", [0])[0]
+    except AttributeError:
+        return None
+
+
+def summarize(
+    env_id: str,
+    algo: str,
+    returns: Sequence[float],
+    lengths: Sequence[int],
+    successes: Sequence[bool],
+    metrics: dict[str, list[float]],
+) -> dict[str, Any]:
+    """The evaluation summary: ``env``, ``algo``, ``n_episodes``, ``mean_return``, ``std_return``, ``mean_length``,
+    ``success_rate`` (None when the env reports no ``is_success``) and ``metrics`` (per-episode means)."""
+    return {
+        "env": env_id,
+        "algo": algo,
+        "n_episodes": len(returns),
+        "mean_return": float(np.mean(returns)),
+        "std_return": float(np.std(returns)),
+        "mean_length": float(np.mean(lengths)),
+        "success_rate": float(np.mean(successes)) if successes else None,
+        "metrics": {k: float(np.mean(v)) for k, v in metrics.items()},
+    }
+
+
+def evaluate_model(
+    model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions | None = None,
+    stats_path: Path | None = None,
+) -> dict[str, Any]:
+    """Play ``options.n_episodes`` episodes with ``model`` on a fresh env wrapped exactly as in training.
+
+    :param stats_path: saved ``VecNormalize`` statistics of the run (frozen during evaluation).
+    :return: the summary of :func:`summarize` (team returns for multi-agent envs).
+    """
+    options = options or EvaluateOptions()
+    options.validate()
+    text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
+    extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
+    if ref.multi_agent:
+        from sbagents.multiagent.team_eval import evaluate_team
+
+        venv = make_eval_vec(exp, ref, 1, None, stats_path, vec_env="dummy", env_kwargs=extra,
+                             wrapper=ParallelTextStepPrinter if text else None)
+        try:
+            result = evaluate_team(model, venv, options.n_episodes, options.deterministic, options.seed)
+        finally:
+            venv.close()
+        return {"env": ref.env_id, "algo": exp.algo, **result}
+    # the reference envs (not the batched ones) render every step
+    venv = make_eval_vec(exp, ref, 1, options.seed, stats_path, vec_env="dummy", env_kwargs=extra,
+                         wrapper=TextStepPrinter if text else None)
+    metrics_fn = _episode_metrics_fn(venv)
+    step_infos: list[dict[str, Any]] = []
+    successes: list[bool] = []
+    metrics: dict[str, list[float]] = defaultdict(list)
+
+    def on_step(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
+        info = locals_["info"]
+        step_infos.append(info)
+        if locals_["done"]:
+            if "is_success" in info:
+                successes.append(bool(info["is_success"]))
+            if metrics_fn is not None:
+                for key, value in metrics_fn(step_infos).items():
+                    metrics[key].append(value)
+            step_infos.clear()
+
+    try:
+        returns, lengths = evaluate_policy(model, venv, n_eval_episodes=options.n_episodes,
+                                           deterministic=options.deterministic, return_episode_rewards=True,
+                                           callback=on_step, warn=False)
+    finally:
+        venv.close()
+    return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics)  # type: ignore[arg-type]
+
+
+def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]:
+    """``python -m sbagents.evaluate`` on a finished SB3 run: the summary, plus ``adversarial`` / ``fairness``
+    results (and their CSV + PNG files in the run dir) when the options ask for attacks or fairness."""
+    from sbagents.pipeline.trust import trust_report
+
+    summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path)
+    if options.attacks or options.fairness:
+        summary.update(trust_report(run, options))
+    return summary

@@ -1,0 +1,100 @@
+"""The life of a run, shared by the SB3 and RLlib backends: seed, run dir and config files, timed learning that
+survives Ctrl-C, and ``summary.json`` (written before the final evaluation and again after it).
+
+A backend does::
+
+    seed = draw_seed(execution.seed)
+    with new_run_dir(log_folder, algo, env_id, hyperparams, args, command) as run_dir:
+        ...build everything; an exception here removes the half-made run dir...
+    clock = LearningClock()
+    with clock:
+        ...learn; Ctrl-C / SIGTERM (KeyboardInterrupt) ends the block with clock.interrupted = True...
+    summary = finish_run(run_dir, {**base_summary(...), ...}, clock.interrupted, final_eval)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from sbagents.pipeline.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
+
+
+def draw_seed(seed: int) -> int:
+    """``seed`` itself, or a fresh random seed when it is negative (``--seed -1``)."""
+    return int(np.random.default_rng().integers(2**31 - 1)) if seed < 0 else seed
+
+
+@contextlib.contextmanager
+def new_run_dir(
+    log_folder: str | Path, algo: str, env_id: str, hyperparams: dict[str, Any], args: dict[str, Any], command: str
+) -> Iterator[Path]:
+    """Create the next run dir and its ``config.yml``, ``args.yml`` and ``command.txt``; if the block raises
+    (a setup failure), the run dir is removed, so a failed start leaves nothing behind."""
+    run_dir = create_run_dir(log_folder, algo, env_id)
+    try:
+        save_run_config(run_dir, env_id, hyperparams, args, command)
+        yield run_dir
+    except BaseException:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        raise
+
+
+class LearningClock:
+    """Times the learning block (wall and process CPU seconds) and turns Ctrl-C / SIGTERM into
+    :attr:`interrupted` instead of an exception, so the caller still saves the model and writes the summary."""
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self.cpu_seconds = 0.0
+        self.interrupted = False
+        self._start = self._cpu_start = 0.0
+
+    def __enter__(self) -> LearningClock:
+        self._start, self._cpu_start = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> bool:
+        self.seconds = time.perf_counter() - self._start
+        self.cpu_seconds = time.process_time() - self._cpu_start
+        self.interrupted = kind is not None and issubclass(kind, KeyboardInterrupt)
+        return self.interrupted
+
+
+def base_summary(algo: str, env_id: str, seed: int, n_timesteps: int, steps_done: int, clock: LearningClock
+                 ) -> dict[str, Any]:
+    """The ``summary.json`` keys every backend writes (``eval`` is filled by :func:`finish_run`).
+
+    :param n_timesteps: the model's step count after learning.
+    :param steps_done: steps taken by this run (the basis of ``fps``; less than ``n_timesteps`` when continuing).
+    """
+    return {
+        "algo": algo, "env": env_id, "seed": seed, "n_timesteps": int(n_timesteps),
+        "train_seconds": round(clock.seconds, 3), "train_cpu_seconds": round(clock.cpu_seconds, 3),
+        "fps": round(steps_done / max(clock.seconds, 1e-9), 1), "interrupted": clock.interrupted, "eval": None,
+    }
+
+
+def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
+    """Write ``<run dir>/summary.json``."""
+    (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+
+
+def finish_run(
+    run_dir: Path, summary: dict[str, Any], final_eval: Callable[[], dict[str, Any]] | None
+) -> dict[str, Any]:
+    """Write the summary, then (unless the run was interrupted or ``final_eval`` is None) run the final
+    evaluation into ``summary["eval"]`` and write it again; returns the summary."""
+    write_summary(run_dir, summary)
+    if final_eval is not None and not summary["interrupted"]:
+        summary["eval"] = final_eval()
+        write_summary(run_dir, summary)
+    return summary

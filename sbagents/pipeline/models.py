@@ -1,0 +1,75 @@
+"""The SB3 model of an experiment: checking the algorithm fits the env's spaces, then building (or loading) it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from gymnasium import spaces
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv
+
+from sbagents.algos import ALGOS, algos_for
+from sbagents.errors import UsageError
+from sbagents.pipeline.env_factory import make_vec
+from sbagents.pipeline.env_names import EnvRef
+from sbagents.pipeline.experiment import Experiment
+
+
+def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Space]:
+    """Build one env to read its spaces; raise :class:`UsageError` if the algorithm cannot handle them."""
+    probe = make_vec(exp, ref, 1, seed=None)
+    obs_space, act_space = probe.observation_space, probe.action_space
+    probe.close()
+    if not ALGOS[exp.algo].supports(obs_space, act_space):
+        able = ", ".join(algos_for(obs_space, act_space)) or "none"
+        raise UsageError(
+            f"{exp.algo} cannot learn {ref.env_id} (observation {type(obs_space).__name__}, "
+            f"action {type(act_space).__name__}); algos that can: {able}"
+        )
+    return obs_space, act_space
+
+
+def make_model(
+    exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
+    verbose: int = 0, trained_agent: Path | None = None,
+) -> BaseAlgorithm:
+    """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue.
+
+    :param verbose: SB3's own verbosity (1 prints its log tables).
+    :raises UsageError: hyperparameters the algorithm rejects.
+    """
+    cls = ALGOS[exp.algo].cls
+    if trained_agent is not None:
+        return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose)
+    kwargs = dict(exp.algo_kwargs)
+    if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
+        kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
+    try:
+        return cls(exp.policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose,
+                   **kwargs)
+    except (TypeError, ValueError, AssertionError, KeyError) as exc:
+        raise UsageError(f"invalid hyperparameters for {exp.algo} on {exp.env_id}: {exc}") from None
+
+
+@dataclass
+class RunContext:
+    """What the callbacks of an SB3 run are built from.
+
+    :param eval_freq: env steps between periodic evaluations (resolved: <= 0 means none).
+    :param eval_episodes: episodes per periodic evaluation.
+    """
+
+    exp: Experiment
+    ref: EnvRef
+    run_dir: Path
+    train_env: VecEnv
+    model: BaseAlgorithm
+    seed: int
+    eval_freq: int
+    eval_episodes: int
+
+    def calls(self, env_steps: int) -> int:
+        """An env-step period as callback calls (one call per vec step of ``train_env``), at least 1."""
+        return max(env_steps // self.train_env.num_envs, 1)

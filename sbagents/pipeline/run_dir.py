@@ -1,0 +1,204 @@
+"""Run directories in RL Zoo's layout, ``<log-folder>/<algo>/<EnvId with / replaced by _>_<k>/``: making one,
+finding one (:class:`RunRef`), the files every backend writes into it, and loading a finished SB3 run.
+
+Importing this module needs neither torch nor SB3 (``serve`` finds exported policies through it); loading a
+model imports them when asked.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from sbagents.errors import UsageError
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    from sbagents.pipeline.experiment import Experiment
+
+SUMMARY_FILE = "summary.json"
+VECNORMALIZE_FILE = "vecnormalize.pkl"
+BEST_MODEL_FILE = "best_model.zip"
+
+
+def env_stem(env_id: str) -> str:
+    """The file-name form of an env id: ``sbagents/GridWorld-v0`` -> ``sbagents_GridWorld-v0``."""
+    return env_id.replace("/", "_").replace(":", "_")
+
+
+def _existing_ids(algo_dir: Path, stem: str) -> list[int]:
+    pattern = re.compile(rf"^{re.escape(stem)}_(\d+)$")
+    if not algo_dir.is_dir():
+        return []
+    return sorted(int(m.group(1)) for p in algo_dir.iterdir() if (m := pattern.match(p.name)))
+
+
+def create_run_dir(log_folder: str | Path, algo: str, env_id: str) -> Path:
+    """Create and return a new run dir with k = highest existing + 1.
+
+    ``os.mkdir`` is atomic, so two runs started at once into the same folder never share a directory:
+    the loser of a race moves on to the next k.
+    """
+    algo_dir = Path(log_folder) / algo
+    stem = env_stem(env_id)
+    try:
+        algo_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"log folder {log_folder} is not writable: {exc.strerror}") from None
+    if not os.access(algo_dir, os.W_OK | os.X_OK):
+        raise UsageError(f"log folder {log_folder} is not writable")
+    k = max(_existing_ids(algo_dir, stem), default=0) + 1
+    while True:
+        run_dir = algo_dir / f"{stem}_{k}"
+        try:
+            run_dir.mkdir()
+            return run_dir
+        except FileExistsError:
+            k += 1
+        except OSError as exc:
+            if exc.errno in (errno.EACCES, errno.EROFS, errno.EPERM):
+                raise UsageError(f"log folder {log_folder} is not writable: {exc.strerror}") from None
+            raise
+
+
+def find_run_dir(log_folder: str | Path, algo: str, env_id: str, exp_id: int = 0) -> Path:
+    """The run dir of experiment ``exp_id`` (0 = the latest), or :class:`UsageError` listing what exists."""
+    if exp_id < 0:
+        raise UsageError(f"--exp-id must be >= 0 (0: the latest run), got {exp_id}")
+    algo_dir = Path(log_folder) / algo
+    stem = env_stem(env_id)
+    ids = _existing_ids(algo_dir, stem)
+    if not ids:
+        raise UsageError(f"no {algo} run for {env_id} in {log_folder} (looked for {algo_dir / stem}_<k>)")
+    k = ids[-1] if exp_id == 0 else exp_id
+    if k not in ids:
+        raise UsageError(f"no run {stem}_{k} in {algo_dir}; existing exp ids: {', '.join(map(str, ids))}")
+    return algo_dir / f"{stem}_{k}"
+
+
+def model_path(run_dir: Path, env_id: str, load_best: bool = False) -> Path:
+    """The final (or best) model file of a run, or :class:`UsageError` if it is missing."""
+    path = run_dir / (BEST_MODEL_FILE if load_best else f"{env_stem(env_id)}.zip")
+    if not path.exists():
+        hint = " (no evaluation ran during training; drop --load-best)" if load_best else ""
+        raise UsageError(f"model file {path} does not exist{hint}")
+    return path
+
+
+def config_path(run_dir: Path, env_id: str) -> Path:
+    """``<run dir>/<EnvId>/config.yml`` (RL Zoo layout)."""
+    return run_dir / env_stem(env_id) / "config.yml"
+
+
+def save_run_config(
+    run_dir: Path, env_id: str, hyperparams: dict[str, Any], args: dict[str, Any], command: str
+) -> None:
+    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt`` (any backend)."""
+    folder = config_path(run_dir, env_id).parent
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "config.yml").write_text(yaml.safe_dump(hyperparams, sort_keys=True))
+    (folder / "args.yml").write_text(yaml.safe_dump(args, sort_keys=True))
+    (run_dir / "command.txt").write_text(command + "\n")
+
+
+def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
+    """The hyperparameters saved in a run's ``config.yml``, or :class:`UsageError` if the file is missing."""
+    from sbagents.pipeline.zoo_config import load_yaml
+
+    path = config_path(run_dir, env_id)
+    if not path.exists():
+        raise UsageError(f"{run_dir} has no {path.relative_to(run_dir)}; is it a sbagents run dir?")
+    return load_yaml(path) or {}
+
+
+def load_experiment(run_dir: Path, algo: str, env_id: str) -> Experiment:
+    """The :class:`~sbagents.pipeline.experiment.Experiment` a run was trained with (so evaluation wraps the
+    env identically)."""
+    from sbagents.pipeline.experiment import resolve
+
+    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)))
+
+
+def check_model_file(path: str | Path) -> Path:
+    """Raise :class:`UsageError` unless ``path`` is an SB3 model zip (a zip holding ``data``)."""
+    path = Path(path)
+    if not path.exists():
+        raise UsageError(f"--trained-agent {path} does not exist")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if "data" not in archive.namelist():
+                raise UsageError(f"--trained-agent {path} is a zip file but not an SB3 model (no 'data' entry)")
+    except zipfile.BadZipFile:
+        raise UsageError(f"--trained-agent {path} is not an SB3 model file (not a zip archive)") from None
+    return path
+
+
+@dataclass(frozen=True)
+class RunRef:
+    """Which finished run(s) a command means: the ``--algo --env -f --exp-id --load-best --gym-packages`` flags.
+
+    :param algo: algorithm of the run (None: any, for commands that take several runs, such as ``plot``).
+    :param env: env name as given on the command line (resolved to its id by :meth:`env_ref`; None: any).
+    :param log_folder: root of the run dirs.
+    :param exp_id: run number k (0: the latest).
+    :param load_best: the run's ``best_model.zip`` instead of its final model.
+    :param gym_packages: packages to import that register the env.
+    """
+
+    algo: str | None
+    env: str | None
+    log_folder: str | Path = "logs"
+    exp_id: int = 0
+    load_best: bool = False
+    gym_packages: tuple[str, ...] = ()
+
+    def env_ref(self) -> Any:
+        """The resolved env (:class:`~sbagents.pipeline.env_names.EnvRef`; imports gymnasium)."""
+        from sbagents.pipeline.env_names import resolve_env
+
+        if self.env is None:
+            raise UsageError("this command needs --env")
+        return resolve_env(self.env, self.gym_packages)
+
+    def run_dir(self) -> Path:
+        """The run dir this reference names (:func:`find_run_dir`)."""
+        if self.algo is None:
+            raise UsageError("this command needs --algo")
+        return find_run_dir(self.log_folder, self.algo, self.env_ref().env_id, self.exp_id)
+
+
+@dataclass
+class LoadedRun:
+    """A finished SB3 run, ready to evaluate, export or record."""
+
+    run_dir: Path
+    model_path: Path
+    experiment: Experiment
+    model: BaseAlgorithm
+    env: Any  # EnvRef
+
+    @property
+    def stats_path(self) -> Path:
+        """Where the run's ``VecNormalize`` statistics are (the file may not exist)."""
+        return self.run_dir / VECNORMALIZE_FILE
+
+
+def load_run(ref: RunRef) -> LoadedRun:
+    """Find the run ``ref`` names and load its model and experiment."""
+    from sbagents.algos import ALGOS
+
+    if ref.algo not in ALGOS:
+        raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
+    env = ref.env_ref()
+    run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
+    path = model_path(run_dir, env.env_id, ref.load_best)
+    exp = load_experiment(run_dir, ref.algo, env.env_id)
+    return LoadedRun(run_dir, path, exp, ALGOS[ref.algo].cls.load(str(path), device="cpu"), env)

@@ -1,0 +1,159 @@
+"""Training with SB3: :func:`train_sb3`, the SB3 backend of ``python -m sbagents.train``.
+
+Flow (docs/architecture.md): :class:`TrainSpec` + zoo config -> :class:`Experiment` -> env factory -> SB3 model +
+callbacks -> run directory. Everything that can be checked is checked before the run dir is created; a setup
+failure removes the half-made run dir; an interrupted run (Ctrl-C, SIGTERM) still saves its model and logs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import shlex
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sbagents.errors import UsageError
+from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
+from sbagents.pipeline.env_factory import make_eval_vec, make_vec, normalize_for_training
+from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.evaluation import evaluate_model
+from sbagents.pipeline.experiment import build_experiment
+from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
+from sbagents.pipeline.models import RunContext, check_spaces, make_model
+from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.run_dir import VECNORMALIZE_FILE, check_model_file, env_stem
+from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
+
+#: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
+EVAL_SEED_OFFSET = 10_000
+
+
+@dataclass
+class TrainResult:
+    """What a training run produced (either backend).
+
+    :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``).
+    :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
+    :param trust: the trust callbacks' final results (see :func:`sbagents.pipeline.trust.trust_results`).
+    """
+
+    run_dir: Path
+    model: BaseAlgorithm | None
+    experiment: Any
+    summary: dict[str, Any] = field(default_factory=dict)
+    interrupted: bool = False
+    trust: dict[str, Any] = field(default_factory=dict)
+
+
+def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
+    """The command line recorded when the caller gave none (the Python API)."""
+    args = ["--algo", spec.algo, "--env", spec.env]
+    if execution.backend != "sb3":
+        args += ["--backend", execution.backend]
+    return "python -m sbagents.train " + shlex.join(args)
+
+
+def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: ProgressReporter) -> list[BaseCallback]:
+    """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``), checkpoints, config callbacks."""
+    exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
+    callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
+    if ctx.eval_freq > 0:
+        common: dict[str, Any] = dict(
+            n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.calls(ctx.eval_freq), log_path=str(run_dir),
+            best_model_save_path=str(run_dir), verbose=0, callback_after_eval=EvalReportCallback(reporter))
+        if ref.multi_agent:
+            from sbagents.multiagent.team_eval import TeamEvalCallback
+
+            team_env = make_eval_vec(exp, ref, 1, None, vec_env="dummy")
+            callbacks.append(TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET, **common))
+        else:
+            eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET)
+            callbacks.append(EvalCallback(eval_env, deterministic=True, **common))
+    if save_freq > 0:
+        callbacks.append(CheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix="rl_model",
+                                            save_vecnormalize=True))
+    callbacks.extend(cb(**kw) for cb, kw in exp.callbacks)
+    return callbacks
+
+
+def train_sb3(
+    spec: TrainSpec,
+    output: OutputOptions | None = None,
+    evaluation: EvalOptions | None = None,
+    execution: ExecOptions | None = None,
+    trust: TrustOptions | None = None,
+    callbacks: Sequence[BaseCallback] = (),
+) -> TrainResult:
+    """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
+
+    :param callbacks: extra SB3 callbacks, after sbagents' own.
+    :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
+    """
+    output, evaluation = output or OutputOptions(), evaluation or EvalOptions()
+    execution, trust = execution or ExecOptions(), trust or TrustOptions()
+    for group in (spec, evaluation, execution, trust):
+        group.validate()
+    if execution.num_threads > 0:
+        torch.set_num_threads(execution.num_threads)
+    ref = resolve_env(spec.env, spec.gym_packages)
+    exp = build_experiment(spec, ref.env_id, ref.is_atari)
+    check_spaces(exp, ref)
+    if exp.n_timesteps == 0:
+        raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
+    agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
+    seed = draw_seed(execution.seed)
+    eval_freq = evaluation.frequency(exp.n_timesteps)
+    args = {"algo": spec.algo, "env": ref.env_id, "seed": seed, "n_timesteps": exp.n_timesteps,
+            "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
+            "vec_env": execution.vec_env, "device": execution.device,
+            "trained_agent": str(agent_path) if agent_path else None}
+    command = output.command or default_command(spec, execution)
+    with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
+        set_random_seed(seed)
+        stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
+        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env), exp,
+                                           stats)
+        model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
+                           max(execution.verbose - 1, 0), agent_path)
+        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
+        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
+        own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
+        trust_cbs = trust_callbacks(trust, ctx)
+    log_interval = execution.log_interval
+    if log_interval < 0:
+        log_interval = 1 if hasattr(model, "n_steps") else 100
+    steps_before = model.num_timesteps if agent_path is not None else 0
+    clock = LearningClock()
+    try:
+        with clock:
+            model.learn(exp.n_timesteps, callback=[*own, *trust_cbs, *callbacks],
+                        reset_num_timesteps=agent_path is None, log_interval=log_interval)
+    finally:
+        reporter.close()
+        _save(model, ctx)
+    summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
+                           clock)
+
+    def final_eval() -> dict[str, Any]:
+        return evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed),
+                              run_dir / VECNORMALIZE_FILE)
+
+    finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
+    return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+
+
+def _save(model: BaseAlgorithm, ctx: RunContext) -> None:
+    """The final model (and VecNormalize statistics) into the run dir; the training env is closed."""
+    model.save(str(ctx.run_dir / f"{env_stem(ctx.ref.env_id)}.zip"))
+    if isinstance(ctx.train_env, VecNormalize):
+        ctx.train_env.save(str(ctx.run_dir / VECNORMALIZE_FILE))
+    with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
+        ctx.train_env.close()  # SubprocVecEnv workers may already be gone after Ctrl-C

@@ -1,0 +1,164 @@
+"""An RLlib experiment: the zoo entry of ``zoo_configs/rllib_<algo>.yml`` split into RLlib's settings, and the
+``PPOConfig`` (new API stack: RLModule / Learner / EnvRunner) built from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
+from ray.rllib.algorithms.ppo import PPOConfig
+from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
+from ray.rllib.env.multi_agent_env import MultiAgentEnv
+from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+from ray.tune.registry import register_env
+
+from sbagents.errors import UsageError
+from sbagents.pipeline.env_names import PETTINGZOO_ENVS, EnvRef
+from sbagents.pipeline.options import TrainSpec
+from sbagents.pipeline.zoo_config import spec_entry
+from sbagents.rllib import RLLIB_ALGOS, SHARED_MODULE
+
+#: Zoo-entry keys that describe the experiment (the rest go to RLlib).
+EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "model")
+#: Zoo-entry keys passed to ``AlgorithmConfig.env_runners``.
+ENV_RUNNER_KEYS = ("num_env_runners", "num_envs_per_env_runner", "rollout_fragment_length")
+#: Zoo-entry keys passed to ``PPOConfig.training`` (``lr`` may be ``lin_<x>``: linear decay to 0).
+TRAINING_KEYS = ("lr", "gamma", "lambda_", "train_batch_size_per_learner", "minibatch_size", "num_epochs",
+                 "entropy_coeff", "clip_param", "vf_clip_param", "vf_loss_coeff", "grad_clip", "grad_clip_by",
+                 "use_kl_loss", "kl_coeff", "kl_target", "shuffle_batch_per_epoch")
+POLICY_MODES = ("shared", "per_agent")
+
+
+@dataclass
+class RllibExperiment:
+    """A resolved RLlib experiment; ``hyperparams`` is the plain entry as written to ``config.yml``.
+
+    :param n_timesteps: env steps to sample (one step of the parallel env = one step for every agent).
+    :param policies: ``"shared"`` (one module for every agent) or ``"per_agent"`` (one module per agent id).
+    """
+
+    algo: str
+    env_id: str
+    n_timesteps: int
+    env_kwargs: dict[str, Any]
+    policies: str
+    env_runners: dict[str, Any]
+    training: dict[str, Any]
+    model: dict[str, Any]
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_env_runners(self) -> int:
+        """Env runner actors (0: sample in the driver process)."""
+        return int(self.env_runners.get("num_env_runners", 2))
+
+
+def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) -> RllibExperiment:
+    """Validate a zoo entry and split it into env runner, training and model settings.
+
+    :param where: file and entry named in errors.
+    """
+    accepted = (*EXPERIMENT_KEYS, *ENV_RUNNER_KEYS, *TRAINING_KEYS)
+    unknown = sorted(set(entry) - set(accepted))
+    if unknown:
+        raise UsageError(f"{where}: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(accepted)}")
+    policies = entry.get("policies", "shared")
+    if policies not in POLICY_MODES:
+        raise UsageError(f"{where}: policies must be one of {', '.join(POLICY_MODES)}, got {policies!r}")
+    model = dict(entry.get("model") or {})
+    model_fields = {f.name for f in dataclasses.fields(DefaultModelConfig)}
+    if set(model) - model_fields:
+        bad = ", ".join(sorted(set(model) - model_fields))
+        raise UsageError(f"{where}: unknown model key(s) {bad}; accepted: {', '.join(sorted(model_fields))}")
+    n_timesteps = int(entry.get("n_timesteps", 0))
+    training = {k: entry[k] for k in TRAINING_KEYS if k in entry}
+    lr = training.get("lr")
+    if isinstance(lr, str):
+        if not lr.startswith("lin_"):
+            raise UsageError(f"{where}: lr must be a number or lin_<x>, got {lr!r}")
+        try:
+            start = float(lr[4:])
+        except ValueError:
+            raise UsageError(f"{where}: lr {lr!r} is not lin_<number>") from None
+        training["lr"] = [[0, start], [max(n_timesteps, 1), 0.0]]
+    runners = {k: entry[k] for k in ENV_RUNNER_KEYS if k in entry}
+    if int(runners.get("num_env_runners", 2)) < 0:
+        raise UsageError(f"{where}: num_env_runners must be >= 0")
+    return RllibExperiment(algo, env_id, n_timesteps, dict(entry.get("env_kwargs") or {}), policies, runners,
+                           training, model, dict(entry))
+
+
+def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None = None) -> RllibExperiment:
+    """The entry for ``ref`` in ``zoo_configs/rllib_<algo>.yml`` (or ``spec.conf_file``) with the overrides.
+
+    :param num_env_runners: overrides the entry's ``num_env_runners`` (``--num-env-runners``).
+    """
+    if spec.algo not in RLLIB_ALGOS:
+        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {spec.algo!r}")
+    if not ref.multi_agent:
+        raise UsageError(f"--backend rllib trains PettingZoo envs ({', '.join(PETTINGZOO_ENVS)}); got {ref.env_id}")
+    entry, where = spec_entry(spec, f"rllib_{spec.algo}", ref.env_id)
+    if num_env_runners is not None:
+        entry["num_env_runners"] = num_env_runners
+    exp = resolve_entry(spec.algo, ref.env_id, entry, where)
+    if exp.n_timesteps < 1:
+        raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} ({where}); pass -n N")
+    return exp
+
+
+def make_env(config: Mapping[str, Any]) -> MultiAgentEnv:
+    """RLlib env creator (runs in every env runner): the PettingZoo ``parallel_env`` as a ``MultiAgentEnv``.
+
+    :param config: ``module`` (PettingZoo module path), ``env_kwargs`` and ``num_threads`` (torch threads of
+        the env runner process; <= 0 keeps torch's default).
+    """
+    threads = int(config.get("num_threads", 1))
+    if threads > 0 and torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+    module = importlib.import_module(config["module"])
+    return ParallelPettingZooEnv(module.parallel_env(**config.get("env_kwargs", {})))
+
+
+def _to_shared(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: shared
+    return SHARED_MODULE
+
+
+def _to_own(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: per_agent
+    return str(agent_id)
+
+
+def build_config(exp: RllibExperiment, seed: int, num_threads: int = 1) -> AlgorithmConfig:
+    """The RLlib ``PPOConfig`` of ``exp`` (one local learner in the driver, ``num_env_runners`` samplers)."""
+    module_name = PETTINGZOO_ENVS[exp.env_id]
+    try:
+        probe = importlib.import_module(module_name).parallel_env(**exp.env_kwargs)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"invalid env_kwargs for {exp.env_id}: {exc}") from None
+    agents = list(probe.possible_agents)
+    probe.close()
+    env_name = f"sbagents_{exp.env_id}"
+    register_env(env_name, make_env)
+    if exp.policies == "shared":
+        policies, mapping = {SHARED_MODULE}, _to_shared
+    else:
+        policies, mapping = set(agents), _to_own
+    env_config = {"module": module_name, "env_kwargs": exp.env_kwargs, "num_threads": num_threads}
+    try:
+        return (
+            PPOConfig()
+            .environment(env_name, env_config=env_config)
+            .env_runners(**{"num_env_runners": 2, **exp.env_runners})
+            .learners(num_learners=0)
+            .multi_agent(policies=policies, policy_mapping_fn=mapping)
+            .training(**exp.training)
+            .rl_module(model_config=DefaultModelConfig(**exp.model))
+            .debugging(seed=seed, log_level="ERROR")
+        )
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"invalid RLlib settings for {exp.algo} on {exp.env_id}: {exc}") from None

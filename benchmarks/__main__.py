@@ -21,7 +21,7 @@ DDPG steps, measured 7 s; speed: ~4x its quick run, 19 s recorded on a quiet mac
 loaded machine, about half of that on a quiet one; each extra ``--rounds`` adds ~25 s of callbacks.
 
     python -m benchmarks                                # everything, into BENCHMARKS.md
-    python -m benchmarks --quick --output /tmp/bm.md    # smoke run
+    python -m benchmarks --quick --output SCRATCH.md   # smoke run (keeps BENCHMARKS.md as it is)
     python -m benchmarks --only callbacks export --rounds 5
 """
 

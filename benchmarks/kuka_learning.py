@@ -7,11 +7,11 @@ evaluation schedule) as two concurrent subprocesses, then ``report`` reads each 
 
 panda-gym lives in a venv that sees the system packages (sbagents included)::
 
-    python -m venv --system-site-packages /tmp/pgvenv && /tmp/pgvenv/bin/pip install panda-gym
-    nohup python benchmarks/kuka_learning.py run --algo sac -n 300000 -f /tmp/kuka_bench \
-        > /tmp/kuka_bench.log 2>&1 &
-    python benchmarks/kuka_learning.py report --run ours=/tmp/kuka_bench/sac/sbagents_PickAndPlace-v0_1 \\
-        --run panda=/tmp/kuka_bench/sac/PandaPushDense-v3_1
+    python -m venv --system-site-packages PANDA_VENV && PANDA_VENV/bin/pip install panda-gym
+    nohup python benchmarks/kuka_learning.py run --algo sac -n 300000 -f OUT --panda-python PANDA_VENV/bin/python \
+        > OUT.log 2>&1 &
+    python benchmarks/kuka_learning.py report --run ours=OUT/sac/sbagents_PickAndPlace-v0_1 \\
+        --run panda=OUT/sac/PandaPushDense-v3_1
 
 ``run`` calls ``report`` itself when both trainings end. Timings depend on the machine's load.
 """
@@ -36,7 +36,6 @@ DEFAULT_CONF = ROOT / "configs" / "kuka.yml"
 DEFAULT_OUT = ROOT / "results" / "kuka_learning"
 OURS_ENV = "sbagents/PickAndPlace-v0"
 PANDA_ENV = "PandaPushDense-v3"
-PANDA_PYTHON = "/tmp/pgvenv/bin/python"
 
 
 @dataclass
@@ -206,10 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--algo", default="sac")
     r.add_argument("--ours-env", default=OURS_ENV)
     r.add_argument("--panda-env", default=PANDA_ENV)
-    r.add_argument("--panda-python", default=PANDA_PYTHON, help="a Python that can import panda_gym")
+    r.add_argument("--panda-python", required=True, help="a Python that can import panda_gym (e.g. a venv's)")
     r.add_argument("-conf", "--conf", type=Path, default=DEFAULT_CONF)
     r.add_argument("-n", "--n-timesteps", type=int, default=300_000)
-    r.add_argument("-f", "--log-folder", type=Path, default=Path("/tmp/kuka_bench"))
+    r.add_argument("-f", "--log-folder", type=Path, required=True, help="where both runs go")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--eval-freq", type=int, default=10_000)
     r.add_argument("--eval-episodes", type=int, default=20)

@@ -4,8 +4,8 @@ Random actions, one env, one process; rounds are interleaved and the median per 
 a load spike on the shared machine hits every env alike. panda-gym is optional: install it in a venv
 that sees the system packages, e.g.
 
-    python -m venv --system-site-packages /tmp/pgvenv && /tmp/pgvenv/bin/pip install panda-gym
-    /tmp/pgvenv/bin/python benchmarks/kuka_speed.py --steps 3000 --rounds 3
+    python -m venv --system-site-packages PANDA_VENV && PANDA_VENV/bin/pip install panda-gym
+    PANDA_VENV/bin/python benchmarks/kuka_speed.py --steps 3000 --rounds 3
 """
 
 from __future__ import annotations

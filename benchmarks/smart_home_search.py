@@ -8,7 +8,7 @@ with temperature within 1 C and light within 5 lux of the preferences), averaged
 Usage::
 
     python benchmarks/smart_home_search.py --algo ddpg td3 sac ppo --seeds 0 1 2 [--out results.jsonl]
-    python benchmarks/smart_home_search.py --algo ddpg --candidate ddpg_fast --seeds 0 --export /tmp/exp
+    python benchmarks/smart_home_search.py --algo ddpg --candidate ddpg_fast --seeds 0 --export EXPORT_DIR
     python benchmarks/smart_home_search.py --algo ddpg td3 sac ppo --print-yaml
 
 Each result is one JSON line: algo, candidate, seed, train_seconds, criterion_share, mean errors.

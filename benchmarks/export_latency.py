@@ -60,7 +60,7 @@ def run(
     load_before = os.getloadavg()
     started = time.perf_counter()
     ref = resolve_env(ENV_ID)
-    exp = build_experiment(TrainSpec(ALGO, ENV_ID), ref.env_id)
+    exp = build_experiment(TrainSpec(ALGO, ENV_ID), ref)
     venv = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed), exp)
     model = make_model(exp, venv, seed, "cpu")
     train_start = time.perf_counter()

@@ -81,7 +81,7 @@ class StepClock(BaseCallback):
 def env_fps(n_steps: int, seed: int = 0) -> float:
     """Agent steps/s of the wrapped Pong env with random actions."""
     ref = resolve_env(ENV_ID)
-    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref.env_id, atari=True)
+    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref)
     venv = make_vec(exp, ref, 1, seed)
     venv.reset()
     rng = np.random.default_rng(seed)
@@ -96,7 +96,7 @@ def env_fps(n_steps: int, seed: int = 0) -> float:
 def default_buffer_bytes() -> dict[str, Any]:
     """Bytes of the default ``atari`` replay buffer (allocated lazily by numpy, so this is instant)."""
     ref = resolve_env(ENV_ID)
-    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref.env_id, atari=True)
+    exp = build_experiment(TrainSpec("dqn", ENV_ID), ref)
     venv = VecTransposeImage(make_vec(exp, ref, 1, 0))  # SB3 stores images channel-first
     kwargs = exp.algo_kwargs
     buffer = ReplayBuffer(

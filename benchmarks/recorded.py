@@ -28,8 +28,10 @@ RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "recorded-learning"
 TREASURE_HUNT_FILE = "treasure_hunt_learning.json"
 # Key metric per env (``eval.metrics`` key, label); envs not listed show the mean return.
+#: A metric's earlier name in recorded files.
+LEGACY_KEYS: dict[str, str] = {"treasures_collected": "treasures_per_episode"}
 KEY_METRICS: dict[str, tuple[str, str]] = {
-    "treasure_hunt_v0": ("treasures_per_episode", "treasures/episode"),
+    "treasure_hunt_v0": ("treasures_collected", "treasures/episode"),
     "sbagents/SmartHome-v0": ("criterion_share", "comfort criterion share"),
 }
 
@@ -82,7 +84,11 @@ def learning_row(path: Path) -> dict[str, Any]:
 
     def metric(r: dict[str, Any]) -> float | None:
         ev = r["eval"]
-        return ev["mean_return"] if key == "mean_return" else ev.get("metrics", {}).get(key)
+        if key == "mean_return":
+            return float(ev["mean_return"])
+        metrics = ev.get("metrics", {})
+        value = metrics.get(key, metrics.get(LEGACY_KEYS.get(key, key)))  # files recorded before a key's rename
+        return None if value is None else float(value)
 
     fmt = ".1%" if key.endswith("_share") else ".2f"
     seeds = [int(r["seed"]) for r in runs]

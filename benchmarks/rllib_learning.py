@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sbagents.pipeline.env_names import resolve_env
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
@@ -41,13 +42,13 @@ def run_seed(
                          ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0,
                                      num_env_runners=num_env_runners))
     wall = time.perf_counter() - start
-    ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, ENV, "ppo", result.experiment.env_kwargs,
-                             EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed))
+    ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, resolve_env(ENV), "ppo", result.experiment.env_kwargs,
+                             result.summary.get("groups"), EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed))
     with (result.run_dir / PROGRESS_FILE).open() as f:
         rows = list(csv.DictReader(f))
     s = result.summary
     return {
-        "seed": seed, "treasures_per_episode": ev["metrics"]["treasures_per_episode"],
+        "seed": seed, "treasures_per_episode": ev["metrics"]["treasures_collected"],
         "team_return": ev["mean_return"], "success_rate": ev["success_rate"], "n_eval_episodes": n_eval,
         "env_steps": s["n_timesteps"], "iterations": s["iterations"], "train_seconds": s["train_seconds"],
         "wall_seconds_incl_ray_start": round(wall, 1), "fps": s["fps"], "num_env_runners": s["num_env_runners"],

@@ -54,7 +54,7 @@ def reference_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str,
 
 def ppo_experiment(env_id: str) -> Experiment:
     """The shipped PPO zoo entry of ``env_id``."""
-    return build_experiment(TrainSpec("ppo", env_id), resolve_env(env_id).env_id)
+    return build_experiment(TrainSpec("ppo", env_id), resolve_env(env_id))
 
 
 def zoo_env_kwargs(env_id: str) -> dict[str, Any]:

@@ -45,7 +45,7 @@ def train_supports_batched() -> bool:
         from sbagents.pipeline.env_factory import make_vec
 
         ref = resolve_env(ENV)
-        probe = make_vec(build_experiment(TrainSpec("ppo", ENV), ref.env_id), ref, 1, None, vec_env="batched")
+        probe = make_vec(build_experiment(TrainSpec("ppo", ENV), ref), ref, 1, None, vec_env="batched")
     except Exception:  # noqa: BLE001 - not wired yet (unknown vec_env) or any factory error
         return False
     probe.close()
@@ -56,7 +56,7 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
     """Train one seed and evaluate the deterministic team; returns a JSON-able dict."""
     torch.set_num_threads(1)
     ref = resolve_env(ENV)
-    exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref.env_id)
+    exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref)
     if via == "train":
         from sbagents.api import EvalOptions, ExecOptions, OutputOptions, train
 
@@ -84,7 +84,7 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
         "n_envs": exp.n_envs,
         "train_s": round(train_s, 1),
         "fps": round(exp.n_timesteps / train_s),
-        "treasures": round(res["metrics"]["treasures_per_episode"], 3),
+        "treasures": round(res["metrics"]["treasures_collected"], 3),
         "team_return": round(res["mean_return"], 2),
         "success_rate": round(res["success_rate"], 3),
         "load": round(os.getloadavg()[0], 2),

@@ -68,7 +68,7 @@ def run(
         "n_timesteps": n_timesteps,
         "train_s": round(train_s, 1),
         "fps": round(n_timesteps / train_s),
-        "treasures": round(result["metrics"]["treasures_per_episode"], 3),
+        "treasures": round(result["metrics"]["treasures_collected"], 3),
         "team_return": round(result["mean_return"], 2),
         "success_rate": round(result["success_rate"], 3),
         "mean_length": round(result["mean_length"], 2),

@@ -31,15 +31,15 @@ def find_vec_normalize(venv: VecEnv) -> VecNormalize | None:
 
 
 def agent_layout(venv: VecEnv) -> tuple[int, list[str] | None]:
-    """``(n_agents, agent names)`` of a parameter-sharing VecEnv, ``(1, None)`` for a plain one.
+    """``(n_agents, agent names)`` of a team VecEnv, ``(1, None)`` for a plain one.
 
-    A multi-agent VecEnv (``sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv``) exposes ``n_agents`` and
-    ``possible_agents``; slot ``k`` is agent ``k % n_agents`` of env ``k // n_agents``.
+    A team VecEnv (``sbagents.multiagent.group_env.GroupVecEnv``, e.g. a parameter-sharing one) exposes ``n_agents``
+    and ``possible_agents``; slot ``k`` is agent ``k % n_agents`` of env ``k // n_agents``.
     """
     base = venv.unwrapped
     n_agents = getattr(base, "n_agents", None)
     agents = getattr(base, "possible_agents", None)
-    if isinstance(n_agents, int) and n_agents > 1 and agents is not None and len(agents) == n_agents:
+    if isinstance(n_agents, int) and n_agents >= 1 and agents is not None and len(agents) == n_agents:
         return n_agents, [str(a) for a in agents]
     return 1, None
 

@@ -26,6 +26,7 @@ class EpisodeResult:
     violations: int
     cost: float
     info: dict[str, Any] = field(default_factory=dict)
+    agent_returns: dict[str, float] = field(default_factory=dict)
 
 
 def as_vec_env(env: gym.Env | VecEnv) -> VecEnv:
@@ -63,16 +64,17 @@ def run_episodes(
     :param act: maps a VecEnv observation batch to env actions (default ``model.predict``).
     :param seed: ``env.seed(seed)`` before the reset (same episodes for every call).
     :return: per episode: return, length, ``is_success`` of the last step (None when absent), violation
-        steps and cost (:func:`step_violation`), and the scalar-or-not ``info`` of its last step (first
-        agent's).
+        steps and cost (:func:`step_violation`), the ``info`` of its last step (first agent's) and, for team
+        VecEnvs, each agent's return.
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-    n_agents, _ = agent_layout(env)
+    n_agents, agents = agent_layout(env)
     n_groups = env.num_envs // n_agents
     targets = [(n_episodes + i) // n_groups for i in range(n_groups)]
     counts = [0] * n_groups
     ret, length = np.zeros(n_groups), np.zeros(n_groups, dtype=np.int64)
+    slot_ret = np.zeros(env.num_envs)
     viol, cost = np.zeros(n_groups, dtype=np.int64), np.zeros(n_groups)
     vn = find_vec_normalize(env)
     was_training = vn.training if vn is not None else False
@@ -100,23 +102,28 @@ def run_episodes(
             for k, info in enumerate(infos):
                 g = k // n_agents
                 ret[g] += float(raw[k])
+                slot_ret[k] += float(raw[k])
                 kind, c = step_violation(info)
                 viol[g] += kind is not None
                 cost[g] += c
                 if k % n_agents == n_agents - 1:
                     length[g] += 1
-                    if dones[k]:
+                    head = infos[k - n_agents + 1]
+                    # a team VecEnv marks the end of the team's episode on its first slot; agents may end earlier
+                    if ("episode" in head) if agents else dones[k]:
                         if counts[g] < targets[g]:
-                            head = infos[k - n_agents + 1]
                             success = head.get("is_success")
+                            by_agent = dict(zip(agents, slot_ret[k - n_agents + 1 : k + 1].tolist(), strict=True)
+                                            ) if agents else {}
                             episodes.append(
                                 EpisodeResult(
                                     float(ret[g]), int(length[g]), None if success is None else bool(success),
-                                    int(viol[g]), float(cost[g]), dict(head),
+                                    int(viol[g]), float(cost[g]), dict(head), by_agent,
                                 )
                             )
                             counts[g] += 1
                         ret[g], length[g], viol[g], cost[g] = 0.0, 0, 0, 0.0
+                        slot_ret[k - n_agents + 1 : k + 1] = 0.0
     finally:
         if vn is not None:
             vn.training = was_training

@@ -96,6 +96,7 @@ class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
         "render_modes": ["human", "ansi", "rgb_array"],
         "render_fps": 4,
         "is_parallelizable": True,
+        "info_metrics": {"treasures_collected": "last"},  # episode metric: treasures collected by the team
     }
     action_names: tuple[str, ...] = ("move",)
 

@@ -1,7 +1,8 @@
 """sbagents: the book's environments and agents as registered, trainable software on Stable-Baselines3.
 
 Importing the package registers the Gymnasium IDs (``sbagents/GridWorld-v0``, ...), so
-``gym.make("sbagents:sbagents/GridWorld-v0")`` works in a fresh interpreter.
+``gym.make("sbagents:sbagents/GridWorld-v0")`` works in a fresh interpreter. :func:`register_pettingzoo_env` gives a
+PettingZoo env of your package a short name for ``--env``.
 """
 
 from pathlib import Path
@@ -10,10 +11,10 @@ from sbagents import source_tree
 
 source_tree.install(Path(__file__).resolve().parent)  # a checkout: envs/, callbacks/, zoo_configs/ beside us
 
-from sbagents.registration import GYM_ENVS, register_envs  # noqa: E402
+from sbagents.registration import GYM_ENVS, register_envs, register_pettingzoo_env  # noqa: E402
 
 __version__ = "0.1.0"
 
 register_envs()
 
-__all__ = ["GYM_ENVS", "__version__", "register_envs"]
+__all__ = ["GYM_ENVS", "__version__", "register_envs", "register_pettingzoo_env"]

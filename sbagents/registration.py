@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-#: Gymnasium ID -> entry point. Multi-agent PettingZoo envs are listed in
-#: :data:`sbagents.pipeline.env_names.PETTINGZOO_ENVS` instead.
+#: Gymnasium ID -> entry point. Multi-agent PettingZoo envs are listed in :data:`PETTINGZOO_ENVS` instead.
 GYM_ENVS: dict[str, str] = {
     "sbagents/GridWorld-v0": "sbagents.envs.gridworld:GridWorldEnv",
     "sbagents/SmartHome-v0": "sbagents.envs.smart_home:SmartHomeEnv",
@@ -25,3 +24,26 @@ def register_envs() -> None:
     for env_id, entry_point in GYM_ENVS.items():
         if env_id not in gym.registry:
             gym.register(id=env_id, entry_point=entry_point)
+
+
+#: Short names of PettingZoo envs the CLIs accept -> where the env comes from: a module exposing
+#: ``parallel_env(**kwargs)`` (PettingZoo's layout), or ``module:callable`` returning a ``ParallelEnv``.
+PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_hunt_v0"}
+
+
+def register_pettingzoo_env(name: str, source: str) -> None:
+    """Let ``--env NAME`` mean the PettingZoo env at ``source`` (``pkg.my_env_v0`` or ``pkg.module:make_env``).
+
+    Call it when your package is imported, and name the package with ``--gym-packages`` (any env module path works
+    on the CLI without registering; a short name is a convenience). Run dirs and zoo config entries then use
+    ``NAME``. Re-registering a name with another source replaces it.
+
+    :raises ValueError: ``name`` is empty or holds ``/`` or ``:``, or ``source`` is not a dotted module path.
+    """
+    if not name or "/" in name or ":" in name:
+        raise ValueError(f"a PettingZoo env name must be a plain word like 'my_env_v0', got {name!r}")
+    module = source.partition(":")[0]
+    if not module or not all(part.isidentifier() for part in module.split(".")):
+        raise ValueError(f"source must be a module path like 'my_pkg.my_env_v0' (or 'pkg.mod:fn'), got {source!r}")
+    PETTINGZOO_ENVS[name] = source
+

@@ -70,7 +70,7 @@ def _monitor_rows(path: Path) -> list[tuple[str, str, str]]:
     with path.open() as fh:
         lines = fh.read().splitlines()
     assert lines[0].startswith("#")
-    return [(row["r"], row["l"], row.get("treasures", "")) for row in csv.DictReader(lines[1:])]
+    return [(row["r"], row["l"], row.get("treasures_collected", "")) for row in csv.DictReader(lines[1:])]
 
 
 @pytest.mark.parametrize(

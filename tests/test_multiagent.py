@@ -14,12 +14,9 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.monitor import Monitor
 
 from sbagents.envs import treasure_hunt_v0
-from sbagents.multiagent.parameter_sharing import (
-    PETTINGZOO_ENVS,
-    ParameterSharingVecEnv,
-    make_parameter_sharing_vec_env,
-)
+from sbagents.multiagent.parameter_sharing import ParameterSharingVecEnv, make_parameter_sharing_vec_env
 from sbagents.multiagent.team_eval import TeamEvalCallback, evaluate_team
+from sbagents.registration import PETTINGZOO_ENVS
 
 STAY, RIGHT = 4, 3
 EGO = {"observation": "egocentric"}
@@ -70,7 +67,7 @@ def test_truncation_auto_reset_and_team_episode_info_once() -> None:
         assert info["terminal_observation"][5] == 0.0 and obs[k][5] == 1.0
         assert ("episode" in info) == (k % 3 == 0)
     assert infos[0]["episode"]["r"] == -12.0 and infos[0]["episode"]["l"] == 4
-    assert infos[3]["treasures"] == 0
+    assert infos[3]["episode"]["treasures_collected"] == 0
 
 
 def test_termination_is_not_truncation() -> None:
@@ -81,7 +78,8 @@ def test_termination_is_not_truncation() -> None:
     _, rewards, dones, infos = vec.step(np.array([RIGHT, STAY, STAY]))
     assert dones.all() and rewards.tolist() == [9.0, 9.0, 9.0]
     assert all(i["TimeLimit.truncated"] is False for i in infos)
-    assert infos[0]["episode"]["r"] == 27.0 and infos[0]["is_success"] and infos[0]["treasures"] == 1
+    assert infos[0]["episode"] == {**infos[0]["episode"], "r": 27.0, "treasures_collected": 1}
+    assert infos[0]["is_success"]
 
 
 def test_seed_makes_rollouts_deterministic() -> None:
@@ -117,7 +115,7 @@ def test_monitor_csv(tmp_path: Path) -> None:
     assert lines[0].startswith("#") and '"env_id": "treasure_hunt_v0"' in lines[0]
     rows = list(csv.DictReader(lines[1:]))
     assert len(rows) == 4  # 2 envs x 2 team episodes, not one per agent
-    assert all(float(r["r"]) == -9.0 and r["l"] == "3" and r["treasures"] == "0" for r in rows)
+    assert all(float(r["r"]) == -9.0 and r["l"] == "3" and r["treasures_collected"] == "0" for r in rows)
 
 
 class _Oracle:
@@ -138,8 +136,10 @@ def test_evaluate_team_oracle_and_determinism() -> None:
     fn = lambda: treasure_hunt_v0.parallel_env(**EGO)  # noqa: E731
     res = evaluate_team(_Oracle(), fn, n_episodes=20, seed=3)
     assert set(res) == {"n_episodes", "mean_return", "std_return", "mean_length", "success_rate", "metrics"}
-    assert res["metrics"]["treasures_per_episode"] >= 3.5  # greedy, can stall at obstacles; random: 1.9
-    assert res["metrics"]["team_return"] == res["mean_return"]
+    assert res["metrics"]["treasures_collected"] >= 3.5  # greedy, can stall at obstacles; random: 1.9
+    per_agent = res["metrics"]["per_agent_return"]
+    assert set(per_agent) == {"agent_0", "agent_1", "agent_2"}
+    assert sum(per_agent.values()) == pytest.approx(res["mean_return"])  # the team return is the agents' sum
     assert evaluate_team(_Oracle(), fn, n_episodes=20, seed=3) == res
 
 
@@ -173,4 +173,4 @@ def test_ppo_beats_random_on_small_budget() -> None:
     model.learn(total_timesteps=300_000)
     elapsed = time.perf_counter() - start
     res = evaluate_team(model, lambda: treasure_hunt_v0.parallel_env(**env_kwargs), n_episodes=50, seed=123)
-    assert res["metrics"]["treasures_per_episode"] >= 3.5, (res, elapsed)
+    assert res["metrics"]["treasures_collected"] >= 3.5, (res, elapsed)

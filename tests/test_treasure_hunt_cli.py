@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from cli_helpers import cli, last_json, summary
 
 RUN = "treasure_hunt_v0"
@@ -17,12 +18,13 @@ def test_train_and_evaluate_team(tmp_path: Path) -> None:
     assert (run_dir / "evaluations.npz").exists() and (run_dir / "0.monitor.csv").exists()
     s = summary(run_dir)
     assert s["eval"]["mean_length"] <= 30
-    assert set(s["eval"]["metrics"]) == {"treasures_per_episode", "team_return"}
+    assert set(s["eval"]["metrics"]) == {"treasures_collected", "per_agent_return", "episode_length"}
+    assert s["eval"]["metrics"]["episode_length"] == s["eval"]["mean_length"]
     report = last_json(cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "4", "--json").stdout)
     assert report["n_episodes"] == 4 and report["env"] == RUN
-    treasures = report["metrics"]["treasures_per_episode"]
+    treasures = report["metrics"]["treasures_collected"]
     assert 0 <= treasures <= 5 and (4 * treasures).is_integer()  # the mean of 4 whole-treasure episodes
-    assert report["metrics"]["team_return"] == report["mean_return"]
+    assert sum(report["metrics"]["per_agent_return"].values()) == pytest.approx(report["mean_return"])
     again = last_json(cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "4", "--json").stdout)
     assert again == report
     rendered = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "1", "--render")

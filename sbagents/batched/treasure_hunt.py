@@ -4,9 +4,9 @@ Equivalent, step by step, to :class:`sbagents.multiagent.parameter_sharing.Param
 :class:`~sbagents.envs.treasure_hunt.CooperativeTreasureHunt` envs: slot ``k`` is agent ``k % n_agents`` of
 env ``k // n_agents``; same ``float32`` observations (``book`` or ``egocentric``), rewards, dones, infos
 (``treasures_collected`` and ``event`` every step; at episode end ``is_success``, ``terminal_observation``,
-``TimeLimit.truncated`` in every slot of the env, and the team ``episode`` + ``treasures`` in its agent-0
-slot), auto-reset, seeding (env ``i`` is reset with ``seed + i``), and one monitor file
-``<monitor_dir>/0.monitor.csv`` with one row per team episode.
+``TimeLimit.truncated`` in every slot of the env, and the team ``episode`` (with the declared metric
+``treasures_collected``) in its agent-0 slot), auto-reset, seeding (env ``i`` is reset with ``seed + i``), and
+one monitor file ``<monitor_dir>/0.monitor.csv`` with one row per team episode.
 
 A step is one call of the compiled kernel :func:`sbagents.batched.kernels.treasure_step`: agents move in
 index order (the lower index collects a treasure two agents step onto), and observations are assembled
@@ -52,7 +52,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
     :param n_envs: number of env copies (teams).
     :param env_kwargs: keyword arguments of :class:`CooperativeTreasureHunt`.
     :param monitor_path: if given, team episodes are written to this SB3 monitor file
-        (``r`` team return, ``l``, ``t``, ``treasures``), like the reference.
+        (``r`` team return, ``l``, ``t``, ``treasures_collected``), like the reference.
 
     Observations have shape ``(n_envs * n_agents, obs_dim)`` float32; actions ``(n_envs * n_agents,)``.
     """
@@ -88,7 +88,7 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._writer: ResultsWriter | None = None
         if monitor_path is not None:
             header: dict[str, float | str] = {"t_start": self._t_start, "env_id": TREASURE_HUNT_ID}
-            self._writer = ResultsWriter(monitor_path, header=header, extra_keys=("treasures",))
+            self._writer = ResultsWriter(monitor_path, header=header, extra_keys=("treasures_collected",))
 
     # ------------------------------------------------------------------ tables
     def _build_move_table(self, env: CooperativeTreasureHunt) -> None:
@@ -208,11 +208,10 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
                 info["TimeLimit.truncated"] = not term
                 info["terminal_observation"] = terminal[q * n_a + j]
                 self.reset_infos[first + j] = {"treasures_collected": 0}
-            ep = {"r": round(returns[q], 6), "l": lengths[q], "t": seconds}
+            ep = {"r": round(returns[q], 6), "l": lengths[q], "t": seconds, "treasures_collected": treasures[q]}
             infos[first]["episode"] = ep
-            infos[first]["treasures"] = treasures[q]
             if self._writer is not None:
-                self._writer.write_row({**ep, "treasures": treasures[q]})
+                self._writer.write_row(ep)
             self._next_picks[i] = self._draw(self._rngs[i])  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ attributes / rendering

@@ -1,38 +1,130 @@
-"""Team evaluation of a parameter-shared policy: :func:`evaluate_team` and :class:`TeamEvalCallback`.
+"""Team evaluation: :func:`run_team_episodes` (the one runner of team episodes, for one shared model, one model per
+group, or RLlib's modules), :func:`evaluate_team` and :class:`TeamEvalCallback`.
 
-Team return = the sum of all agents' rewards over an episode; one result per team episode. The episodes are
-played by :func:`sbagents.callbacks.rollout.run_episodes`, the runner every evaluation in sbagents uses.
+Team return = the sum of all agents' rewards over an episode; one result per team episode. A team episode ends when
+the first group's VecEnv reports SB3's ``episode`` info on its first slot (agents may end earlier).
 """
 
 from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from pettingzoo import ParallelEnv
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
-from sbagents.callbacks.rollout import EpisodeResult, run_episodes
-from sbagents.multiagent.parameter_sharing import ParameterSharingVecEnv
+from sbagents.callbacks.common import find_vec_normalize
+from sbagents.callbacks.rollout import EpisodeResult
+from sbagents.callbacks.safety import step_violation
+from sbagents.multiagent.parameter_sharing import SHARED_GROUP, ParameterSharingVecEnv
+
+Actor = Callable[[Any], np.ndarray]
+#: Keys of an SB3 ``episode`` info that are not episode metrics.
+_EPISODE_KEYS = frozenset({"r", "l", "t"})
 
 
-def team_summary(episodes: Sequence[EpisodeResult]) -> dict[str, Any]:
+def model_actor(model: Any, deterministic: bool = True) -> Actor:
+    """``obs -> actions`` of anything with SB3's ``predict`` (SB3 policies are put in eval mode)."""
+    policy = getattr(model, "policy", None)
+    if policy is not None:
+        policy.set_training_mode(False)
+    return lambda obs: model.predict(obs, deterministic=deterministic)[0]
+
+
+def slot_agents(venv: VecEnv, default: str) -> list[str]:
+    """The agents behind a team VecEnv's slots (one copy), or ``[default]`` for a plain VecEnv."""
+    agents = getattr(venv.unwrapped, "possible_agents", None)
+    return [str(a) for a in agents] if agents else [default]
+
+
+def run_team_episodes(
+    venvs: Mapping[str, VecEnv], actors: Mapping[str, Actor], n_episodes: int, seed: int | None = None
+) -> list[EpisodeResult]:
+    """Play ``n_episodes`` team episodes on the group VecEnvs of one team with one copy (a single VecEnv for a
+    shared policy), every group acting with its actor.
+
+    Rewards are unnormalized; each ``VecNormalize`` is frozen meanwhile.
+
+    :param venvs: group -> its VecEnv (they step one team together), in the team's group order.
+    :param actors: group -> ``obs -> actions``.
+    :param seed: seed of the first reset (then the env's RNG continues) -> reproducible returns.
+    :return: per episode: team return, length, ``is_success``, violation steps and cost (every agent's), the first
+        slot's last ``info`` and each agent's return.
+    """
+    if n_episodes < 1:
+        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    order = list(venvs)
+    norms = {g: find_vec_normalize(v) for g, v in venvs.items()}
+    frozen = {g: vn.training for g, vn in norms.items() if vn is not None}
+    for g in frozen:
+        norms[g].training = False  # type: ignore[union-attr]
+    names = {g: slot_agents(v, g) for g, v in venvs.items()}
+    if any(v.num_envs != len(names[g]) for g, v in venvs.items()):
+        raise ValueError("run_team_episodes plays one team copy: build its VecEnvs with n_envs=1")
+    episodes: list[EpisodeResult] = []
+    try:
+        if seed is not None:
+            venvs[order[0]].seed(seed)
+        obs = {g: venvs[g].reset() for g in order}
+        returns = {a: 0.0 for g in order for a in names[g]}
+        length, violations, cost = 0, 0, 0.0
+        while len(episodes) < n_episodes:
+            for g in order:
+                venvs[g].step_async(actors[g](obs[g]))
+            infos: dict[str, list[dict[str, Any]]] = {}
+            for g in order:
+                obs[g], rewards, _, infos[g] = venvs[g].step_wait()
+                vn = norms[g]
+                raw = vn.get_original_reward() if vn is not None else rewards
+                for agent, reward, info in zip(names[g], raw, infos[g], strict=True):
+                    returns[agent] += float(reward)
+                    kind, c = step_violation(info)
+                    violations += kind is not None
+                    cost += c
+            length += 1
+            head = infos[order[0]][0]
+            if "episode" in head:
+                success = head.get("is_success")
+                episodes.append(EpisodeResult(sum(returns.values()), length, None if success is None else
+                                              bool(success), violations, cost, dict(head), dict(returns)))
+                returns = dict.fromkeys(returns, 0.0)
+                length, violations, cost = 0, 0, 0.0
+    finally:
+        for g, was in frozen.items():
+            norms[g].training = was  # type: ignore[union-attr]
+    return episodes
+
+
+def team_summary(episodes: Sequence[EpisodeResult], groups: Mapping[str, Sequence[str]] | None = None
+                 ) -> dict[str, Any]:
     """``n_episodes``, ``mean_return``/``std_return`` (team return = sum over agents), ``mean_length``,
-    ``success_rate`` (share of episodes whose last step reports ``is_success``) and ``metrics`` =
-    ``{"treasures_per_episode", "team_return"}`` (NaN treasures if the env reports none)."""
+    ``success_rate`` (share of episodes whose last step reports ``is_success``; None when the env reports none)
+    and ``metrics``: ``episode_length``, ``per_agent_return`` (agent -> mean return), ``per_group_return`` (with
+    ``groups``: group -> mean of its agents' summed returns) and the means of the env's declared episode metrics
+    (``metadata["info_metrics"]``, carried in the team's ``episode`` info)."""
     returns = [e.ret for e in episodes]
-    treasures = [float(e.info.get("treasures_collected", np.nan)) for e in episodes]
+    successes = [bool(e.success) for e in episodes if e.success is not None]
+    metrics: dict[str, Any] = {"episode_length": float(np.mean([e.length for e in episodes]))}
+    agents = list(episodes[0].agent_returns) if episodes else []
+    metrics["per_agent_return"] = {a: float(np.mean([e.agent_returns[a] for e in episodes])) for a in agents}
+    if groups is not None and len(groups) > 1:
+        metrics["per_group_return"] = {g: float(np.mean([sum(e.agent_returns[a] for a in members)
+                                                         for e in episodes])) for g, members in groups.items()}
+    declared = [k for k in episodes[0].info.get("episode", {}) if k not in _EPISODE_KEYS] if episodes else []
+    for key in declared:
+        metrics[key] = float(np.mean([float(e.info["episode"][key]) for e in episodes]))
     return {
         "n_episodes": len(episodes),
         "mean_return": float(np.mean(returns)),
         "std_return": float(np.std(returns)),
         "mean_length": float(np.mean([e.length for e in episodes])),
-        "success_rate": float(np.mean([bool(e.success) for e in episodes])),
-        "metrics": {"treasures_per_episode": float(np.mean(treasures)), "team_return": float(np.mean(returns))},
+        "success_rate": float(np.mean(successes)) if successes else None,
+        "metrics": metrics,
     }
 
 
@@ -42,66 +134,65 @@ def evaluate_team(
     n_episodes: int = 10,
     deterministic: bool = True,
     seed: int | None = None,
-    act: Callable[[Any], np.ndarray] | None = None,
+    act: Actor | None = None,
 ) -> dict[str, Any]:
-    """Play ``n_episodes`` team episodes (one team, sequentially) and summarize them.
+    """Play ``n_episodes`` team episodes of one shared policy (one team copy) and summarize them.
 
     :param model: an SB3 model (``predict``), or None with ``act``.
-    :param env: one ``ParameterSharingVecEnv`` team (under a frozen ``VecNormalize`` when the run normalized), or
+    :param env: a one-copy parameter-sharing VecEnv (under a frozen ``VecNormalize`` when the run normalized), or
         a zero-argument ``ParallelEnv`` constructor (a team VecEnv is built and closed here).
-    :param seed: seed of the first reset (then the env's RNG continues) -> reproducible returns.
     :param act: maps an observation batch ``(n_agents, *obs_shape)`` to actions (default ``model.predict``).
     :return: :func:`team_summary` of the episodes.
     """
-    if isinstance(env, VecEnv):
-        return team_summary(run_episodes(model, env, n_episodes, deterministic, seed, act))
-    venv = ParameterSharingVecEnv([env])
+    actor = act if act is not None else model_actor(model, deterministic)
+    venv = env if isinstance(env, VecEnv) else ParameterSharingVecEnv([env])
     try:
-        return team_summary(run_episodes(model, venv, n_episodes, deterministic, seed, act))
+        return team_summary(run_team_episodes({SHARED_GROUP: venv}, {SHARED_GROUP: actor}, n_episodes, seed))
     finally:
-        venv.close()
+        if venv is not env:
+            venv.close()
 
 
 class TeamEvalCallback(EvalCallback):
-    """``EvalCallback`` that scores the team with :func:`evaluate_team` every ``eval_freq`` calls.
+    """``EvalCallback`` that scores the team (every group's model acting) every ``eval_freq`` calls.
 
-    Keeps ``best_model.zip`` (highest mean team return) in ``best_model_save_path`` and writes
-    ``evaluations.npz`` in EvalCallback's format (``timesteps``, ``results`` team returns of shape
-    ``(n_evals, n_eval_episodes)``, ``ep_lengths``, ``successes``) to ``log_path``. Logs ``eval/mean_reward``,
-    ``eval/mean_ep_length``, ``eval/success_rate`` and ``eval/treasures_per_episode``.
+    Keeps the best models (highest mean team return; ``best_model.zip``, or ``best_model.<group>.zip`` per group) in
+    ``best_model_save_path`` and writes ``evaluations.npz`` in EvalCallback's format (``timesteps``, ``results`` team
+    returns of shape ``(n_evals, n_eval_episodes)``, ``ep_lengths``, ``successes``) to ``log_path``. Logs
+    ``eval/mean_reward``, ``eval/mean_ep_length``, ``eval/success_rate`` and ``eval/<metric>`` for the env's declared
+    metrics.
 
-    :param eval_env: a one-team parameter-sharing VecEnv (its ``VecNormalize`` statistics are synced from the
-        training env before every evaluation).
+    :param eval_env: the evaluation team: one VecEnv (a shared policy, this callback's model) or group -> VecEnv of
+        one team; their ``VecNormalize`` statistics are synced from the training envs before every evaluation.
+    :param models: group -> model, when there are several groups (the model this callback runs in is one of them).
     :param eval_freq: evaluate every ``eval_freq`` calls of ``_on_step`` (i.e. vec steps, not env steps).
     :param seed: seed of each evaluation (the same episodes every time; ``None``: fresh ones).
+    :param timestep_scale: run timesteps per timestep of this callback's model (in ``evaluations.npz``): with one
+        model per group, the team's agents per agent of the first group.
     """
 
     def __init__(
         self,
-        eval_env: VecEnv,
+        eval_env: VecEnv | Mapping[str, VecEnv],
         n_eval_episodes: int = 5,
         eval_freq: int = 10000,
         log_path: str | None = None,
         best_model_save_path: str | None = None,
         deterministic: bool = True,
         seed: int | None = None,
-        callback_on_new_best: Any = None,
+        models: Mapping[str, BaseAlgorithm] | None = None,
         callback_after_eval: Any = None,
         verbose: int = 1,
+        timestep_scale: float = 1.0,
     ) -> None:
-        super().__init__(
-            eval_env,
-            callback_on_new_best=callback_on_new_best,
-            callback_after_eval=callback_after_eval,
-            n_eval_episodes=n_eval_episodes,
-            eval_freq=eval_freq,
-            log_path=log_path,
-            best_model_save_path=best_model_save_path,
-            deterministic=deterministic,
-            verbose=verbose,
-            warn=False,
-        )
+        self.eval_envs = dict(eval_env) if isinstance(eval_env, Mapping) else {SHARED_GROUP: eval_env}
+        super().__init__(next(iter(self.eval_envs.values())), callback_after_eval=callback_after_eval,
+                         n_eval_episodes=n_eval_episodes, eval_freq=eval_freq, log_path=log_path,
+                         best_model_save_path=best_model_save_path, deterministic=deterministic, verbose=verbose,
+                         warn=False)
+        self.group_models = dict(models) if models is not None else None
         self.eval_seed = seed
+        self.timestep_scale = timestep_scale
         self.last_result: dict[str, Any] = {}
 
     def _init_callback(self) -> None:
@@ -109,40 +200,42 @@ class TeamEvalCallback(EvalCallback):
             warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
             super()._init_callback()
 
+    def _models(self) -> dict[str, BaseAlgorithm]:
+        return self.group_models if self.group_models is not None else {SHARED_GROUP: self.model}
+
     def _on_step(self) -> bool:
         if self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
             return True
-        sync_envs_normalization(self.training_env, self.eval_env)
-        episodes = run_episodes(self.model, self.eval_env, self.n_eval_episodes, self.deterministic, self.eval_seed)
-        self.last_result = team_summary(episodes)
-        self.evaluations_timesteps.append(self.num_timesteps)
+        models = self._models()
+        for group, venv in self.eval_envs.items():
+            sync_envs_normalization(models[group].get_env(), venv)  # type: ignore[arg-type]
+        actors = {g: model_actor(m, self.deterministic) for g, m in models.items()}
+        episodes = run_team_episodes(self.eval_envs, actors, self.n_eval_episodes, self.eval_seed)
+        groups = {g: slot_agents(v, g) for g, v in self.eval_envs.items()}
+        self.last_result = team_summary(episodes, groups)
+        self.evaluations_timesteps.append(round(self.num_timesteps * self.timestep_scale))
         self.evaluations_results.append([e.ret for e in episodes])
         self.evaluations_length.append([e.length for e in episodes])
-        self._is_success_buffer = [bool(e.success) for e in episodes]
+        self._is_success_buffer = [bool(e.success) for e in episodes if e.success is not None]
         self.evaluations_successes.append(self._is_success_buffer)
         if self.log_path is not None:
-            np.savez(
-                self.log_path,
-                timesteps=self.evaluations_timesteps,
-                results=self.evaluations_results,
-                ep_lengths=self.evaluations_length,
-                successes=self.evaluations_successes,
-            )
+            np.savez(self.log_path, timesteps=self.evaluations_timesteps, results=self.evaluations_results,
+                     ep_lengths=self.evaluations_length, successes=self.evaluations_successes)
         mean_reward = float(self.last_result["mean_return"])
         self.last_mean_reward = mean_reward
         self.logger.record("eval/mean_reward", mean_reward)
         self.logger.record("eval/mean_ep_length", float(self.last_result["mean_length"]))
-        self.logger.record("eval/success_rate", float(self.last_result["success_rate"]))
-        self.logger.record("eval/treasures_per_episode", self.last_result["metrics"]["treasures_per_episode"])
+        if self.last_result["success_rate"] is not None:
+            self.logger.record("eval/success_rate", float(self.last_result["success_rate"]))
+        for key, value in self.last_result["metrics"].items():
+            if isinstance(value, float) and key != "episode_length":
+                self.logger.record(f"eval/{key}", value)
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(self.num_timesteps)
-        continue_training = True
         if mean_reward > self.best_mean_reward:
             self.best_mean_reward = mean_reward
             if self.best_model_save_path is not None:
-                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
-            if self.callback_on_new_best is not None:
-                continue_training = self.callback_on_new_best.on_step()
-        if self.callback is not None:
-            continue_training = continue_training and self._on_event()
-        return continue_training
+                for group, model in models.items():
+                    name = "best_model.zip" if group == SHARED_GROUP else f"best_model.{group}.zip"
+                    model.save(os.path.join(self.best_model_save_path, name))
+        return self._on_event() if self.callback is not None else True

@@ -77,14 +77,17 @@ class ProgressReporter:
 
 
 class ProgressCallback(BaseCallback):
-    """Drives a :class:`ProgressReporter` from SB3's training loop (steps on every call)."""
+    """Drives a :class:`ProgressReporter` from SB3's training loop (steps on every call).
 
-    def __init__(self, reporter: ProgressReporter) -> None:
+    :param scale: run timesteps per timestep of this model (a group's model: the team's agents / the group's).
+    """
+
+    def __init__(self, reporter: ProgressReporter, scale: float = 1.0) -> None:
         super().__init__(verbose=0)
-        self.reporter = reporter
+        self.reporter, self.scale = reporter, scale
 
     def _on_step(self) -> bool:
-        self.reporter.update(self.num_timesteps)
+        self.reporter.update(round(self.num_timesteps * self.scale))
         return True
 
     def _on_training_end(self) -> None:
@@ -98,9 +101,9 @@ class EvalReportCallback(BaseCallback):
     has one, ``last_result["metrics"]`` (e.g. a team evaluation's per-episode metrics).
     """
 
-    def __init__(self, reporter: ProgressReporter) -> None:
+    def __init__(self, reporter: ProgressReporter, scale: float = 1.0) -> None:
         super().__init__(verbose=0)
-        self.reporter = reporter
+        self.reporter, self.scale = reporter, scale
 
     def _on_step(self) -> bool:
         parent = self.parent
@@ -110,9 +113,9 @@ class EvalReportCallback(BaseCallback):
         returns = results[-1] if results else [float(getattr(parent, "last_mean_reward", float("nan")))]
         successes = list(getattr(parent, "_is_success_buffer", []))
         metrics = (getattr(parent, "last_result", None) or {}).get("metrics") or {}
-        scalars = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and k != "team_return"}
+        scalars = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and k != "episode_length"}
         self.reporter.evaluation(
-            self.num_timesteps, float(np.mean(returns)), float(np.std(returns)),
+            round(self.num_timesteps * self.scale), float(np.mean(returns)), float(np.std(returns)),
             float(np.mean(successes)) if successes else None, scalars,
         )
         return True
@@ -122,7 +125,9 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
     """An evaluation summary (``evaluate``) as a two-column text table, trust results included."""
     rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
                                       "success_rate")]
-    rows += [(f"metrics.{k}", v) for k, v in summary["metrics"].items()]
+    for key, value in summary["metrics"].items():
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        rows += [(f"metrics.{key}" + (f".{sub}" if sub is not None else ""), v) for sub, v in items]
     rows += [(f"attack.{r['label']}.mean_return", r["mean_return"]) for r in summary.get("adversarial", [])]
     if "fairness" in summary:
         fair = summary["fairness"]
@@ -140,7 +145,8 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
     ev = summary.get("eval")
     if ev:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
-        metrics = "".join(f", {k} {v:.3g}" for k, v in ev["metrics"].items() if k != "team_return")
+        metrics = "".join(f", {k} {v:.3g}" for k, v in ev["metrics"].items()
+                          if isinstance(v, int | float) and k != "episode_length")
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{metrics}")
     return lines

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import inspect
 from collections.abc import Callable
 from pathlib import Path
@@ -18,7 +19,7 @@ from stable_baselines3.common.vec_env import (
 )
 
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import EnvRef
+from sbagents.pipeline.env_names import EnvRef, pettingzoo_factory
 from sbagents.pipeline.experiment import Experiment
 
 VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
@@ -31,25 +32,39 @@ VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched")
 def env_constructor(ref: EnvRef) -> Callable[..., Any]:
     """The class or function that builds one env of ``ref`` (for keyword checks)."""
     if ref.multi_agent:
-        return ref.pettingzoo_module().parallel_env
+        return pettingzoo_factory(ref.source)
     entry_point = gym.spec(ref.env_id).entry_point
     if callable(entry_point):
         return entry_point
     return gym.envs.registration.load_env_creator(str(entry_point))
 
 
+def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
+    """The keyword arguments ``ref``'s constructor takes, when they can be known (None: any)."""
+    candidates: list[Any] = [env_constructor(ref)]
+    if ref.multi_agent and ":" not in ref.source:  # PettingZoo's parallel_env(**kwargs) forwards to raw_env
+        module = importlib.import_module(ref.source)
+        declared = getattr(module, "ACCEPTED_KWARGS", None)
+        if declared is not None:
+            return set(declared)
+        candidates.append(getattr(module, "raw_env", None))
+    for fn in candidates:
+        try:
+            params = inspect.signature(fn).parameters if fn is not None else None
+        except (TypeError, ValueError):
+            continue
+        if params is not None and not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            return set(params)
+    return None
+
+
 def check_env_kwargs(ref: EnvRef, env_kwargs: dict[str, Any]) -> None:
     """Raise :class:`UsageError` listing the accepted keys if ``env_kwargs`` has a key the env does not take."""
     if not env_kwargs:
         return
-    declared = getattr(ref.pettingzoo_module(), "ACCEPTED_KWARGS", None) if ref.multi_agent else None
-    if declared is not None:
-        names = set(declared)
-    else:
-        params = inspect.signature(env_constructor(ref)).parameters
-        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-            return
-        names = set(params)
+    names = _accepted_kwargs(ref)
+    if names is None:
+        return
     accepted = sorted(names - {"self", "render_mode"})
     unknown = sorted(set(env_kwargs) - names)
     if unknown:
@@ -70,11 +85,61 @@ def _chain(wrappers: list[tuple[Any, dict[str, Any]]]) -> Callable[[gym.Env], gy
     return wrap
 
 
-def _wrapped(make_env: Callable[..., Any], wrapper: Callable[[Any], Any]) -> Callable[..., Any]:
-    def make(**kwargs: Any) -> Any:
-        return wrapper(make_env(**kwargs))
+def _team_vecs(
+    exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor: str | None, kind: str,
+    kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
+) -> dict[str, VecEnv]:
+    """The group VecEnvs of one team of ``n_envs`` copies of a PettingZoo env (one group for ``shared``)."""
+    from sbagents.multiagent.factory import ParallelEnvFactory
+    from sbagents.multiagent.groups import team_vec_envs
 
-    return make
+    wrappers = [*exp.env_wrapper, *([(wrapper, {})] if wrapper is not None else [])]
+    factory = ParallelEnvFactory(ref.source, ref.modules, kwargs, wrappers)
+    assert exp.team is not None
+    return dict(team_vec_envs(factory, n_envs, exp.team, seed=seed, monitor_dir=monitor, subproc=kind == "subproc"))
+
+
+def make_team_vecs(
+    exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor_dir: str | Path | None = None,
+    vec_env: str = "auto", env_kwargs: dict[str, Any] | None = None, wrapper: Callable[[Any], Any] | None = None,
+) -> dict[str, VecEnv]:
+    """The VecEnv of every group of a PettingZoo experiment (group -> VecEnv; ``shared``: one group), each with
+    the experiment's VecEnv wrappers and frame stacking, before normalisation. They step one team together.
+
+    :param wrapper: an extra outermost PettingZoo parallel wrapper of every copy (rules out the batched VecEnvs).
+    """
+    kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
+    check_env_kwargs(ref, {k: v for k, v in kwargs.items() if k != "render_mode"})
+    kind = vec_env_kind(vec_env, exp, ref)
+    if wrapper is not None and kind == "batched":
+        kind = "dummy"
+    monitor = str(monitor_dir) if monitor_dir is not None else None
+    try:
+        venvs = (_team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper) if kind != "batched" else
+                 {"shared": _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, None)})
+    except UsageError:
+        raise
+    except (TypeError, ValueError, AssertionError) as exc:
+        raise _env_kwargs_error(ref, kwargs, exc) from None
+    return {name: _vec_wrappers(venv, exp) for name, venv in venvs.items()}
+
+
+def _vec_wrappers(venv: VecEnv, exp: Experiment) -> VecEnv:
+    for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
+        venv = wrapper(venv, **wrapper_kwargs)
+    if exp.frame_stack:
+        venv = VecFrameStack(venv, exp.frame_stack)
+    return venv
+
+
+def _env_kwargs_error(ref: EnvRef, kwargs: dict[str, Any], exc: Exception) -> Exception:
+    """The :class:`UsageError` of an env that cannot be built with the user's kwargs (else ``exc`` itself)."""
+    user_kwargs = {k: v for k, v in kwargs.items() if k != "render_mode"}
+    if not user_kwargs:
+        return exc  # no user input involved: a bug, keep the traceback
+    given = ", ".join(f"{k}={v!r}" for k, v in user_kwargs.items())
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {reason}")
 
 
 def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef) -> str:
@@ -84,7 +149,9 @@ def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef) -> str:
 
     if vec_env not in VEC_ENV_TYPES:
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {vec_env!r}")
-    batchable = ref.env_id in BATCHED_ENV_IDS and not exp.env_wrapper and not exp.monitor_kwargs
+    plain_team = exp.team is None or (exp.team.policies == "shared" and not exp.team.agent_id
+                                      and exp.team.critic == "local")
+    batchable = ref.env_id in BATCHED_ENV_IDS and not exp.env_wrapper and not exp.monitor_kwargs and plain_team
     if vec_env == "batched" and not batchable:
         raise UsageError(f"--vec-env batched supports {', '.join(BATCHED_ENV_IDS)} without env_wrapper/monitor_kwargs")
     if vec_env == "auto":
@@ -119,17 +186,11 @@ def make_vec(
         kind = "dummy"
     try:
         venv = _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, wrapper)
+    except UsageError:
+        raise
     except (TypeError, ValueError, AssertionError) as exc:
-        if not user_kwargs:
-            raise  # no user input involved: a bug, keep the traceback
-        given = ", ".join(f"{k}={v!r}" for k, v in user_kwargs.items())
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {reason}") from None
-    for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
-        venv = wrapper(venv, **wrapper_kwargs)
-    if exp.frame_stack:
-        venv = VecFrameStack(venv, exp.frame_stack)
-    return venv
+        raise _env_kwargs_error(ref, kwargs, exc) from None
+    return _vec_wrappers(venv, exp)
 
 
 def _make_base_vec(
@@ -144,13 +205,11 @@ def _make_base_vec(
 
         venv = make_batched_vec_env(ref.env_id, n_envs, seed, kwargs, monitor)
     elif ref.multi_agent:
-        from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
-
-        make_env = ref.pettingzoo_module().parallel_env
-        if wrapper is not None:
-            make_env = _wrapped(make_env, wrapper)
-        venv = make_parameter_sharing_vec_env(make_env, n_envs=n_envs, seed=seed, env_kwargs=kwargs,
-                                              monitor_dir=monitor)
+        venvs = _team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
+        if len(venvs) != 1:
+            raise UsageError(f"{exp.team.policies if exp.team else ''} experiments train one model per group: "
+                             "use make_team_vecs")
+        venv = next(iter(venvs.values()))
     else:
         venv = make_vec_env(
             ref.make_fn(),  # imports the env's modules first, also in SubprocVecEnv workers
@@ -210,7 +269,7 @@ def make_eval_vec(
 def render_modes(exp: Experiment, ref: EnvRef) -> list[str]:
     """The render modes an env of ``exp`` declares (``metadata["render_modes"]``)."""
     if ref.multi_agent:
-        env = ref.pettingzoo_module().parallel_env(**exp.env_kwargs)
+        env = ref.parallel_env(**exp.env_kwargs)
         modes = list(env.metadata.get("render_modes", []))
         env.close()
         return modes

@@ -1,4 +1,11 @@
-"""Resolving the ``--env`` argument: Gymnasium IDs, PettingZoo modules, ``module:EnvId`` and user packages."""
+"""Resolving the ``--env`` argument: Gymnasium IDs, ``module:EnvId``, and any PettingZoo env.
+
+A PettingZoo env is named by its module (PettingZoo's convention: a module exposing ``parallel_env(**kwargs)``,
+such as ``pettingzoo.sisl.pursuit_v5``, ``mpe2.simple_spread_v3`` or ``my_pkg.my_env_v0``), by
+``module:callable`` (a function returning a ``ParallelEnv``), or by a short name registered with
+:func:`sbagents.registration.register_pettingzoo_env` (``treasure_hunt_v0``). Its run dirs and config entries use
+the env's name: the module's last component (``pursuit_v5``), or the callable's name.
+"""
 
 from __future__ import annotations
 
@@ -13,30 +20,40 @@ from typing import Any
 import gymnasium as gym
 
 from sbagents.errors import UsageError
+from sbagents.registration import PETTINGZOO_ENVS
 
-#: Multi-agent envs the CLI accepts by name -> PettingZoo module (with ``parallel_env(**kwargs)``).
-PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_hunt_v0"}
+#: Zoo-config entry that every PettingZoo env without an entry of its own gets (before ``default``).
+PETTINGZOO_DEFAULT_ENTRY = "pettingzoo"
 
 
 @dataclass(frozen=True)
 class EnvRef:
     """A resolved env name.
 
-    :param env_id: canonical id (a Gymnasium ID, or the PettingZoo env name).
-    :param multi_agent: True for PettingZoo parallel envs.
-    :param modules: modules to import before ``gym.make(env_id)`` in any process (``--gym-packages``, the
-        ``module`` of ``module:EnvId``, ``ale_py`` for Atari ids): a ``SubprocVecEnv`` worker starts with a
-        registry that has none of their envs.
+    :param env_id: canonical id: a Gymnasium ID, or the PettingZoo env's name (``pursuit_v5``).
+    :param multi_agent: True for PettingZoo envs.
+    :param modules: modules to import before building the env in any process (``--gym-packages``, the ``module``
+        of ``module:EnvId``, ``ale_py`` for Atari ids): a worker process starts with none of them imported.
+    :param source: where a PettingZoo env comes from: ``pkg.module`` (with ``parallel_env``) or
+        ``pkg.module:callable``.
     """
 
     env_id: str
     multi_agent: bool = False
     modules: tuple[str, ...] = ()
+    source: str = ""
 
     @property
     def is_atari(self) -> bool:
         """Whether this is an ALE id (RL Zoo's ``atari`` config entry applies)."""
         return "NoFrameskip" in self.env_id or self.env_id.startswith("ALE/")
+
+    @property
+    def config_keys(self) -> tuple[str, ...]:
+        """Zoo-config entries to look up, in order (``default`` comes after them)."""
+        if self.multi_agent:
+            return tuple(dict.fromkeys((self.source, self.env_id, PETTINGZOO_DEFAULT_ENTRY)))
+        return (self.env_id, "atari") if self.is_atari else (self.env_id,)
 
     def make_fn(self) -> str | Callable[..., gym.Env]:
         """The ``env_id`` argument for SB3's ``make_vec_env``: the id itself, or (when :attr:`modules` is not
@@ -45,9 +62,13 @@ class EnvRef:
             return self.env_id
         return functools.partial(make_registered, self.env_id, self.modules)
 
-    def pettingzoo_module(self) -> ModuleType:
-        """The PettingZoo module of a multi-agent env."""
-        return importlib.import_module(PETTINGZOO_ENVS[self.env_id])
+    def parallel_env_fn(self) -> Callable[..., Any]:
+        """A picklable ``(**kwargs) -> ParallelEnv`` of a PettingZoo env (it imports :attr:`modules` first)."""
+        return functools.partial(make_parallel_env, self.source, self.modules)
+
+    def parallel_env(self, **kwargs: Any) -> Any:
+        """Build one ``ParallelEnv`` of this PettingZoo env."""
+        return make_parallel_env(self.source, self.modules, **kwargs)
 
 
 def import_packages(packages: list[str] | tuple[str, ...]) -> None:
@@ -69,6 +90,19 @@ def make_registered(env_id: str, modules: tuple[str, ...], **kwargs: Any) -> gym
         return gym.make(env_id, **kwargs)
 
 
+def pettingzoo_factory(source: str) -> Callable[..., Any]:
+    """The ``(**kwargs) -> ParallelEnv`` that ``source`` names (``module`` -> its ``parallel_env``)."""
+    module_name, _, attr = source.partition(":")
+    module = importlib.import_module(module_name)
+    return getattr(module, attr or "parallel_env")  # type: ignore[no-any-return]
+
+
+def make_parallel_env(source: str, modules: tuple[str, ...] = (), **kwargs: Any) -> Any:
+    """Import ``modules``, then build the PettingZoo env ``source`` names with ``kwargs``."""
+    import_packages(modules)
+    return pettingzoo_factory(source)(**kwargs)
+
+
 def _register_atari() -> None:
     try:
         import ale_py
@@ -77,21 +111,53 @@ def _register_atari() -> None:
     gym.register_envs(ale_py)
 
 
-def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
-    """Resolve ``name`` to a registered env, or raise :class:`UsageError` suggesting close ids.
+def _import(module_name: str) -> ModuleType | None:
+    try:
+        return importlib.import_module(module_name)
+    except ImportError as exc:
+        if exc.name is not None and module_name.startswith(exc.name):
+            return None  # no such module: not a module path
+        raise UsageError(f"cannot import {module_name!r}: {exc}") from None
 
-    Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same
-    without the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make``
-    does) and the PettingZoo names in :data:`PETTINGZOO_ENVS`.
+
+def _pettingzoo_module_ref(name: str, modules: tuple[str, ...]) -> EnvRef | None:
+    """The ref of a dotted module path that is a PettingZoo env module, else None (or a clear error)."""
+    module = _import(name) if "." in name else None
+    if module is None:
+        return None
+    if callable(getattr(module, "parallel_env", None)):
+        return EnvRef(name.rpartition(".")[2], multi_agent=True, modules=modules, source=name)
+    if callable(getattr(module, "env", None)):
+        raise UsageError(f"{name} is a turn-based (AEC-only) PettingZoo env: it has env() but no parallel_env(); "
+                         "turn-based games are not supported yet (only parallel envs are)")
+    raise UsageError(f"module {name} has no parallel_env(**kwargs); name a PettingZoo env module, or "
+                     f"'{name}:<function>' for a function that returns a ParallelEnv")
+
+
+def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
+    """Resolve ``name`` to an env, or raise :class:`UsageError` suggesting close ids.
+
+    Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same without
+    the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make`` does), a
+    PettingZoo env module path, ``module:callable`` returning a ``ParallelEnv``, and the short names of
+    :data:`~sbagents.registration.PETTINGZOO_ENVS`.
     """
     import_packages(gym_packages)
-    if name in PETTINGZOO_ENVS:
-        return EnvRef(name, multi_agent=True)
     modules = tuple(gym_packages)
+    if name in PETTINGZOO_ENVS:
+        source = PETTINGZOO_ENVS[name]
+        return EnvRef(name, multi_agent=True, modules=modules, source=source)
     if ":" in name:
-        module, _, name = name.partition(":")
-        import_packages([module])
-        modules += (module,)
+        module_name, _, attr = name.partition(":")
+        module = _import(module_name)
+        if module is None:
+            raise UsageError(f"cannot import module {module_name!r} of --env {name}")
+        for candidate in (attr, f"sbagents/{attr}"):
+            if candidate in gym.registry:
+                return EnvRef(candidate, modules=(*modules, module_name))
+        if callable(getattr(module, attr, None)):
+            return EnvRef(attr, multi_agent=True, modules=modules, source=name)
+        raise UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
     atari = "NoFrameskip" in name or name.startswith("ALE/")
     if atari:
         _register_atari()
@@ -99,6 +165,9 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     for candidate in (name, f"sbagents/{name}"):
         if candidate in gym.registry:
             return EnvRef(candidate, modules=modules)
+    ref = _pettingzoo_module_ref(name, modules)
+    if ref is not None:
+        return ref
     known = list(gym.registry) + list(PETTINGZOO_ENVS)
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see python -m sbagents.train --list"

@@ -7,7 +7,7 @@ one with :func:`summarize`.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.pipeline.env_factory import make_eval_vec, render_modes
+from sbagents.errors import UsageError
+from sbagents.multiagent.groups import group_stats_name
+from sbagents.multiagent.parameter_sharing import SHARED_GROUP
+from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
+from sbagents.pipeline.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
 from sbagents.pipeline.options import EvaluateOptions
@@ -65,18 +69,10 @@ def evaluate_model(
     """
     options = options or EvaluateOptions()
     options.validate()
+    if ref.multi_agent:
+        return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path})
     text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
     extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
-    if ref.multi_agent:
-        from sbagents.multiagent.team_eval import evaluate_team
-
-        venv = make_eval_vec(exp, ref, 1, None, stats_path, vec_env="dummy", env_kwargs=extra,
-                             wrapper=ParallelTextStepPrinter if text else None)
-        try:
-            result = evaluate_team(model, venv, options.n_episodes, options.deterministic, options.seed)
-        finally:
-            venv.close()
-        return {"env": ref.env_id, "algo": exp.algo, **result}
     # the reference envs (not the batched ones) render every step
     venv = make_eval_vec(exp, ref, 1, options.seed, stats_path, vec_env="dummy", env_kwargs=extra,
                          wrapper=TextStepPrinter if text else None)
@@ -105,11 +101,44 @@ def evaluate_model(
     return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics)  # type: ignore[arg-type]
 
 
+def evaluate_groups(
+    models: Mapping[str, BaseAlgorithm], exp: Experiment, ref: EnvRef, options: EvaluateOptions | None = None,
+    stats_paths: Mapping[str, Path | None] | None = None,
+) -> dict[str, Any]:
+    """Play ``options.n_episodes`` team episodes of a PettingZoo env, every group acting with its model (one group,
+    ``shared``, for parameter sharing), on a fresh team wrapped exactly as in training.
+
+    :param stats_paths: group -> its saved ``VecNormalize`` statistics (frozen during evaluation).
+    :return: the summary of :func:`summarize` with team returns and the team metrics
+        (:func:`sbagents.multiagent.team_eval.team_summary`).
+    """
+    options = options or EvaluateOptions()
+    options.validate()
+    text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
+    extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
+    venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy", env_kwargs=extra,
+                           wrapper=ParallelTextStepPrinter if text else None)
+    venvs = {g: normalize_for_eval(v, exp, (stats_paths or {}).get(g)) for g, v in venvs.items()}
+    try:
+        actors = {g: model_actor(models[g], options.deterministic) for g in venvs}
+        episodes = run_team_episodes(venvs, actors, options.n_episodes, options.seed)
+    finally:
+        for venv in venvs.values():
+            venv.close()
+    groups = {g: slot_agents(v, g) for g, v in venvs.items()}
+    return {"env": ref.env_id, "algo": exp.algo, **team_summary(episodes, groups)}
+
+
 def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]:
     """``python -m sbagents.evaluate`` on a finished SB3 run: the summary, plus ``adversarial`` / ``fairness``
     results (and their CSV + PNG files in the run dir) when the options ask for attacks or fairness."""
     from sbagents.pipeline.trust import trust_report
 
+    if len(run.models) > 1:
+        if options.attacks or options.fairness:
+            raise UsageError("--attack and --fairness evaluate one model; this run has one model per group")
+        stats = {g: run.run_dir / group_stats_name(g) for g in run.models}
+        return evaluate_groups(run.models, run.experiment, run.env, options, stats)
     summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path)
     if options.attacks or options.fairness:
         summary.update(trust_report(run, options))

@@ -18,8 +18,10 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
 from sbagents.errors import UsageError
+from sbagents.multiagent.options import CRITICS, POLICY_MODES, TeamOptions
+from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import ZOO_KEYS, spec_entry
+from sbagents.pipeline.zoo_config import MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh,
@@ -64,6 +66,26 @@ def import_object(path: str, what: str = "object") -> Any:
         raise UsageError(f"cannot import {what} {path!r}: {exc}") from None
 
 
+def _team_options(entry: dict[str, Any], source: str) -> TeamOptions:
+    policies = entry.get("policies", "shared")
+    if policies not in POLICY_MODES:
+        raise UsageError(f"policies must be one of {', '.join(POLICY_MODES)}, got {policies!r} ({source})")
+    critic = entry.get("critic", "local")
+    if critic not in CRITICS:
+        raise UsageError(f"critic must be one of {', '.join(CRITICS)}, got {critic!r} ({source})")
+    groups = entry.get("groups")
+    if groups is not None:
+        if not isinstance(groups, dict) or not all(isinstance(v, list) and v for v in groups.values()):
+            raise UsageError(f"groups must map group names to lists of agents, got {groups!r} ({source})")
+        if policies != "per_group":
+            raise UsageError(f"groups needs policies: per_group, got policies: {policies} ({source})")
+        groups = {str(k): [str(a) for a in v] for k, v in groups.items()}
+    agent_id = entry.get("agent_id", False)
+    if not isinstance(agent_id, bool):
+        raise UsageError(f"agent_id must be true or false, got {agent_id!r} ({source})")
+    return TeamOptions(policies, groups, agent_id, critic)
+
+
 @dataclass
 class Experiment:
     """A resolved experiment: what to build and how to train it.
@@ -87,6 +109,7 @@ class Experiment:
     noise_std: float = 0.1
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
+    team: TeamOptions | None = None  # set for PettingZoo envs
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -159,11 +182,17 @@ def _positive_int(entry: dict[str, Any], key: str, default: int | None) -> int |
     return value
 
 
-def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str) -> Experiment:
+def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_agent: bool = False) -> Experiment:
     """Validate a zoo entry (after CLI overrides) and build the :class:`Experiment`.
 
     :param source: where the entry came from, for error messages (file and env id).
+    :param multi_agent: a PettingZoo env (the multi-agent keys apply; ``monitor_kwargs`` does not).
     """
+    misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs"}))
+    if misplaced:
+        kind = ("PettingZoo envs only" if not multi_agent
+                else "Gymnasium envs only (team VecEnvs write their own monitor)")
+        raise UsageError(f"{', '.join(misplaced)} apply to {kind} ({source})")
     accepted = accepted_algo_kwargs(algo)
     unknown = sorted(k for k in entry if k not in ZOO_KEYS and k not in accepted)
     if unknown:
@@ -213,14 +242,15 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str) -> Exper
         noise_std=float(entry.get("noise_std", 0.1)),
         algo_kwargs=algo_kwargs,
         hyperparams=dict(entry),
+        team=_team_options(entry, source) if multi_agent else None,
     )
 
 
-def build_experiment(spec: TrainSpec, env_id: str, atari: bool = False) -> Experiment:
-    """The :class:`Experiment` of ``spec`` on ``env_id``: its zoo entry (``zoo_configs/<algo>.yml`` or
-    ``spec.conf_file``; the ``atari`` entry applies to Atari ids) with the overrides, validated."""
+def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
+    """The :class:`Experiment` of ``spec`` on the env ``ref``: its zoo entry (``zoo_configs/<algo>.yml`` or
+    ``spec.conf_file``, looked up by :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`) with the overrides,
+    validated."""
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
-    entry, where = spec_entry(spec, spec.algo, env_id, atari)
-    return resolve(spec.algo, env_id, entry, where)
-
+    entry, where = spec_entry(spec, spec.algo, ref)
+    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent)

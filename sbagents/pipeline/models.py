@@ -4,14 +4,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.algos import ALGOS, algos_for
 from sbagents.errors import UsageError
+from sbagents.multiagent.centralized import CentralizedCriticPolicy
+from sbagents.multiagent.masking import MaskedReplayBuffer, MaskedRolloutBuffer
 from sbagents.pipeline.env_factory import make_vec
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
@@ -46,11 +50,29 @@ def make_model(
     kwargs = dict(exp.algo_kwargs)
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
+    policy: Any = exp.policy
+    if exp.team is not None:
+        policy = _team_model_kwargs(exp, kwargs)
     try:
-        return cls(exp.policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose,
-                   **kwargs)
+        return cls(policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **kwargs)
     except (TypeError, ValueError, AssertionError, KeyError) as exc:
         raise UsageError(f"invalid hyperparameters for {exp.algo} on {exp.env_id}: {exc}") from None
+
+
+def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any]) -> Any:
+    """Death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
+    experiment; returns the policy to use and completes ``kwargs``."""
+    assert exp.team is not None
+    on_policy = issubclass(ALGOS[exp.algo].cls, OnPolicyAlgorithm)
+    if on_policy:
+        kwargs.setdefault("rollout_buffer_class", MaskedRolloutBuffer)
+    elif ALGOS[exp.algo].off_policy:
+        kwargs.setdefault("replay_buffer_class", MaskedReplayBuffer)
+    if exp.team.critic != "centralized":
+        return exp.policy
+    if not on_policy or exp.algo not in ("ppo", "a2c"):
+        raise UsageError(f"critic: centralized is for ppo and a2c (a value function to centralize), not {exp.algo}")
+    return CentralizedCriticPolicy
 
 
 @dataclass

@@ -11,7 +11,7 @@ import errno
 import os
 import re
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -119,12 +119,12 @@ def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
     return load_yaml(path) or {}
 
 
-def load_experiment(run_dir: Path, algo: str, env_id: str) -> Experiment:
+def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False) -> Experiment:
     """The :class:`~sbagents.pipeline.experiment.Experiment` a run was trained with (so evaluation wraps the
-    env identically)."""
+    env identically); ``multi_agent`` for PettingZoo envs."""
     from sbagents.pipeline.experiment import resolve
 
-    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)))
+    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent)
 
 
 def check_model_file(path: str | Path) -> Path:
@@ -177,13 +177,17 @@ class RunRef:
 
 @dataclass
 class LoadedRun:
-    """A finished SB3 run, ready to evaluate, export or record."""
+    """A finished SB3 run, ready to evaluate, export or record.
+
+    :param models: group -> model for a run of one model per group of agents (``{"shared": model}`` otherwise).
+    """
 
     run_dir: Path
     model_path: Path
     experiment: Experiment
     model: BaseAlgorithm
     env: Any  # EnvRef
+    models: dict[str, BaseAlgorithm] = field(default_factory=dict)
 
     @property
     def stats_path(self) -> Path:
@@ -191,14 +195,42 @@ class LoadedRun:
         return self.run_dir / VECNORMALIZE_FILE
 
 
+def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
+    """The groups of a PettingZoo run (``args.yml``; None for runs of other envs or made before groups)."""
+    from sbagents.pipeline.zoo_config import load_yaml
+
+    path = config_path(run_dir, env_id).with_name("args.yml")
+    args = (load_yaml(path) or {}) if path.exists() else {}
+    groups = args.get("groups")
+    return {str(g): list(a) for g, a in groups.items()} if isinstance(groups, dict) else None
+
+
+def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = False) -> Path:
+    """A group's model file (``<EnvId>.<group>.zip`` or ``best_model.<group>.zip``), or :class:`UsageError`."""
+    name = f"best_model.{group}.zip" if load_best else f"{env_stem(env_id)}.{group}.zip"
+    path = run_dir / name
+    if not path.exists():
+        hint = " (no evaluation ran during training; drop --load-best)" if load_best else ""
+        raise UsageError(f"model file {path} does not exist{hint}")
+    return path
+
+
 def load_run(ref: RunRef) -> LoadedRun:
-    """Find the run ``ref`` names and load its model and experiment."""
+    """Find the run ``ref`` names and load its model(s) and experiment."""
     from sbagents.algos import ALGOS
 
     if ref.algo not in ALGOS:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
+    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent)
+    cls = ALGOS[ref.algo].cls
+    groups = run_groups(run_dir, env.env_id)
+    if groups is not None and len(groups) > 1:
+        paths = {g: group_model_path(run_dir, env.env_id, g, ref.load_best) for g in groups}
+        models = {g: cls.load(str(path), device="cpu") for g, path in paths.items()}
+        first = next(iter(models))
+        return LoadedRun(run_dir, paths[first], exp, models[first], env, models)
     path = model_path(run_dir, env.env_id, ref.load_best)
-    exp = load_experiment(run_dir, ref.algo, env.env_id)
-    return LoadedRun(run_dir, path, exp, ALGOS[ref.algo].cls.load(str(path), device="cpu"), env)
+    model = cls.load(str(path), device="cpu")
+    return LoadedRun(run_dir, path, exp, model, env, {"shared": model})

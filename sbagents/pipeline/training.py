@@ -17,15 +17,18 @@ from typing import Any
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.errors import UsageError
+from sbagents.multiagent.groups import group_stats_name, team_groups
+from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
-from sbagents.pipeline.env_factory import make_eval_vec, make_vec, normalize_for_training
-from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
+from sbagents.pipeline.env_names import EnvRef, resolve_env
 from sbagents.pipeline.evaluation import evaluate_model
-from sbagents.pipeline.experiment import build_experiment
+from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
@@ -40,7 +43,8 @@ EVAL_SEED_OFFSET = 10_000
 class TrainResult:
     """What a training run produced (either backend).
 
-    :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``).
+    :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``, and for runs
+        of one model per group, which are in :attr:`models`).
     :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
     :param trust: the trust callbacks' final results (see :func:`sbagents.pipeline.trust.trust_results`).
     """
@@ -51,6 +55,7 @@ class TrainResult:
     summary: dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
     trust: dict[str, Any] = field(default_factory=dict)
+    models: dict[str, BaseAlgorithm] = field(default_factory=dict)
 
 
 def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
@@ -104,10 +109,14 @@ def train_sb3(
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
-    exp = build_experiment(spec, ref.env_id, ref.is_atari)
-    check_spaces(exp, ref)
+    exp = build_experiment(spec, ref)
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
+    groups = team_agents(exp, ref) if exp.team is not None else None
+    if groups is not None and len(groups) > 1 and spec.trained_agent is not None:
+        raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
+    if groups is None or len(groups) == 1:
+        check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     eval_freq = evaluation.frequency(exp.n_timesteps)
@@ -115,7 +124,11 @@ def train_sb3(
             "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
             "vec_env": execution.vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
+    if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
+        args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
     command = output.command or default_command(spec, execution)
+    if groups is not None and len(groups) > 1:
+        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution), trust, callbacks)
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
@@ -126,6 +139,8 @@ def train_sb3(
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
+        if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
+            own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
         trust_cbs = trust_callbacks(trust, ctx)
     log_interval = execution.log_interval
     if log_interval < 0:
@@ -148,6 +163,47 @@ def train_sb3(
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+
+
+def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:
+    """The groups of a PettingZoo experiment (group -> agents), read from one env built with its kwargs."""
+    assert exp.team is not None
+    check_env_kwargs(ref, exp.env_kwargs)
+    try:
+        probe = ref.parallel_env(**exp.env_kwargs)
+    except (TypeError, ValueError, AssertionError) as exc:
+        given = ", ".join(f"{k}={v!r}" for k, v in exp.env_kwargs.items())
+        raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {exc}") from None
+    agents = [str(a) for a in probe.possible_agents]
+    probe.close()
+    return team_groups(exp.team, agents)
+
+
+def _train_groups(
+    spec: TrainSpec, exp: Experiment, ref: EnvRef, args: dict[str, Any], command: str,
+    options: tuple[OutputOptions, EvalOptions, ExecOptions], trust: TrustOptions, callbacks: Sequence[BaseCallback],
+) -> TrainResult:
+    """The run of one model per group (:mod:`sbagents.pipeline.team_training`)."""
+    from sbagents.pipeline.evaluation import evaluate_groups
+    from sbagents.pipeline.team_training import build_groups, learn_groups
+
+    output, evaluation, execution = options
+    seed = int(args["seed"])
+    with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
+        set_random_seed(seed)
+        setup = build_groups(exp, ref, run_dir, seed, options, trust, callbacks)
+    clock = LearningClock()
+    learn_groups(setup, clock, execution.log_interval, run_dir, env_stem(ref.env_id))
+    steps = sum(m.num_timesteps for m in setup.models.values())
+    summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "groups": setup.groups}
+
+    def final_eval() -> dict[str, Any]:
+        stats = {g: run_dir / group_stats_name(g) for g in setup.groups}
+        return evaluate_groups(setup.models, exp, ref,
+                               EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed), stats)
+
+    finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
+    return TrainResult(run_dir, None, exp, summary, clock.interrupted, models=setup.models)
 
 
 def _save(model: BaseAlgorithm, ctx: RunContext) -> None:

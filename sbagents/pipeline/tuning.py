@@ -94,7 +94,7 @@ class TuneResult:
 def _objective(spec: TrainSpec, ref: EnvRef, study: StudyOptions, seed: int) -> Any:
     def objective(trial: optuna.Trial) -> float:
         params = sample_params(trial, spec.algo)
-        exp = build_experiment(replace(spec, hyperparams={**spec.hyperparams, **params}), ref.env_id, ref.is_atari)
+        exp = build_experiment(replace(spec, hyperparams={**spec.hyperparams, **params}), ref)
         trial.set_user_attr("config", exp.hyperparams)
         bests: list[float] = []
         for k in range(study.n_seeds):
@@ -142,7 +142,7 @@ def tune(
     spec.validate()
     torch.set_num_threads(1)
     ref = resolve_env(spec.env, spec.gym_packages)
-    probe = build_experiment(spec, ref.env_id, ref.is_atari)
+    probe = build_experiment(spec, ref)
     if probe.n_timesteps < 1:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     check_spaces(probe, ref)

@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from sbagents.errors import UsageError
+from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.options import TrainSpec
 
 #: Keys of a zoo entry that configure the experiment rather than the algorithm constructor.
@@ -32,8 +33,14 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "callback",
         "noise_type",
         "noise_std",
+        "policies",
+        "groups",
+        "agent_id",
+        "critic",
     }
 )
+#: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.
+MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
 
 
 class ZooLoader(yaml.SafeLoader):
@@ -66,20 +73,25 @@ def default_config_path(algo: str) -> Path:
     return Path(str(resources.files("sbagents.zoo_configs").joinpath(f"{algo}.yml")))
 
 
-def lookup_entry(path: str | Path, env_id: str, atari: bool = False) -> dict[str, Any]:
-    """The hyperparameters for ``env_id`` in the zoo file ``path``.
+def lookup_entry(path: str | Path, keys: str | tuple[str, ...], atari: bool = False) -> dict[str, Any]:
+    """The hyperparameters for an env in the zoo file ``path``.
 
-    Lookup order as RL Zoo: the exact env id, then ``atari`` for Atari ids, then ``default``.
-    A missing file counts as an empty one (every key then comes from the CLI and the defaults).
+    :param keys: the env id, or the entries to try in order (an env's
+        :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`); ``default`` comes last.
+    :param atari: with a single id: try RL Zoo's ``atari`` entry after it.
+
+    Lookup order as RL Zoo: the exact env id, then ``atari`` for Atari ids (``pettingzoo`` for PettingZoo envs),
+    then ``default``. A missing file counts as an empty one (every key then comes from the CLI and the defaults).
     """
     path = Path(path)
+    names = (keys, *(("atari",) if atari else ())) if isinstance(keys, str) else tuple(keys)
     data = load_yaml(path) if path.exists() else {}
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise UsageError(f"{path} must map env ids to hyperparameters, got a {type(data).__name__}")
-    for key in (env_id, "atari" if atari else None, "default"):
-        if key is not None and key in data:
+    for key in (*names, "default"):
+        if key in data:
             entry = data[key] or {}
             if not isinstance(entry, dict):
                 raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
@@ -87,7 +99,7 @@ def lookup_entry(path: str | Path, env_id: str, atari: bool = False) -> dict[str
     if not path.exists():
         return {}
     known = ", ".join(str(k) for k in data) or "none"
-    raise UsageError(f"{path} has no entry for {env_id!r} and no 'default' (entries: {known})")
+    raise UsageError(f"{path} has no entry for {names[0]!r} and no 'default' (entries: {known})")
 
 
 def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str, Any]:
@@ -112,9 +124,9 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
     return result
 
 
-def spec_entry(spec: TrainSpec, config_name: str, env_id: str, atari: bool = False) -> tuple[dict[str, Any], str]:
-    """The zoo entry of ``env_id`` with the spec's overrides (``-params``, ``-n``, ``--env-kwargs``) applied, and
-    where it came from (file and entry, for error messages). Shared by every backend's experiment builder.
+def spec_entry(spec: TrainSpec, config_name: str, ref: EnvRef) -> tuple[dict[str, Any], str]:
+    """The zoo entry of the env ``ref`` with the spec's overrides (``-params``, ``-n``, ``--env-kwargs``) applied,
+    and where it came from (file and entry, for error messages). Shared by every backend's experiment builder.
 
     :param config_name: the shipped file to read when ``spec.conf_file`` is None (``zoo_configs/<name>.yml``).
     """
@@ -122,11 +134,10 @@ def spec_entry(spec: TrainSpec, config_name: str, env_id: str, atari: bool = Fal
     path = Path(spec.conf_file) if spec.conf_file is not None else default_config_path(config_name)
     if spec.conf_file is not None and not path.exists():
         raise UsageError(f"config file {path} does not exist")
-    entry = lookup_entry(path, env_id, atari)
+    entry = lookup_entry(path, ref.config_keys)
     entry.update(spec.hyperparams)
     if spec.n_timesteps is not None:
         entry["n_timesteps"] = spec.n_timesteps
     if spec.env_kwargs:
         entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **spec.env_kwargs}
-    return entry, f"{path}, entry for {env_id}"
-
+    return entry, f"{path}, entry for {ref.env_id}"

@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,20 +19,23 @@ from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 from ray.tune.registry import register_env
 
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import PETTINGZOO_ENVS, EnvRef
+from sbagents.multiagent.groups import team_groups
+from sbagents.multiagent.options import TeamOptions
+from sbagents.pipeline.env_names import EnvRef, make_parallel_env
 from sbagents.pipeline.options import TrainSpec
 from sbagents.pipeline.zoo_config import spec_entry
+from sbagents.registration import PETTINGZOO_ENVS
 from sbagents.rllib import RLLIB_ALGOS, SHARED_MODULE
 
 #: Zoo-entry keys that describe the experiment (the rest go to RLlib).
-EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "model")
+EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "groups", "model")
 #: Zoo-entry keys passed to ``AlgorithmConfig.env_runners``.
 ENV_RUNNER_KEYS = ("num_env_runners", "num_envs_per_env_runner", "rollout_fragment_length")
 #: Zoo-entry keys passed to ``PPOConfig.training`` (``lr`` may be ``lin_<x>``: linear decay to 0).
 TRAINING_KEYS = ("lr", "gamma", "lambda_", "train_batch_size_per_learner", "minibatch_size", "num_epochs",
                  "entropy_coeff", "clip_param", "vf_clip_param", "vf_loss_coeff", "grad_clip", "grad_clip_by",
                  "use_kl_loss", "kl_coeff", "kl_target", "shuffle_batch_per_epoch")
-POLICY_MODES = ("shared", "per_agent")
+POLICY_MODES = ("shared", "per_agent", "per_group")
 
 
 @dataclass
@@ -40,7 +43,8 @@ class RllibExperiment:
     """A resolved RLlib experiment; ``hyperparams`` is the plain entry as written to ``config.yml``.
 
     :param n_timesteps: env steps to sample (one step of the parallel env = one step for every agent).
-    :param policies: ``"shared"`` (one module for every agent) or ``"per_agent"`` (one module per agent id).
+    :param policies: ``"shared"`` (one module for every agent), ``"per_agent"`` (one module per agent id) or
+        ``"per_group"`` (one module per group: agent-name prefix, or the explicit ``groups`` mapping).
     """
 
     algo: str
@@ -52,6 +56,7 @@ class RllibExperiment:
     training: dict[str, Any]
     model: dict[str, Any]
     hyperparams: dict[str, Any] = field(default_factory=dict)
+    groups: dict[str, list[str]] | None = None
 
     @property
     def num_env_runners(self) -> int:
@@ -90,8 +95,11 @@ def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) 
     runners = {k: entry[k] for k in ENV_RUNNER_KEYS if k in entry}
     if int(runners.get("num_env_runners", 2)) < 0:
         raise UsageError(f"{where}: num_env_runners must be >= 0")
+    groups = entry.get("groups")
+    if groups is not None and (policies != "per_group" or not isinstance(groups, dict)):
+        raise UsageError(f"{where}: groups maps group names to agents, with policies: per_group")
     return RllibExperiment(algo, env_id, n_timesteps, dict(entry.get("env_kwargs") or {}), policies, runners,
-                           training, model, dict(entry))
+                           training, model, dict(entry), groups)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None = None) -> RllibExperiment:
@@ -102,8 +110,9 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
     if spec.algo not in RLLIB_ALGOS:
         raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {spec.algo!r}")
     if not ref.multi_agent:
-        raise UsageError(f"--backend rllib trains PettingZoo envs ({', '.join(PETTINGZOO_ENVS)}); got {ref.env_id}")
-    entry, where = spec_entry(spec, f"rllib_{spec.algo}", ref.env_id)
+        raise UsageError(f"--backend rllib trains PettingZoo envs (e.g. {', '.join(PETTINGZOO_ENVS)} or a module "
+                         f"such as mpe2.simple_spread_v3); got {ref.env_id}")
+    entry, where = spec_entry(spec, f"rllib_{spec.algo}", ref)
     if num_env_runners is not None:
         entry["num_env_runners"] = num_env_runners
     exp = resolve_entry(spec.algo, ref.env_id, entry, where)
@@ -113,52 +122,63 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
 
 
 def make_env(config: Mapping[str, Any]) -> MultiAgentEnv:
-    """RLlib env creator (runs in every env runner): the PettingZoo ``parallel_env`` as a ``MultiAgentEnv``.
+    """RLlib env creator (runs in every env runner): the PettingZoo env as a ``MultiAgentEnv``.
 
-    :param config: ``module`` (PettingZoo module path), ``env_kwargs`` and ``num_threads`` (torch threads of
-        the env runner process; <= 0 keeps torch's default).
+    :param config: ``source`` (``pkg.module`` or ``pkg.module:callable``), ``modules`` (to import first),
+        ``env_kwargs`` and ``num_threads`` (torch threads of the env runner process; <= 0 keeps torch's default).
     """
     threads = int(config.get("num_threads", 1))
     if threads > 0 and torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
-    module = importlib.import_module(config["module"])
-    return ParallelPettingZooEnv(module.parallel_env(**config.get("env_kwargs", {})))
+    env = make_parallel_env(config["source"], tuple(config.get("modules", ())), **config.get("env_kwargs", {}))
+    return ParallelPettingZooEnv(env)
 
 
-def _to_shared(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: shared
-    return SHARED_MODULE
+def _to_module(mapping: dict[str, str], agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
+    """``policy_mapping_fn``: the module of an agent (the mapping is bound with ``functools.partial``)."""
+    return mapping[str(agent_id)]
 
 
-def _to_own(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:  # policies: per_agent
-    return str(agent_id)
+def agent_modules(exp: RllibExperiment, agents: list[str]) -> dict[str, list[str]]:
+    """Module id -> the agents it acts for (``shared``: one module; ``per_agent``: agent ids; ``per_group``:
+    groups)."""
+    if exp.policies == "shared":
+        return {SHARED_MODULE: list(agents)}
+    return team_groups(TeamOptions(exp.policies, exp.groups), agents)
 
 
-def build_config(exp: RllibExperiment, seed: int, num_threads: int = 1) -> AlgorithmConfig:
-    """The RLlib ``PPOConfig`` of ``exp`` (one local learner in the driver, ``num_env_runners`` samplers)."""
-    module_name = PETTINGZOO_ENVS[exp.env_id]
+def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int = 1
+                 ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
+    """The RLlib ``PPOConfig`` of ``exp`` on ``ref`` (one local learner in the driver, ``num_env_runners``
+    samplers, one RLModule per module id of :func:`agent_modules`), and that module -> agents mapping."""
     try:
-        probe = importlib.import_module(module_name).parallel_env(**exp.env_kwargs)
+        probe = ref.parallel_env(**exp.env_kwargs)
     except (TypeError, ValueError) as exc:
         raise UsageError(f"invalid env_kwargs for {exp.env_id}: {exc}") from None
-    agents = list(probe.possible_agents)
+    agents = [str(a) for a in probe.possible_agents]
+    modules = agent_modules(exp, agents)
+    for module, members in modules.items():
+        obs, act = probe.observation_space(members[0]), probe.action_space(members[0])
+        if any(probe.observation_space(a) != obs or probe.action_space(a) != act for a in members):
+            probe.close()
+            raise UsageError(f"the agents of RLlib module {module} ({', '.join(members)}) have different spaces; "
+                             "use policies: per_group or per_agent")
     probe.close()
     env_name = f"sbagents_{exp.env_id}"
     register_env(env_name, make_env)
-    if exp.policies == "shared":
-        policies, mapping = {SHARED_MODULE}, _to_shared
-    else:
-        policies, mapping = set(agents), _to_own
-    env_config = {"module": module_name, "env_kwargs": exp.env_kwargs, "num_threads": num_threads}
+    mapping = {a: m for m, members in modules.items() for a in members}
+    env_config = {"source": ref.source, "modules": list(ref.modules), "env_kwargs": exp.env_kwargs,
+                  "num_threads": num_threads}
     try:
         return (
             PPOConfig()
             .environment(env_name, env_config=env_config)
             .env_runners(**{"num_env_runners": 2, **exp.env_runners})
             .learners(num_learners=0)
-            .multi_agent(policies=policies, policy_mapping_fn=mapping)
+            .multi_agent(policies=set(modules), policy_mapping_fn=functools.partial(_to_module, mapping))
             .training(**exp.training)
             .rl_module(model_config=DefaultModelConfig(**exp.model))
             .debugging(seed=seed, log_level="ERROR")
-        )
+        ), modules
     except (TypeError, ValueError) as exc:
         raise UsageError(f"invalid RLlib settings for {exp.algo} on {exp.env_id}: {exc}") from None

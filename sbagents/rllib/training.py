@@ -23,8 +23,9 @@ import ray
 import torch
 
 from sbagents.errors import UsageError
+from sbagents.multiagent.env_copy import declared_metrics
 from sbagents.pipeline.console import ProgressReporter
-from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.env_names import EnvRef, resolve_env
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.training import TrainResult, default_command
@@ -93,11 +94,11 @@ def train_rllib(
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     seed = draw_seed(execution.seed)
-    config = build_config(exp, seed, execution.num_threads)
+    config, groups = build_config(exp, ref, seed, execution.num_threads)
     args = {"algo": spec.algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": exp.n_timesteps,
             "log_folder": str(output.log_folder), "eval_freq": evaluation.frequency(exp.n_timesteps),
             "eval_episodes": evaluation.eval_episodes, "num_env_runners": exp.num_env_runners,
-            "address": execution.address, "num_threads": execution.num_threads}
+            "address": execution.address, "num_threads": execution.num_threads, "groups": groups}
     command = output.command or default_command(spec, execution)
     done: dict[str, Any] = {"env_steps": 0, "agent_steps": 0, "iterations": 0}  # updated every iteration
     clock = LearningClock()
@@ -112,7 +113,7 @@ def train_rllib(
             ray_scope.callback(algo_obj.stop)
         try:
             with clock:
-                _train_loop(algo_obj, exp, run_dir, done, seed, evaluation, execution)
+                _train_loop(algo_obj, (exp, ref, groups), run_dir, done, seed, evaluation, execution)
         finally:
             algo_obj.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
     steps = int(done["env_steps"])
@@ -122,7 +123,7 @@ def train_rllib(
                "num_threads": execution.num_threads, "ray_version": ray.__version__, "checkpoint": CHECKPOINT_DIR}
 
     def final_eval() -> dict[str, Any]:
-        return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref.env_id, spec.algo, exp.env_kwargs,
+        return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref, spec.algo, exp.env_kwargs, groups,
                                    EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed))
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
@@ -132,16 +133,21 @@ def train_rllib(
 _LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var")
 
 
-def _train_loop(algo: Any, exp: RllibExperiment, run_dir: Path, state: dict[str, Any], seed: int,
-                evaluation: EvalOptions, execution: ExecOptions) -> None:
+def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[str]]], run_dir: Path,
+                state: dict[str, Any], seed: int, evaluation: EvalOptions, execution: ExecOptions) -> None:
     """``algo.train()`` until ``exp.n_timesteps`` env steps; one ``progress.csv`` row per iteration.
 
     ``state`` (``env_steps``, ``agent_steps``, ``iterations``) is updated after every iteration, so it is
     current when a KeyboardInterrupt ends the loop.
     """
+    exp, ref, groups = run
     modules = sorted(algo.config.policies)
+    probe = ref.parallel_env(**exp.env_kwargs)
+    metric_keys = list(declared_metrics(getattr(probe, "metadata", None)))
+    probe.close()
     fields = ["iteration", "env_steps", "agent_steps", "episodes", "episode_return_mean", "episode_len_mean",
-              "iter_seconds", "time_total_s", "env_steps_per_s", "eval_mean_return", "eval_treasures_per_episode"]
+              "iter_seconds", "time_total_s", "env_steps_per_s", "eval_mean_return",
+              *(f"eval_{k}" for k in metric_keys)]
     fields += [f"{m}/{k}" for m in modules for k in _LEARNER_STATS]
     eval_freq = evaluation.frequency(exp.n_timesteps)
     next_eval = eval_freq if eval_freq > 0 else math.inf
@@ -171,11 +177,10 @@ def _train_loop(algo: Any, exp: RllibExperiment, run_dir: Path, state: dict[str,
             if steps >= next_eval and steps < exp.n_timesteps:
                 next_eval = steps - steps % eval_freq + eval_freq
                 ckpt = algo.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
-                ev = evaluate_checkpoint(ckpt, exp.env_id, exp.algo, exp.env_kwargs,
+                ev = evaluate_checkpoint(ckpt, ref, exp.algo, exp.env_kwargs, groups,
                                          EvaluateOptions(n_episodes=evaluation.eval_episodes, seed=seed))
-                row.update(eval_mean_return=ev["mean_return"],
-                           eval_treasures_per_episode=ev["metrics"]["treasures_per_episode"])
-                reporter.evaluation(steps, ev["mean_return"], ev["std_return"], None,
-                                    {"treasures_per_episode": ev["metrics"]["treasures_per_episode"]})
+                declared = {k: ev["metrics"][k] for k in metric_keys}
+                row.update(eval_mean_return=ev["mean_return"], **{f"eval_{k}": v for k, v in declared.items()})
+                reporter.evaluation(steps, ev["mean_return"], ev["std_return"], ev["success_rate"], declared)
             writer.writerow(row)
             f.flush()

@@ -71,12 +71,16 @@ def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:
         name, kwargs = (item, {}) if isinstance(item, str) else next(iter(dict(item).items()))
         if str(name).endswith("AtariWrapper"):
             return 1.0 / float((kwargs or {}).get("frame_skip", 4))
-    from sbagents.pipeline.env_names import PETTINGZOO_ENVS, EnvRef
+    args_file = run_dir / stem / "args.yml"
+    args: dict[str, Any] = (load_yaml(args_file) or {}) if args_file.exists() else {}
+    if "timesteps_per_env_step" in args:  # PettingZoo runs record it: the first model's agents per team step
+        return float(args["timesteps_per_env_step"])
+    from sbagents.registration import PETTINGZOO_ENVS
 
-    if stem in PETTINGZOO_ENVS:
-        env = (
-            EnvRef(stem, multi_agent=True).pettingzoo_module().parallel_env(**(entry.get("env_kwargs") or {}))
-        )
+    if stem in PETTINGZOO_ENVS:  # runs made before that record: all agents share one model
+        from sbagents.pipeline.env_names import make_parallel_env
+
+        env = make_parallel_env(PETTINGZOO_ENVS[stem], **(entry.get("env_kwargs") or {}))
         n_agents = len(env.possible_agents)
         env.close()
         return float(n_agents)

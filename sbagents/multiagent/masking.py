@@ -1,0 +1,99 @@
+"""Death masking for SB3: transitions of absent agents (dead, or not arrived yet) never reach the loss.
+
+A team VecEnv marks the slots whose action was not used with ``info["sbagents_acted"] = False``
+(:mod:`sbagents.multiagent.team`). The buffers here keep those transitions out of training:
+
+- :class:`MaskedRolloutBuffer` (PPO, A2C; ``rollout_buffer_class``): minibatches are drawn from the acted
+  transitions only. :class:`ActedMaskCallback` tells it, before each ``add``, which slots acted. An agent's last
+  real step is a done step, so no return or advantage of a real step reaches across its absence.
+- :class:`MaskedReplayBuffer` (DQN, SAC, TD3, ...; ``replay_buffer_class``): samples only acted transitions.
+
+When every slot acts (no agent ever leaves) both behave exactly like SB3's buffers, random numbers included.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import ReplayBufferSamples, RolloutBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sbagents.multiagent.team import ACTED
+
+
+def acted_mask(infos: list[dict[str, Any]]) -> np.ndarray:
+    """``(n_envs,)`` bool: which slots' actions were used this step."""
+    return np.array([info.get(ACTED, True) for info in infos], dtype=bool)
+
+
+class MaskedRolloutBuffer(RolloutBuffer):
+    """SB3's ``RolloutBuffer`` that trains on acted transitions only (set :attr:`next_acted` before ``add``)."""
+
+    def reset(self) -> None:
+        super().reset()
+        self.acted = np.ones((self.buffer_size, self.n_envs), dtype=bool)
+        self.next_acted: np.ndarray | None = None
+
+    def add(self, *args: Any, **kwargs: Any) -> None:
+        if self.next_acted is not None:
+            self.acted[self.pos] = self.next_acted
+            self.next_acted = None
+        super().add(*args, **kwargs)
+
+    def get(self, batch_size: int | None = None) -> Generator[RolloutBufferSamples, None, None]:
+        assert self.full, ""
+        valid = np.flatnonzero(self.swap_and_flatten(self.acted[..., None]).reshape(-1))
+        indices = np.random.permutation(valid)
+        if not self.generator_ready:
+            for name in ("observations", "actions", "values", "log_probs", "advantages", "returns"):
+                self.__dict__[name] = self.swap_and_flatten(self.__dict__[name])
+            self.generator_ready = True
+        if batch_size is None:
+            batch_size = len(indices)
+        for start in range(0, len(indices), max(batch_size, 1)):
+            yield self._get_samples(indices[start : start + batch_size])
+
+
+class ActedMaskCallback(BaseCallback):
+    """Passes each step's acted slots to the model's :class:`MaskedRolloutBuffer` (on-policy algorithms)."""
+
+    def _on_step(self) -> bool:
+        buffer = getattr(self.model, "rollout_buffer", None)
+        if isinstance(buffer, MaskedRolloutBuffer):
+            buffer.next_acted = acted_mask(self.locals["infos"])
+        return True
+
+
+class MaskedReplayBuffer(ReplayBuffer):
+    """SB3's ``ReplayBuffer`` that samples acted transitions only (``optimize_memory_usage`` is not supported)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if self.optimize_memory_usage:
+            raise ValueError("MaskedReplayBuffer does not support optimize_memory_usage")
+        self.acted = np.ones((self.buffer_size, self.n_envs), dtype=bool)
+
+    def add(self, obs: Any, next_obs: Any, action: np.ndarray, reward: np.ndarray, done: np.ndarray,
+            infos: list[dict[str, Any]]) -> None:
+        self.acted[self.pos] = acted_mask(infos)
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        upper = self.buffer_size if self.full else self.pos
+        if self.acted[:upper].all():
+            return super().sample(batch_size, env)
+        valid = np.flatnonzero(self.acted[:upper])
+        picks = valid[np.random.randint(0, len(valid), size=batch_size)]
+        batch_inds, env_indices = np.divmod(picks, self.n_envs)
+        data = (
+            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(self.next_observations[batch_inds, env_indices, :], env),
+            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
+            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
+        )
+        return ReplayBufferSamples(*tuple(map(self.to_torch, data)))

@@ -1,15 +1,18 @@
 """Env stepping and PPO training speed: reference VecEnvs vs the batched numpy VecEnvs (``sbagents.batched``).
 
-Measured for ``sbagents/GridWorld-v0`` and ``treasure_hunt_v0`` (the zoo config's env kwargs):
+Measured for ``sbagents/GridWorld-v0``, ``treasure_hunt_v0`` and ``mpe2.simple_spread_v3`` (discrete actions; the
+zoo config's env kwargs):
 
 - env steps/s with random actions, resets included: one plain env (Python loop), the reference VecEnv
-  of 64 copies (``make_vec_env`` DummyVecEnv / ``ParameterSharingVecEnv``) and the batched VecEnv of 64;
+  of 64 copies (``make_vec_env`` DummyVecEnv / ``ParameterSharingVecEnv``, the ``policies: shared`` team VecEnv)
+  and the batched VecEnv of 64;
 - PPO training fps (``model.learn`` only, torch 1 thread) with the zoo config's hyperparameters, on the
   reference and on the batched VecEnv, at the config's ``n_envs`` and at 64.
 
-Steps are counted as VecEnv transitions: for TreasureHunt one transition is one agent's step (an env
+Steps are counted as VecEnv transitions: for the multi-agent envs one transition is one agent's step (an env
 step of the 3-agent team is 3 transitions), which is also what SB3's fps counts. Rounds are interleaved
-and medians reported, so a load spike on the shared machine hits every variant alike.
+and medians reported, so a load spike on the shared machine hits every variant alike. ``python -m benchmarks
+--only speed`` measures every env; ``run(env_ids=...)`` / ``main(env_ids=...)`` measure a subset.
 """
 
 from __future__ import annotations
@@ -40,15 +43,32 @@ from sbagents.pipeline.env_names import resolve_env
 from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.options import TrainSpec
 
-ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0")
+SIMPLE_SPREAD = "mpe2.simple_spread_v3"
+ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0", SIMPLE_SPREAD)
+MULTI_AGENT: tuple[str, ...] = ("treasure_hunt_v0", SIMPLE_SPREAD)
 N_ENVS = 64
 WARMUP_STEPS = 20  # untimed VecEnv steps before each stepping measurement
+#: Steps per measurement (plain env steps, reference and batched VecEnv steps): ~0.3-1.5 s each on this machine.
+STEPS: dict[str, tuple[int, int, int]] = {
+    "sbagents/GridWorld-v0": (50_000, 1000, 20_000),
+    "treasure_hunt_v0": (50_000, 200, 3000),
+    SIMPLE_SPREAD: (2000, 50, 2000),  # mpe2's step is slow: ~2,500 plain env steps/s
+}
+
+
+def parallel_env_fn(env_id: str) -> Callable[..., Any]:
+    """``parallel_env`` of a multi-agent env of :data:`MULTI_AGENT`."""
+    if env_id == SIMPLE_SPREAD:
+        from mpe2 import simple_spread_v3
+
+        return simple_spread_v3.parallel_env  # type: ignore[no-any-return]
+    return parallel_env
 
 
 def reference_vec_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]) -> VecEnv:
     """The VecEnv the project used before the batched envs (DummyVecEnv / ParameterSharingVecEnv)."""
-    if env_id == "treasure_hunt_v0":
-        return make_parameter_sharing_vec_env(parallel_env, n_envs, seed, env_kwargs)
+    if env_id in MULTI_AGENT:
+        return make_parameter_sharing_vec_env(parallel_env_fn(env_id), n_envs, seed, env_kwargs)
     return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
 
 
@@ -65,8 +85,8 @@ def zoo_env_kwargs(env_id: str) -> dict[str, Any]:
 def single_env_rate(env_id: str, env_kwargs: dict[str, Any], n_steps: int, seed: int = 0) -> float:
     """Transitions/s of one plain env stepped in a Python loop (reset at episode ends)."""
     rng = np.random.default_rng(seed)
-    if env_id == "treasure_hunt_v0":
-        env = parallel_env(**env_kwargs)
+    if env_id in MULTI_AGENT:
+        env = parallel_env_fn(env_id)(**env_kwargs)
         env.reset(seed=seed)
         agents = list(env.possible_agents)
         actions = rng.integers(0, 5, size=(n_steps, len(agents))).tolist()
@@ -75,6 +95,7 @@ def single_env_rate(env_id: str, env_kwargs: dict[str, Any], n_steps: int, seed:
             _, _, term, trunc, _ = env.step(dict(zip(agents, row, strict=True)))
             if term[agents[0]] or trunc[agents[0]]:
                 env.reset()
+        env.close()
         return n_steps * len(agents) / (time.perf_counter() - start)
     genv = gym.make(env_id, **env_kwargs)
     genv.reset(seed=seed)
@@ -153,20 +174,19 @@ def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str
     return {k: statistics.median(v) for k, v in samples.items()}
 
 
-def run(rounds: int = 3, quick: bool = False) -> dict[str, Any]:
-    """Measure every figure; returns a JSON-able dict (``machine`` + one entry per env id)."""
+def run(rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS) -> dict[str, Any]:
+    """Measure every figure of ``env_ids``; returns a JSON-able dict (``machine`` + one entry per env id)."""
     torch.set_num_threads(1)
     load_before = os.getloadavg()
     started = time.perf_counter()
     results: dict[str, Any] = {"machine": machine_info(), "envs": {}}
     scale = 0.25 if quick else 1.0
-    for env_id in ENV_IDS:
+    for env_id in env_ids:
         kwargs = zoo_env_kwargs(env_id)
         n_cfg = ppo_experiment(env_id).n_envs
-        # vec steps per measurement: ~0.3-0.5 s each on this machine
-        ref_steps, batched_steps = (200, 3000) if env_id == "treasure_hunt_v0" else (1000, 20_000)
+        single_steps, ref_steps, batched_steps = STEPS[env_id]
         fns: dict[str, Callable[[], float]] = {
-            "single": partial(single_env_rate, env_id, kwargs, int(50_000 * scale)),
+            "single": partial(single_env_rate, env_id, kwargs, int(single_steps * scale)),
             "reference": lambda e=env_id, k=kwargs, n=int(ref_steps * scale): vec_env_rate(  # type: ignore[misc]
                 reference_vec_env(e, N_ENVS, 0, k), n
             ),
@@ -228,8 +248,8 @@ def markdown(results: dict[str, Any]) -> str:
         f"load average before/after {m['load_before'][0]} / {m['load_after'][0]} "
         "(shared machine). Command: `python -m benchmarks`.",
         "",
-        "Env transitions/s with random actions (resets included; TreasureHunt: one transition = one agent "
-        "step):",
+        "Env transitions/s with random actions (resets included; TreasureHunt and simple spread: one transition = "
+        "one agent step):",
         "",
         f"| env | single env | reference x{N_ENVS} | batched x{N_ENVS} | batched / reference | no-op x{N_ENVS} "
         "| no-op / reference (ceiling) |",
@@ -259,8 +279,9 @@ def markdown(results: dict[str, Any]) -> str:
                          f"{_fmt(noop)} | {noop / ref:.2f}x |")
     lines += [
         "",
-        "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt "
-        "`sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv`. Medians of interleaved rounds. *No-op* is "
+        "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt and "
+        "simple spread `sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` (the `policies: shared` team "
+        "VecEnv). Medians of interleaved rounds. *No-op* is "
         "`benchmarks.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
         "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",
     ]
@@ -299,8 +320,9 @@ def publish(text: str, results: Any, output: str | None, json_path: str | None, 
 
 
 def main(output: str = "BENCHMARKS.md", json_path: str | None = "benchmarks/results/speed.json",
-         rounds: int = 3, quick: bool = False) -> dict[str, Any]:
-    """Run the speed suite, print the table, write it into ``output`` (and the raw numbers as JSON)."""
-    results = run(rounds=rounds, quick=quick)
+         rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS) -> dict[str, Any]:
+    """Run the speed suite (of ``env_ids``), print the table, write it into ``output`` (and the raw numbers as
+    JSON)."""
+    results = run(rounds=rounds, quick=quick, env_ids=env_ids)
     publish(markdown(results), results, output, json_path, "speed")
     return results

@@ -13,10 +13,18 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-#: Keys that SB3 / Gymnasium wrappers put in ``info``: never treated as env data.
+from sbagents.multiagent.team import ACTED
+
+#: Keys that SB3 / Gymnasium wrappers (and sbagents' team VecEnvs) put in ``info``: never treated as env data.
 INTERNAL_INFO_KEYS = frozenset(
-    {"terminal_observation", "episode", "TimeLimit.truncated", "final_observation", "final_info"}
+    {"terminal_observation", "episode", "TimeLimit.truncated", "final_observation", "final_info", ACTED}
 )
+
+
+def acted_slots(infos: Sequence[dict[str, Any]]) -> np.ndarray:
+    """``(n_slots,)`` bool: which slots' actions were used this step (False: a PettingZoo agent that was absent,
+    gone or not arrived yet; such a step is not one of that agent's steps)."""
+    return np.array([info.get(ACTED, True) for info in infos], dtype=bool)
 
 
 def find_vec_normalize(venv: VecEnv) -> VecNormalize | None:

@@ -11,7 +11,13 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sbagents.callbacks.common import agent_layout, install_exception_hook, output_dir, remove_exception_hook
+from sbagents.callbacks.common import (
+    acted_slots,
+    agent_layout,
+    install_exception_hook,
+    output_dir,
+    remove_exception_hook,
+)
 
 SAFETY_FILE = "safety.json"
 
@@ -41,8 +47,8 @@ class SafetyViolationCallback(BaseCallback):
     last ``window`` finished episodes, Safety-Gymnasium's EpCost) and ``safety/cost_rate`` (total cost per
     env step, the Safety Gym paper's cost rate).
 
-    With a multi-agent (parameter-sharing) VecEnv every agent slot's step counts as one step, and an
-    episode's cost is the sum over its agents.
+    With a multi-agent (team) VecEnv every step of a present agent counts as one step (an agent that left or has
+    not arrived takes none), and a team episode's cost is the sum over its agents.
 
     At training end (also after a stop, and when an exception such as Ctrl-C leaves ``learn``)
     ``safety.json`` is written: ``violations`` per type, ``total_violations``, ``total_steps``,
@@ -96,7 +102,8 @@ class SafetyViolationCallback(BaseCallback):
         return 1000.0 * self.total_violations / max(self.total_steps, 1)
 
     def _on_training_start(self) -> None:
-        self._n_agents, _ = agent_layout(self.training_env)
+        self._n_agents, agents = agent_layout(self.training_env)
+        self._team = agents is not None  # a team VecEnv: its team episodes end with SB3's episode info
         n_envs = self.training_env.num_envs // self._n_agents
         if len(self._ep_cost) != n_envs or self.model.num_timesteps == 0:
             self._ep_cost = np.zeros(n_envs)
@@ -105,17 +112,18 @@ class SafetyViolationCallback(BaseCallback):
     def _on_step(self) -> bool:
         infos = self.locals["infos"]
         dones = self.locals["dones"]
-        self.total_steps += len(infos)
+        acted = acted_slots(infos)
+        self.total_steps += int(acted.sum())
         n_agents = self._n_agents
         ended = False
         for k, info in enumerate(infos):
-            kind, cost = step_violation(info)
+            kind, cost = step_violation(info) if acted[k] else (None, 0.0)
             if kind is not None:
                 self.counts[kind] += 1
             if cost:
                 self.total_cost += cost
                 self._ep_cost[k // n_agents] += cost
-            if dones[k] and k % n_agents == n_agents - 1:
+            if (k % n_agents == 0 and "episode" in info) if self._team else dones[k]:
                 self.ep_costs.append(float(self._ep_cost[k // n_agents]))
                 self._recent.append(self.ep_costs[-1])
                 self._ep_cost[k // n_agents] = 0.0

@@ -18,6 +18,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 
 from sbagents.callbacks.common import (
     INTERNAL_INFO_KEYS,
+    acted_slots,
     agent_layout,
     env_attr,
     find_vec_normalize,
@@ -25,6 +26,7 @@ from sbagents.callbacks.common import (
     is_scalar,
     remove_exception_hook,
 )
+from sbagents.multiagent.team import ACTED
 
 #: zlib level of ``.csv.gz`` logs (1 is ~3x faster than gzip's default 9, files ~25% larger).
 GZIP_LEVEL = 1
@@ -117,7 +119,8 @@ def _read_head_tail(path: Path, n_tail: int = 4096) -> tuple[str, list[str]]:
 
 class TransparencyCSVCallback(BaseCallback):
     """Write one CSV row per env (and agent) per step: the observation the action was taken in, the action,
-    the reward, the done flags and selected ``info`` values.
+    the reward, the done flags and selected ``info`` values. A PettingZoo agent gets rows while it is present
+    (none after it left or before it arrived).
 
     Columns: ``env``, ``agent`` (multi-agent VecEnvs only), ``episode`` and ``step`` (0-based counters per
     env), one column per observation component (names from the env's ``obs_names``, else ``obs_0..``;
@@ -295,10 +298,12 @@ class TransparencyCSVCallback(BaseCallback):
                 self._open()
             self._write_rows(actions, np.asarray(rewards), dones, infos)
         self._obs = self._flat_obs(new_obs)
-        self._step += 1
-        if dones.any():
-            self._step[dones] = 0
-            self._episode[dones] += 1
+        acted = acted_slots(infos)
+        self._step += acted
+        ended = dones & acted  # an absent agent's slot keeps its counters until the agent is back
+        if ended.any():
+            self._step[ended] = 0
+            self._episode[ended] += 1
             self._sink.flush()
         return True
 
@@ -322,6 +327,8 @@ class TransparencyCSVCallback(BaseCallback):
         book, keys = self.book_header, self._info_cols
         lines = []
         for i, info in enumerate(infos):
+            if not info.get(ACTED, True):
+                continue  # an absent agent: no decision was made
             line = num_fmt % (episode[i], step[i], *obs_l[i], *act_l[i], rew_l[i])
             if self._prefix[i]:
                 line = f"{self._prefix[i]},{line}"

@@ -6,7 +6,7 @@
     print(result.run_dir, evaluate(RunRef("ppo", "sbagents/GridWorld-v0"))["mean_return"])   # 93.0
 """
 
-from sbagents.deploy.exporting import export
+from sbagents.deploy.exporting import export, export_groups
 from sbagents.pipeline.backends import evaluate, train
 from sbagents.pipeline.options import (
     EvalOptions,
@@ -35,6 +35,7 @@ __all__ = [
     "TrustOptions",
     "evaluate",
     "export",
+    "export_groups",
     "plot",
     "record_video",
     "train",

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
+
+import pytest
+
+from sbagents.cli_common import run
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -40,3 +45,19 @@ def summary(run_dir: Path) -> dict[str, Any]:
     """A run's ``summary.json``."""
     result: dict[str, Any] = json.loads((run_dir / "summary.json").read_text())
     return result
+
+
+def run_main(module: str, *args: str) -> int:
+    """``python -m sbagents.<module> args`` in this process; returns the exit code."""
+    main = importlib.import_module(f"sbagents.{module}").main
+    with pytest.raises(SystemExit) as exit_info:
+        run(f"python -m sbagents.{module}", lambda: main(list(args)))
+    return int(exit_info.value.code or 0)
+
+
+def check_error(code: int, stderr: str, expected: str) -> None:
+    assert code == 2, stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    assert expected in lines[0], lines[0]
+    assert "Traceback" not in stderr

@@ -6,32 +6,14 @@ The matrix runs each CLI's ``main`` in this process through :func:`sbagents.cli_
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 import pytest
-from cli_helpers import cli
+from cli_helpers import check_error, cli, run_main
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, export, train
-from sbagents.cli_common import run
 
 GRID = "sbagents/GridWorld-v0"
-
-
-def run_main(module: str, *args: str) -> int:
-    """``python -m sbagents.<module> args`` in this process; returns the exit code."""
-    main = importlib.import_module(f"sbagents.{module}").main
-    with pytest.raises(SystemExit) as exit_info:
-        run(f"python -m sbagents.{module}", lambda: main(list(args)))
-    return int(exit_info.value.code or 0)
-
-
-def check_error(code: int, stderr: str, expected: str) -> None:
-    assert code == 2, stderr
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1, stderr
-    assert expected in lines[0], lines[0]
-    assert "Traceback" not in stderr
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,7 @@ from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.errors import UsageError
+from sbagents.pipeline.env_names import PETTINGZOO_DEFAULT_ENTRY, resolve_env
 from sbagents.pipeline.experiment import resolve
 from sbagents.pipeline.zoo_config import lookup_entry, parse_overrides
 
@@ -130,5 +131,12 @@ def test_shipped_configs_parse() -> None:
         from sbagents.pipeline.zoo_config import load_yaml
 
         for env_id, entry in load_yaml(path).items():
-            exp = resolve(algo, env_id, dict(entry), str(path))
+            exp = resolve(algo, env_id, dict(entry), str(path), multi_agent=_is_pettingzoo_entry(env_id))
             assert exp.n_timesteps > 0, (path, env_id)
+
+
+def _is_pettingzoo_entry(key: str) -> bool:
+    """Whether a zoo-config key names a PettingZoo env (or is the entry every PettingZoo env gets)."""
+    if key in ("default", "atari"):
+        return False
+    return key == PETTINGZOO_DEFAULT_ENTRY or resolve_env(key).multi_agent

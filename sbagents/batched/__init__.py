@@ -1,29 +1,64 @@
-"""Batched numpy VecEnvs for the grid worlds: every env copy stepped with array operations.
+"""Batched numpy VecEnvs for the grid worlds and MPE simple spread: every env copy stepped with array operations.
 
-:func:`make_batched_vec_env` is the factory used by the env factory (``--vec-env batched``).
+:func:`make_batched_vec_env` is the factory used by the env factory (``--vec-env batched``);
+:func:`batched_env_id` and :func:`unbatchable_kwargs` tell whether an env (and its kwargs) has one.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from typing import Any
 
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.batched.base import BatchedVecEnv
 from sbagents.batched.gridworld import GRIDWORLD_ID, BatchedGridWorldVecEnv
+from sbagents.batched.simple_spread import (
+    SIMPLE_SPREAD_ID,
+    SIMPLE_SPREAD_SOURCES,
+    SIMPLE_SPREAD_SUPPORT,
+    BatchedSimpleSpreadVecEnv,
+    unsupported_kwargs,
+)
 from sbagents.batched.treasure_hunt import TREASURE_HUNT_ID, BatchedTreasureHuntVecEnv
 
-#: Env ids that have a batched implementation.
-BATCHED_ENV_IDS: tuple[str, ...] = (GRIDWORLD_ID, TREASURE_HUNT_ID)
+#: Env ids that have a batched implementation (``mpe2.simple_spread_v3``: the ``--env`` name, the env's source).
+BATCHED_ENV_IDS: tuple[str, ...] = (GRIDWORLD_ID, TREASURE_HUNT_ID, SIMPLE_SPREAD_ID)
+#: What the batched implementations support, for error messages.
+BATCHED_SUPPORT = f"{GRIDWORLD_ID}, {TREASURE_HUNT_ID}, {SIMPLE_SPREAD_ID} ({SIMPLE_SPREAD_SUPPORT})"
 
 __all__ = [
     "BATCHED_ENV_IDS",
+    "BATCHED_SUPPORT",
     "BatchedGridWorldVecEnv",
+    "BatchedSimpleSpreadVecEnv",
     "BatchedTreasureHuntVecEnv",
     "BatchedVecEnv",
+    "batched_env_id",
     "make_batched_vec_env",
+    "unbatchable_kwargs",
 ]
+
+
+def batched_env_id(env_id: str, source: str = "") -> str | None:
+    """The id of the batched implementation of an env, or None.
+
+    :param env_id: the env's id (``EnvRef.env_id``: a Gymnasium id or a PettingZoo env's name).
+    :param source: a PettingZoo env's source (``EnvRef.source``, ``pkg.module[:callable]``); ``""`` otherwise.
+    """
+    if env_id in (GRIDWORLD_ID, TREASURE_HUNT_ID):
+        return env_id
+    if source in SIMPLE_SPREAD_SOURCES:
+        return SIMPLE_SPREAD_ID
+    return None
+
+
+def unbatchable_kwargs(batched_id: str, env_kwargs: Mapping[str, Any]) -> list[str]:
+    """The env kwargs (``key=value``) the batched implementation ``batched_id`` does not reproduce (empty: none)."""
+    if batched_id == SIMPLE_SPREAD_ID:
+        return unsupported_kwargs(env_kwargs)
+    return []
 
 
 def make_batched_vec_env(
@@ -35,22 +70,26 @@ def make_batched_vec_env(
       (``n_envs`` slots, monitor files ``<monitor_dir>/<i>.monitor.csv``).
     - ``"treasure_hunt_v0"``: like :func:`sbagents.multiagent.parameter_sharing.make_parameter_sharing_vec_env`
       (``n_envs * n_agents`` slots, team episodes in ``<monitor_dir>/0.monitor.csv``).
+    - ``"mpe2.simple_spread_v3"`` (discrete actions; see :func:`unbatchable_kwargs`): like the ``policies: shared``
+      team VecEnv of ``mpe2.simple_spread_v3.parallel_env`` (``n_envs * N`` slots, team episodes in
+      ``<monitor_dir>/0.monitor.csv``).
 
     :param seed: env ``i`` is reset with ``seed + i`` at the first reset (``None``: random).
     :param env_kwargs: constructor kwargs of the env (``render_mode`` included).
-    :raises ValueError: for any other env id.
+    :raises ValueError: for any other env id, or kwargs the batched env does not reproduce.
     """
     kwargs = dict(env_kwargs or {})
-    vec: BatchedGridWorldVecEnv | BatchedTreasureHuntVecEnv
+    vec: BatchedGridWorldVecEnv | BatchedTreasureHuntVecEnv | BatchedSimpleSpreadVecEnv
     if env_id == GRIDWORLD_ID:
         vec = BatchedGridWorldVecEnv(n_envs, kwargs, monitor_dir, env_id)
         if seed is not None:
             vec.action_space.seed(seed)
         vec.seed(seed)  # as make_vec_env: always (random seeds when None)
         return vec
-    if env_id == TREASURE_HUNT_ID:
+    if env_id in (TREASURE_HUNT_ID, SIMPLE_SPREAD_ID):
         path = None if monitor_dir is None else os.path.join(monitor_dir, "0")
-        vec = BatchedTreasureHuntVecEnv(n_envs, kwargs, path)
+        cls = BatchedTreasureHuntVecEnv if env_id == TREASURE_HUNT_ID else BatchedSimpleSpreadVecEnv
+        vec = cls(n_envs, kwargs, path)
         if seed is not None:
             vec.seed(seed)
         return vec

@@ -24,9 +24,17 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.callbacks.common import env_attr
-from sbagents.deploy.onnx_export import ACTION_OUTPUT, OBS_INPUT, check_exportable, export_onnx, quantize_int8
+from sbagents.deploy.onnx_export import (
+    ACTION_OUTPUT,
+    OBS_INPUT,
+    actor_observation_space,
+    check_exportable,
+    export_onnx,
+    quantize_int8,
+)
 from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
 from sbagents.errors import UsageError
+from sbagents.multiagent.centralized import OBS_KEY
 from sbagents.pipeline.env_factory import make_eval_vec
 from sbagents.pipeline.run_dir import RunRef, load_run
 
@@ -68,6 +76,18 @@ class ExportChecks:
     latency_n: int = 1000
 
 
+class _ActorNormalize:
+    """The actor's part of a Dict-observation ``VecNormalize``: ``normalize_obs`` of the ``obs`` entry alone."""
+
+    def __init__(self, norm: VecNormalize) -> None:
+        self.norm = norm
+        self.obs_rms = norm.obs_rms[OBS_KEY]  # type: ignore[index]
+        self.norm_obs, self.clip_obs, self.epsilon = norm.norm_obs, norm.clip_obs, norm.epsilon
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        return self.norm._normalize_obs(obs, self.obs_rms).astype(np.float32)  # type: ignore[arg-type]
+
+
 def _space_meta(space: spaces.Space[Any]) -> dict[str, Any]:
     if isinstance(space, spaces.Discrete):
         return {"type": "discrete", "n": int(space.n), "start": int(space.start)}
@@ -76,9 +96,13 @@ def _space_meta(space: spaces.Space[Any]) -> dict[str, Any]:
     return {"type": "box", "shape": list(space.shape), "low": low, "high": high}
 
 
-def _names(env: gym.Env[Any, Any] | VecEnv, attr: str) -> list[str] | None:
-    value = env_attr(env, attr) if isinstance(env, VecEnv) else getattr(env.unwrapped, attr, None)
-    return list(value) if value is not None else None
+def _names_of(env: gym.Env[Any, Any] | VecEnv | None, attr: str, size: int, prefix: str) -> list[str]:
+    """The env's ``obs_names``/``action_names`` when it has ``size`` of them, else ``<prefix>_<i>``."""
+    value = None
+    if env is not None:
+        value = env_attr(env, attr) if isinstance(env, VecEnv) else getattr(env.unwrapped, attr, None)
+    names = [str(v) for v in value] if value is not None else []
+    return names if len(names) == size else [f"{prefix}_{i}" for i in range(size)]
 
 
 def export_run(
@@ -89,6 +113,7 @@ def export_run(
     vec_normalize: VecNormalize | None = None,
     int8: bool = False,
     checks: ExportChecks | None = None,
+    observations: np.ndarray | None = None,
 ) -> ExportReport:
     """Export ``model``, quantize it (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
 
@@ -99,6 +124,8 @@ def export_run(
     :param env: where parity observations are recorded (default ``gym.make(env_id)``); a ``VecNormalize`` env also
         supplies the normalization statistics.
     :param vec_normalize: the statistics the model was trained with, when ``env`` does not carry them.
+    :param observations: raw parity observations ``(N, *obs_shape)`` recorded elsewhere (then ``env`` only names
+        observations and actions, and may be None); e.g. a team's, where one group's env cannot step alone.
     :raises TypeError: the model cannot be exported (:func:`check_exportable`).
     :raises ValueError: ``checks.n_observations < 1``.
     """
@@ -110,12 +137,12 @@ def export_run(
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=out))
-    own_env = env is None
-    rec_env = gym.make(env_id) if env is None else env
+    own_env = env is None and observations is None
+    rec_env = gym.make(env_id) if own_env else env
     if vec_normalize is None and isinstance(rec_env, VecNormalize):
         vec_normalize = rec_env
     try:
-        report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks)
+        report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks, observations)
         for path in staging.iterdir():
             os.replace(path, out / path.name)
     except BaseException:
@@ -124,25 +151,33 @@ def export_run(
         raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-        if own_env:
+        if own_env and rec_env is not None:
             rec_env.close()
     return report
 
 
 def _export_into(
-    model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv,
-    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks,
+    model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv | None,
+    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: np.ndarray | None,
 ) -> ExportReport:
     """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
     norm = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
-    obs_rms = norm.obs_rms if norm is not None else None
+    obs_rms: Any = norm.obs_rms if norm is not None else None
+    if isinstance(obs_rms, dict):  # a centralized critic's Dict observations: the actor's part is exported
+        obs_rms = obs_rms.get(OBS_KEY)
+        norm = _ActorNormalize(norm) if norm is not None and obs_rms is not None else None  # type: ignore[assignment]
     if obs_rms is not None and not isinstance(obs_rms, RunningMeanStd):
         raise TypeError("dict observations are not supported")
     clip_obs = vec_normalize.clip_obs if vec_normalize is not None else 10.0
     epsilon = vec_normalize.epsilon if vec_normalize is not None else 1e-8
     onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon)
-    plain_norm = None if isinstance(env, VecNormalize) else norm
-    observations = record_observations(env, model, checks.n_observations, checks.seed, vec_normalize=plain_norm)
+    if recorded is not None:
+        observations = recorded
+    else:
+        assert env is not None
+        plain_norm = None if isinstance(env, VecNormalize) else norm
+        observations = record_observations(env, model, checks.n_observations, checks.seed,
+                                           vec_normalize=plain_norm)  # type: ignore[arg-type]
 
     paths: dict[str, Path] = {"onnx": onnx_path}
     report = ExportReport(
@@ -161,14 +196,15 @@ def _export_into(
         report.int8_acceptable = report.int8_deviation <= INT8_TOLERANCE[report.action_kind]
     report.latency = latency_table(model, paths, observations[0], checks.latency_n, norm)
 
-    n_obs = int(np.prod(model.observation_space.shape)) if model.observation_space.shape else 1
+    obs_space = actor_observation_space(model)
+    n_obs = int(np.prod(obs_space.shape)) if obs_space.shape else 1
     n_act = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
     sidecar = {
         "env_id": env_id,
         "algo": type(model).__name__.lower(),
-        "obs_names": _names(env, "obs_names") or [f"obs_{i}" for i in range(n_obs)],
-        "action_names": _names(env, "action_names") or [f"action_{i}" for i in range(n_act)],
-        "observation_space": _space_meta(model.observation_space),
+        "obs_names": _names_of(env, "obs_names", n_obs, "obs"),
+        "action_names": _names_of(env, "action_names", n_act, "action"),
+        "observation_space": _space_meta(obs_space),
         "action_space": _space_meta(model.action_space),
         "input_name": OBS_INPUT,
         "output_name": ACTION_OUTPUT,
@@ -181,10 +217,28 @@ def _export_into(
 
 
 def export(run: RunRef, int8: bool = False, out: str | Path | None = None, n_observations: int = 1000) -> ExportReport:
-    """Export a finished run to ONNX in ``out`` (default: ``<run dir>/export``).
+    """Export a finished one-model run to ONNX in ``out`` (default: ``<run dir>/export``).
 
     Parity is checked on ``n_observations`` observations recorded with the greedy policy on an env built exactly
     as in training (same env kwargs and wrappers, frozen VecNormalize statistics).
+
+    :raises UsageError: a run with one model per group of agents (use :func:`export_groups`).
+    """
+    reports = export_groups(run, int8, out, n_observations)
+    if len(reports) > 1:
+        raise UsageError(f"this run has one model per group ({', '.join(reports)}): use export_groups")
+    return next(iter(reports.values()))
+
+
+def export_groups(
+    run: RunRef, int8: bool = False, out: str | Path | None = None, n_observations: int = 1000
+) -> dict[str, ExportReport]:
+    """Export every model of a finished run: group -> its report (``{"shared": report}`` for a one-model run,
+    whose files go to ``out`` itself; with several groups each goes to ``out/<group>/``). Nothing is written
+    unless every model exports.
+
+    PettingZoo runs record their parity observations on a team in which every group's model acts; a centralized
+    critic's policy is exported as its actor (the agent's own observation in, the action out).
     """
     if n_observations < 1:
         raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
@@ -192,14 +246,20 @@ def export(run: RunRef, int8: bool = False, out: str | Path | None = None, n_obs
     exp, ref = loaded.experiment, loaded.env
     if exp.frame_stack or exp.env_wrapper:
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
-    try:
-        check_exportable(loaded.model)
-    except TypeError as exc:
-        raise UsageError(f"cannot export {run.algo}: {exc}") from None
+    for model in loaded.models.values():
+        try:
+            check_exportable(model)
+        except TypeError as exc:
+            raise UsageError(f"cannot export {run.algo}: {exc}") from None
+    target = Path(out) if out is not None else loaded.run_dir / "export"
+    if ref.multi_agent:
+        from sbagents.deploy.team_export import export_team
+
+        return export_team(loaded, target, int8, ExportChecks(n_observations=n_observations))
     venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path)
     try:
-        return export_run(loaded.model, out or loaded.run_dir / "export", ref.env_id, env=venv, int8=int8,
-                          checks=ExportChecks(n_observations=n_observations))
+        return {"shared": export_run(loaded.model, target, ref.env_id, env=venv, int8=int8,
+                                     checks=ExportChecks(n_observations=n_observations))}
     finally:
         venv.close()
 

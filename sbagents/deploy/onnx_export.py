@@ -70,13 +70,28 @@ class OnnxPolicy(torch.nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         if self.normalize:
             obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
-        action = self.policy._predict(obs, deterministic=True)
+        actor_actions = getattr(self.policy, "actor_actions", None)  # a centralized critic: the actor alone
+        action = actor_actions(obs) if actor_actions is not None else self.policy._predict(obs, deterministic=True)
         if not self.box:
             return action.long()
         action = action.float().reshape((-1, *self.act_low.shape))
         if self.squash:
             return self.act_low + 0.5 * (action + 1.0) * (self.act_high - self.act_low)
         return torch.max(torch.min(action, self.act_high), self.act_low)
+
+
+def actor_observation_space(model: BaseAlgorithm) -> spaces.Space[Any]:
+    """What the exported policy takes: the model's observation space, or the actor's own part of it (a centralized
+    critic's policy acts on the agent's observation alone)."""
+    return getattr(model.policy, "actor_observation_space", model.observation_space)  # type: ignore[no-any-return]
+
+
+def predict_actions(model: BaseAlgorithm, observations: np.ndarray) -> np.ndarray:
+    """Greedy SB3 actions for a batch of (already normalized) actor observations ``(N, *obs_shape)``."""
+    predict_actor = getattr(model.policy, "predict_actor", None)
+    if predict_actor is not None:
+        return np.asarray(predict_actor(observations))
+    return np.asarray(model.predict(observations, deterministic=True)[0])  # type: ignore[arg-type]
 
 
 def _dummy_obs(space: spaces.Space[Any]) -> torch.Tensor:
@@ -113,7 +128,7 @@ def export_onnx(
     device = model.policy.device
     wrapper = OnnxPolicy(model, obs_rms, clip_obs, epsilon).cpu().eval()  # moves model.policy to CPU
     model.policy.set_training_mode(False)
-    dummy = _dummy_obs(model.observation_space)
+    dummy = _dummy_obs(actor_observation_space(model))
     validate = torch.distributions.Distribution._validate_args
     torch.distributions.Distribution.set_default_validate_args(False)
     try:
@@ -170,6 +185,6 @@ def check_exportable(model: BaseAlgorithm) -> None:
             f"export writes neural-network policies to ONNX; {type(model).__name__}'s policy is a table with no "
             "network (its values are in the model .zip)"
         )
-    for what, space in (("observation", model.observation_space), ("action", model.action_space)):
+    for what, space in (("observation", actor_observation_space(model)), ("action", model.action_space)):
         if not isinstance(space, spaces.Box | spaces.Discrete):
             raise TypeError(f"export supports Box and Discrete spaces; the {what} space is {space}")

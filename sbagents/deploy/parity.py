@@ -17,7 +17,7 @@ from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sbagents.deploy.onnx_export import OBS_INPUT
+from sbagents.deploy.onnx_export import OBS_INPUT, predict_actions
 
 
 def _session(onnx_path: str | Path) -> ort.InferenceSession:
@@ -36,8 +36,7 @@ def _sb3_actions(
     model: BaseAlgorithm, observations: np.ndarray, vec_normalize: VecNormalize | None
 ) -> np.ndarray:
     obs = vec_normalize.normalize_obs(observations) if vec_normalize is not None else observations
-    actions, _ = model.predict(obs, deterministic=True)  # type: ignore[arg-type]
-    return np.asarray(actions)
+    return predict_actions(model, np.asarray(obs))
 
 
 def _action_pairs(
@@ -115,8 +114,8 @@ def latency_table(
     samples: list[float] = []
     for i in range(n + 10):
         t0 = time.perf_counter()
-        x = vec_normalize.normalize_obs(obs) if vec_normalize is not None else obs
-        model.predict(x, deterministic=True)  # type: ignore[arg-type]
+        x = np.asarray(vec_normalize.normalize_obs(obs) if vec_normalize is not None else obs)
+        predict_actions(model, x[None])
         if i >= 10:
             samples.append(time.perf_counter() - t0)
     table["sb3_predict"] = _percentiles(samples)

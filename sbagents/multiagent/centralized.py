@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
@@ -87,3 +88,24 @@ class CentralizedCriticPolicy(ActorCriticPolicy):
         self.mlp_extractor = TwoInputMlpExtractor(  # type: ignore[assignment]
             self.pi_features_extractor.features_dim, self.vf_features_extractor.features_dim, self.net_arch,
             self.activation_fn, self.device)
+
+    @property
+    def actor_observation_space(self) -> spaces.Space[Any]:
+        """The actor's input: the agent's own observation (what an exported policy takes)."""
+        assert isinstance(self.observation_space, spaces.Dict)
+        return self.observation_space.spaces[OBS_KEY]
+
+    def actor_actions(self, obs: th.Tensor, deterministic: bool = True) -> th.Tensor:
+        """Actions ``(batch, *act_shape)`` from the agents' own observations ``(batch, *obs_shape)`` alone (the
+        critic and its state are not needed to act)."""
+        features = self.pi_features_extractor({OBS_KEY: obs})
+        latent = self.mlp_extractor.forward_actor(features)  # type: ignore[operator]
+        return self._get_action_dist_from_latent(latent).get_actions(deterministic=deterministic)
+
+    def predict_actor(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        """:meth:`actor_actions` for a numpy batch ``(batch, *obs_shape)``; returns numpy actions."""
+        self.set_training_mode(False)
+        with th.no_grad():
+            actions = self.actor_actions(th.as_tensor(np.asarray(obs), dtype=th.float32, device=self.device),
+                                         deterministic)
+        return actions.cpu().numpy()  # type: ignore[no-any-return]

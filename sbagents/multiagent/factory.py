@@ -10,7 +10,21 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import gymnasium as gym
+from pettingzoo import AECEnv
+
+from sbagents.errors import UsageError
 from sbagents.pipeline.env_names import make_parallel_env
+
+
+def check_parallel_wrappers(wrappers: Sequence[tuple[Any, dict[str, Any]]]) -> None:
+    """Raise :class:`UsageError` for a wrapper class that wraps something else than a ``ParallelEnv`` (a Gymnasium
+    wrapper such as ``AtariWrapper``, or a PettingZoo AEC wrapper), before any env is built."""
+    for wrapper, _ in wrappers:
+        for base, kind in ((gym.Env, "a Gymnasium wrapper (of gymnasium.Env)"), (AECEnv, "a PettingZoo AEC wrapper")):
+            if isinstance(wrapper, type) and issubclass(wrapper, base):
+                raise UsageError(f"env_wrapper {wrapper.__module__}.{wrapper.__qualname__} is {kind}; PettingZoo envs "
+                                 "take ParallelEnv wrappers, e.g. sbagents.multiagent.preprocessing.ImagePreprocessing")
 
 
 class ParallelEnvFactory:
@@ -21,12 +35,14 @@ class ParallelEnvFactory:
     :param kwargs: the env's constructor keywords.
     :param wrappers: ``(wrapper class or function, keyword arguments)`` applied in order (PettingZoo parallel
         wrappers: the config's ``env_wrapper``).
+    :raises UsageError: a Gymnasium or AEC wrapper class among ``wrappers`` (:func:`check_parallel_wrappers`).
     """
 
     def __init__(self, source: str, modules: Sequence[str] = (), kwargs: dict[str, Any] | None = None,
                  wrappers: Sequence[tuple[Any, dict[str, Any]]] = ()) -> None:
         self.source, self.modules = source, tuple(modules)
         self.kwargs = dict(kwargs or {})
+        check_parallel_wrappers(wrappers)
         self.wrappers = list(wrappers)
 
     def __call__(self) -> Any:

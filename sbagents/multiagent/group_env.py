@@ -187,7 +187,9 @@ class GroupVecEnv(VecEnv):
         return [k // self.n_agents for k in slots]
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        """The attribute of the env copy behind each slot."""
+        """The attribute of the env copy behind each slot (``render_mode``: the team's, also for envs without one)."""
+        if attr_name == "render_mode":
+            return [self.render_mode for _ in self._copies(indices)]
         return [self.joint.team.call(i, attr_name) for i in self._copies(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:

@@ -3,9 +3,10 @@
 A team VecEnv marks the slots whose action was not used with ``info["sbagents_acted"] = False``
 (:mod:`sbagents.multiagent.team`). The buffers here keep those transitions out of training:
 
-- :class:`MaskedRolloutBuffer` (PPO, A2C; ``rollout_buffer_class``): minibatches are drawn from the acted
-  transitions only. :class:`ActedMaskCallback` tells it, before each ``add``, which slots acted. An agent's last
-  real step is a done step, so no return or advantage of a real step reaches across its absence.
+- :class:`MaskedRolloutBuffer` and :class:`MaskedDictRolloutBuffer` (PPO, A2C; ``rollout_buffer_class``):
+  minibatches are drawn from the acted transitions only. :class:`ActedMaskCallback` tells it, before each ``add``,
+  which slots acted. An agent's last real step is a done step, so no return or advantage of a real step reaches
+  across its absence.
 - :class:`MaskedReplayBuffer` (DQN, SAC, TD3, ...; ``replay_buffer_class``): samples only acted transitions.
 
 When every slot acts (no agent ever leaves) both behave exactly like SB3's buffers, random numbers included.
@@ -17,9 +18,9 @@ from collections.abc import Generator
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+from stable_baselines3.common.buffers import DictRolloutBuffer, ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.type_aliases import ReplayBufferSamples, RolloutBufferSamples
+from stable_baselines3.common.type_aliases import DictRolloutBufferSamples, ReplayBufferSamples, RolloutBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.multiagent.team import ACTED
@@ -28,6 +29,27 @@ from sbagents.multiagent.team import ACTED
 def acted_mask(infos: list[dict[str, Any]]) -> np.ndarray:
     """``(n_envs,)`` bool: which slots' actions were used this step."""
     return np.array([info.get(ACTED, True) for info in infos], dtype=bool)
+
+
+def _acted_minibatches(buffer: RolloutBuffer | DictRolloutBuffer, acted: np.ndarray, batch_size: int | None,
+                       observation_keys: list[str] | None) -> Generator[Any, None, None]:
+    """SB3's rollout minibatches drawn from the acted transitions only (``observation_keys``: a Dict buffer's)."""
+    assert buffer.full, ""
+    valid = np.flatnonzero(buffer.swap_and_flatten(acted[..., None]).reshape(-1))
+    indices = np.random.permutation(valid)
+    if not buffer.generator_ready:
+        if observation_keys is None:
+            buffer.observations = buffer.swap_and_flatten(buffer.observations)  # type: ignore[arg-type]
+        else:
+            for key in observation_keys:
+                buffer.observations[key] = buffer.swap_and_flatten(buffer.observations[key])  # type: ignore[index]
+        for name in ("actions", "values", "log_probs", "advantages", "returns"):
+            buffer.__dict__[name] = buffer.swap_and_flatten(buffer.__dict__[name])
+        buffer.generator_ready = True
+    if batch_size is None:
+        batch_size = len(indices)
+    for start in range(0, len(indices), max(batch_size, 1)):
+        yield buffer._get_samples(indices[start : start + batch_size])
 
 
 class MaskedRolloutBuffer(RolloutBuffer):
@@ -45,17 +67,25 @@ class MaskedRolloutBuffer(RolloutBuffer):
         super().add(*args, **kwargs)
 
     def get(self, batch_size: int | None = None) -> Generator[RolloutBufferSamples, None, None]:
-        assert self.full, ""
-        valid = np.flatnonzero(self.swap_and_flatten(self.acted[..., None]).reshape(-1))
-        indices = np.random.permutation(valid)
-        if not self.generator_ready:
-            for name in ("observations", "actions", "values", "log_probs", "advantages", "returns"):
-                self.__dict__[name] = self.swap_and_flatten(self.__dict__[name])
-            self.generator_ready = True
-        if batch_size is None:
-            batch_size = len(indices)
-        for start in range(0, len(indices), max(batch_size, 1)):
-            yield self._get_samples(indices[start : start + batch_size])
+        yield from _acted_minibatches(self, self.acted, batch_size, None)
+
+
+class MaskedDictRolloutBuffer(DictRolloutBuffer):
+    """:class:`MaskedRolloutBuffer` for Dict observations (e.g. a centralized critic's ``obs`` and ``state``)."""
+
+    def reset(self) -> None:
+        super().reset()
+        self.acted = np.ones((self.buffer_size, self.n_envs), dtype=bool)
+        self.next_acted: np.ndarray | None = None
+
+    def add(self, *args: Any, **kwargs: Any) -> None:
+        if self.next_acted is not None:
+            self.acted[self.pos] = self.next_acted
+            self.next_acted = None
+        super().add(*args, **kwargs)
+
+    def get(self, batch_size: int | None = None) -> Generator[DictRolloutBufferSamples, None, None]:  # type: ignore[override]
+        yield from _acted_minibatches(self, self.acted, batch_size, list(self.observations))
 
 
 class ActedMaskCallback(BaseCallback):
@@ -63,7 +93,7 @@ class ActedMaskCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         buffer = getattr(self.model, "rollout_buffer", None)
-        if isinstance(buffer, MaskedRolloutBuffer):
+        if isinstance(buffer, MaskedRolloutBuffer | MaskedDictRolloutBuffer):
             buffer.next_acted = acted_mask(self.locals["infos"])
         return True
 

@@ -78,7 +78,8 @@ class Team:
         if with_state:
             state_space = getattr(probe, "state_space", None)
             probe.reset(seed=0)
-            self.state_space = state_space or spaces.Box(-np.inf, np.inf, np.shape(probe.state()), np.float32)
+            state = probe.state()  # raises NotImplementedError (or AttributeError) for an env without one
+            self.state_space = state_space or spaces.Box(-np.inf, np.inf, np.shape(state), np.float32)
         probe.close()
         self.n_envs = len(env_fns)
         self.copies = SubprocCopies(env_fns, with_state) if subproc else LocalCopies(env_fns, with_state)

@@ -208,7 +208,8 @@ class TeamEvalCallback(EvalCallback):
             return True
         models = self._models()
         for group, venv in self.eval_envs.items():
-            sync_envs_normalization(models[group].get_env(), venv)  # type: ignore[arg-type]
+            if models[group].get_vec_normalize_env() is not None:  # as SB3's EvalCallback: only what normalizes
+                sync_envs_normalization(models[group].get_env(), venv)  # type: ignore[arg-type]
         actors = {g: model_actor(m, self.deterministic) for g, m in models.items()}
         episodes = run_team_episodes(self.eval_envs, actors, self.n_eval_episodes, self.eval_seed)
         groups = {g: slot_agents(v, g) for g, v in self.eval_envs.items()}

@@ -94,6 +94,14 @@ class ProgressCallback(BaseCallback):
         self.reporter.close()
 
 
+def console_metrics(metrics: Mapping[str, Any]) -> dict[str, float]:
+    """The metrics an evaluation line shows: each group's return (``adversary_return``, for runs of one model per
+    group) and the env's declared scalar metrics."""
+    shown = {f"{g}_return": float(v) for g, v in (metrics.get("per_group_return") or {}).items()}
+    shown.update({k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and k != "episode_length"})
+    return shown
+
+
 class EvalReportCallback(BaseCallback):
     """``callback_after_eval`` of an ``EvalCallback`` (or a subclass): reports its latest evaluation.
 
@@ -113,7 +121,7 @@ class EvalReportCallback(BaseCallback):
         returns = results[-1] if results else [float(getattr(parent, "last_mean_reward", float("nan")))]
         successes = list(getattr(parent, "_is_success_buffer", []))
         metrics = (getattr(parent, "last_result", None) or {}).get("metrics") or {}
-        scalars = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float) and k != "episode_length"}
+        scalars = console_metrics(metrics)
         self.reporter.evaluation(
             round(self.num_timesteps * self.scale), float(np.mean(returns)), float(np.std(returns)),
             float(np.mean(successes)) if successes else None, scalars,
@@ -145,8 +153,7 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
     ev = summary.get("eval")
     if ev:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
-        metrics = "".join(f", {k} {v:.3g}" for k, v in ev["metrics"].items()
-                          if isinstance(v, int | float) and k != "episode_length")
+        metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{metrics}")
     return lines

@@ -110,7 +110,7 @@ def make_team_vecs(
     """
     kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
     check_env_kwargs(ref, {k: v for k, v in kwargs.items() if k != "render_mode"})
-    kind = vec_env_kind(vec_env, exp, ref)
+    kind = vec_env_kind(vec_env, exp, ref, kwargs)
     if wrapper is not None and kind == "batched":
         kind = "dummy"
     monitor = str(monitor_dir) if monitor_dir is not None else None
@@ -142,18 +142,28 @@ def _env_kwargs_error(ref: EnvRef, kwargs: dict[str, Any], exc: Exception) -> Ex
     return UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {reason}")
 
 
-def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef) -> str:
+def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[str, Any] | None = None) -> str:
     """Which VecEnv ``--vec-env`` means here: ``auto`` picks ``batched`` where a batched implementation exists
-    (GridWorld, TreasureHunt, with no Gymnasium wrappers), else ``dummy``."""
-    from sbagents.batched import BATCHED_ENV_IDS
+    (GridWorld, TreasureHunt, MPE simple spread with batchable ``env_kwargs``; no Gymnasium wrappers, Monitor
+    kwargs, or team options other than a plain ``policies: shared`` team), else ``dummy``.
+
+    :param env_kwargs: the env kwargs the VecEnv is built with (the experiment's and the call's).
+    :raises UsageError: an unknown ``vec_env``, or ``batched`` where it does not apply.
+    """
+    from sbagents.batched import BATCHED_SUPPORT, batched_env_id, unbatchable_kwargs
 
     if vec_env not in VEC_ENV_TYPES:
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {vec_env!r}")
     plain_team = exp.team is None or (exp.team.policies == "shared" and not exp.team.agent_id
                                       and exp.team.critic == "local")
-    batchable = ref.env_id in BATCHED_ENV_IDS and not exp.env_wrapper and not exp.monitor_kwargs and plain_team
+    batched_id = batched_env_id(ref.env_id, ref.source if ref.multi_agent else "")
+    problems = [] if batched_id is None else unbatchable_kwargs(batched_id, env_kwargs or {})
+    batchable = (batched_id is not None and not problems and not exp.env_wrapper and not exp.monitor_kwargs
+                 and plain_team)
     if vec_env == "batched" and not batchable:
-        raise UsageError(f"--vec-env batched supports {', '.join(BATCHED_ENV_IDS)} without env_wrapper/monitor_kwargs")
+        got = f"; got {', '.join(problems)}" if problems else ""
+        raise UsageError(f"--vec-env batched supports {BATCHED_SUPPORT} with a plain policies: shared team, "
+                         f"without env_wrapper/monitor_kwargs{got}")
     if vec_env == "auto":
         return "batched" if batchable else "dummy"
     return vec_env
@@ -181,7 +191,7 @@ def make_vec(
     kwargs = {**exp.env_kwargs, **(env_kwargs or {})}
     user_kwargs = {k: v for k, v in kwargs.items() if k != "render_mode"}
     check_env_kwargs(ref, user_kwargs)
-    kind = vec_env_kind(vec_env, exp, ref)
+    kind = vec_env_kind(vec_env, exp, ref, kwargs)
     if wrapper is not None and kind == "batched":
         kind = "dummy"
     try:
@@ -201,9 +211,11 @@ def _make_base_vec(
     monitor = str(monitor_dir) if monitor_dir is not None else None
     venv: VecEnv
     if kind == "batched":
-        from sbagents.batched import make_batched_vec_env
+        from sbagents.batched import batched_env_id, make_batched_vec_env
 
-        venv = make_batched_vec_env(ref.env_id, n_envs, seed, kwargs, monitor)
+        batched_id = batched_env_id(ref.env_id, ref.source if ref.multi_agent else "")
+        assert batched_id is not None, "vec_env_kind chose batched for an env without a batched VecEnv"
+        venv = make_batched_vec_env(batched_id, n_envs, seed, kwargs, monitor)
     elif ref.multi_agent:
         venvs = _team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
         if len(venvs) != 1:

@@ -15,7 +15,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sbagents.algos import ALGOS, algos_for
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
-from sbagents.multiagent.masking import MaskedReplayBuffer, MaskedRolloutBuffer
+from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
 from sbagents.pipeline.env_factory import make_vec
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
@@ -52,27 +52,32 @@ def make_model(
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
     policy: Any = exp.policy
     if exp.team is not None:
-        policy = _team_model_kwargs(exp, kwargs)
+        policy = _team_model_kwargs(exp, kwargs, isinstance(env.observation_space, spaces.Dict))
     try:
         return cls(policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **kwargs)
     except (TypeError, ValueError, AssertionError, KeyError) as exc:
         raise UsageError(f"invalid hyperparameters for {exp.algo} on {exp.env_id}: {exc}") from None
 
 
-def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any]) -> Any:
+def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
     """Death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
-    experiment; returns the policy to use and completes ``kwargs``."""
+    experiment; returns the policy to use and completes ``kwargs``.
+
+    :raises UsageError: an off-policy algorithm on Dict observations (no masked Dict replay buffer yet).
+    """
     assert exp.team is not None
     on_policy = issubclass(ALGOS[exp.algo].cls, OnPolicyAlgorithm)
+    centralized = exp.team.critic == "centralized"
+    if centralized and exp.algo not in ("ppo", "a2c"):
+        raise UsageError(f"critic: centralized is for ppo and a2c (a value function to centralize), not {exp.algo}")
     if on_policy:
-        kwargs.setdefault("rollout_buffer_class", MaskedRolloutBuffer)
+        kwargs.setdefault("rollout_buffer_class", MaskedDictRolloutBuffer if dict_obs else MaskedRolloutBuffer)
+    elif ALGOS[exp.algo].off_policy and dict_obs and "replay_buffer_class" not in kwargs:
+        raise UsageError(f"{exp.algo} on a PettingZoo env with Dict observations is not supported (absent agents "
+                         "would reach its replay buffer); use ppo or a2c")
     elif ALGOS[exp.algo].off_policy:
         kwargs.setdefault("replay_buffer_class", MaskedReplayBuffer)
-    if exp.team.critic != "centralized":
-        return exp.policy
-    if not on_policy or exp.algo not in ("ppo", "a2c"):
-        raise UsageError(f"critic: centralized is for ppo and a2c (a value function to centralize), not {exp.algo}")
-    return CentralizedCriticPolicy
+    return CentralizedCriticPolicy if centralized else exp.policy
 
 
 @dataclass

@@ -5,24 +5,29 @@ The env is built exactly as in training (the run's ``config.yml`` through
 :func:`sbagents.pipeline.env_factory.make_vec`, frozen ``VecNormalize`` statistics when the run has them) with
 ``render_mode="rgb_array"``, and SB3's :class:`~stable_baselines3.common.vec_env.VecVideoRecorder` writes
 the frames (it needs ``moviepy``, whose ``imageio-ffmpeg`` dependency ships an ffmpeg binary, so no system
-ffmpeg is needed). Multi-agent runs (``treasure_hunt_v0``) are driven by the shared policy for every agent,
-as in training.
+ffmpeg is needed). PettingZoo runs step one team copy on which every group's model acts (the shared policy for
+every agent, or one model per group), as in training; the video shows the env's own frames.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_vec, normalize_for_eval
-from sbagents.pipeline.run_dir import RunRef, env_stem, load_run
+from sbagents.multiagent.groups import group_stats_name
+from sbagents.pipeline.env_factory import make_team_vecs, make_vec, normalize_for_eval
+from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
 
 
 class _Recorder(VecVideoRecorder):
-    """``VecVideoRecorder`` padding odd frame sizes by one edge pixel (H.264 in yuv420p needs even sizes)."""
+    """``VecVideoRecorder`` padding odd frame sizes by one edge pixel (H.264 in yuv420p needs even sizes), writing
+    without moviepy's console output."""
 
     def _capture_frame(self) -> None:
         frame = self.env.render()
@@ -35,6 +40,17 @@ class _Recorder(VecVideoRecorder):
             raise UsageError(
                 f"render() returned {type(frame).__name__}, not an RGB image; cannot record a video"
             )
+
+    def _stop_recording(self) -> None:
+        """Write the mp4 quietly (SB3's recorder lets moviepy print a progress bar and four lines per file)."""
+        if self.recorded_frames:
+            from moviepy.video.io.ImageSequenceClip import ImageSequenceClip
+
+            clip = ImageSequenceClip(self.recorded_frames, fps=self.frames_per_sec)
+            clip.write_videofile(self.video_path, logger=None)
+            del clip
+        self.recorded_frames = []
+        self.recording = False
 
 
 def _render_fps(venv: VecEnv) -> float:
@@ -71,35 +87,59 @@ def record_video(
     if fps is not None and not fps > 0:
         raise UsageError(f"--fps must be > 0, got {fps}")
     loaded = load_run(run)
-    exp, ref = loaded.experiment, loaded.env
-    try:
-        venv = make_vec(exp, ref, 1, seed, env_kwargs={"render_mode": "rgb_array"})
-    except (TypeError, ValueError, AssertionError) as exc:
-        raise UsageError(f"{ref.env_id} cannot be created with render_mode='rgb_array': {exc}") from None
-    if venv.render_mode != "rgb_array":
-        venv.close()
-        raise UsageError(f"{ref.env_id} does not render rgb_array frames (render_mode {venv.render_mode!r})")
-    frame_rate = fps if fps is not None else _render_fps(venv)
-    venv = normalize_for_eval(venv, exp, loaded.stats_path)
+    ref = loaded.env
+    venvs = _render_vecs(loaded, seed)
+    first = next(iter(venvs))
+    if venvs[first].render_mode != "rgb_array":
+        venvs[first].close()
+        raise UsageError(f"{ref.env_id} does not render rgb_array frames (render_mode {venvs[first].render_mode!r})")
+    frame_rate = fps if fps is not None else _render_fps(venvs[first])
+    stats = {g: loaded.run_dir / group_stats_name(g) for g in venvs} if ref.multi_agent else {first: loaded.stats_path}
+    venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g]) for g, v in venvs.items()}
     out = Path(output_dir) if output_dir is not None else loaded.run_dir / "videos"
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError:
-        venv.close()
+        venvs[first].close()
         raise
     prefix = f"{run.algo}-{env_stem(ref.env_id)}"
     recorder = _Recorder(
-        venv, str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix
+        venvs[first], str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix
     )
     recorder.frames_per_sec = frame_rate  # type: ignore[assignment]  # SB3 annotates it too narrowly
     try:
-        obs = recorder.reset()
-        for _ in range(n_steps):
-            actions, _ = loaded.model.predict(obs, deterministic=deterministic)  # type: ignore[arg-type]
-            obs, _, _, _ = recorder.step(actions)
+        _play(recorder, venvs, loaded, n_steps, deterministic)
     finally:
         recorder.close()
     path = out / f"{prefix}-step-0-to-step-{n_steps}.mp4"
     if not path.exists():
         raise UsageError(f"no video was written to {path}")
     return path
+
+
+def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
+    """One env copy rendering ``rgb_array`` frames: group -> VecEnv for PettingZoo runs (one team), else one VecEnv."""
+    exp, ref = loaded.experiment, loaded.env
+    kwargs = {"render_mode": "rgb_array"}
+    try:
+        if ref.multi_agent:
+            return make_team_vecs(exp, ref, 1, seed, vec_env="dummy", env_kwargs=kwargs)
+        return {"shared": make_vec(exp, ref, 1, seed, env_kwargs=kwargs)}
+    except (TypeError, ValueError, AssertionError) as exc:
+        raise UsageError(f"{ref.env_id} cannot be created with render_mode='rgb_array': {exc}") from None
+
+
+def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], loaded: LoadedRun, n_steps: int,
+          deterministic: bool) -> None:
+    """Step ``n_steps`` times: the other groups act first, then the recorded (first) group's step moves the team."""
+    first, *others = list(venvs)
+    obs: dict[str, Any] = {first: recorder.reset()}
+    obs.update({g: venvs[g].reset() for g in others})
+    for _ in range(n_steps):
+        for g in others:
+            venvs[g].step_async(loaded.models[g].predict(obs[g], deterministic=deterministic)[0])
+        actions, _ = loaded.models[first].predict(obs[first], deterministic=deterministic)
+        with contextlib.redirect_stdout(io.StringIO()):  # SB3 prints "Saving video to ..." at the last step
+            obs[first] = recorder.step(actions)[0]
+        for g in others:
+            obs[g] = venvs[g].step_wait()[0]

@@ -1,0 +1,100 @@
+"""Exporting the models of a PettingZoo run (:func:`export_team`): one ONNX policy per group, checked on the
+observations each group meets while every group's model acts on one team.
+
+A group's VecEnv cannot step alone (the team steps when every group has acted), so the parity observations are
+recorded here for all groups at once (:func:`record_team_observations`) and handed to
+:func:`~sbagents.deploy.exporting.export_run`.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from sbagents.callbacks.common import find_vec_normalize
+from sbagents.deploy.exporting import ExportChecks, ExportReport, export_run
+from sbagents.multiagent.centralized import OBS_KEY
+from sbagents.multiagent.groups import group_stats_name
+from sbagents.multiagent.parameter_sharing import SHARED_GROUP
+from sbagents.pipeline.env_factory import make_team_vecs, normalize_for_eval
+from sbagents.pipeline.run_dir import LoadedRun
+
+
+def _actor_part(obs: Any) -> np.ndarray:
+    """The actor's observations of a slot batch: the ``obs`` entry of a centralized critic's Dict observations."""
+    return np.asarray(obs[OBS_KEY] if isinstance(obs, dict) else obs)
+
+
+def record_team_observations(
+    venvs: Mapping[str, VecEnv], models: Mapping[str, BaseAlgorithm], n: int, seed: int = 0
+) -> dict[str, np.ndarray]:
+    """Raw (unnormalized) actor observations ``(n, *obs_shape)`` per group, met while every group's model acts
+    greedily on the team that ``venvs`` (group -> VecEnv, one team) step together. ``VecNormalize`` statistics stay
+    frozen."""
+    order = list(venvs)
+    norms = {g: find_vec_normalize(v) for g, v in venvs.items()}
+    frozen = {g: vn.training for g, vn in norms.items() if vn is not None}
+    for g in frozen:
+        norms[g].training = False  # type: ignore[union-attr]
+    recorded: dict[str, list[np.ndarray]] = {g: [] for g in order}
+    try:
+        venvs[order[0]].seed(seed)
+        obs = {g: venvs[g].reset() for g in order}
+        while min(len(r) for r in recorded.values()) < n:
+            for g in order:
+                norm = norms[g]
+                recorded[g].extend(_actor_part(norm.get_original_obs() if norm is not None else obs[g]))
+                venvs[g].step_async(models[g].predict(obs[g], deterministic=True)[0])  # type: ignore[arg-type]
+            for g in order:
+                obs[g] = venvs[g].step_wait()[0]
+    finally:
+        for g, was in frozen.items():
+            norms[g].training = was  # type: ignore[union-attr]
+    return {g: np.stack(r[:n]) for g, r in recorded.items()}
+
+
+def export_team(loaded: LoadedRun, out: Path, int8: bool, checks: ExportChecks) -> dict[str, ExportReport]:
+    """Export every group's model of a PettingZoo run: group -> report. One group (``shared``) goes to ``out``,
+    several to ``out/<group>/`` (a failure removes the group folders it made)."""
+    exp, ref = loaded.experiment, loaded.env
+    venvs = {g: normalize_for_eval(v, exp, loaded.run_dir / group_stats_name(g)) for g, v in
+             make_team_vecs(exp, ref, 1, seed=checks.seed, vec_env="dummy").items()}
+    try:
+        observations = record_team_observations(venvs, loaded.models, checks.n_observations, checks.seed)
+        if list(venvs) == [SHARED_GROUP]:
+            return {SHARED_GROUP: _export_group(loaded, SHARED_GROUP, venvs, out, int8, checks, observations)}
+        return _export_groups(loaded, venvs, out, int8, checks, observations)
+    finally:
+        next(iter(venvs.values())).close()
+
+
+def _export_group(loaded: LoadedRun, group: str, venvs: Mapping[str, VecEnv], out: Path, int8: bool,
+                  checks: ExportChecks, observations: Mapping[str, np.ndarray]) -> ExportReport:
+    venv = venvs[group]
+    norm = venv if isinstance(venv, VecNormalize) else None
+    return export_run(loaded.models[group], out, loaded.env.env_id, env=venv, vec_normalize=norm, int8=int8,
+                      checks=checks, observations=observations[group])
+
+
+def _export_groups(loaded: LoadedRun, venvs: Mapping[str, VecEnv], out: Path, int8: bool, checks: ExportChecks,
+                   observations: Mapping[str, np.ndarray]) -> dict[str, ExportReport]:
+    """Each group into ``out/<group>/`` (each folder written atomically by ``export_run``); if one group fails, the
+    folders made for the others are removed again."""
+    made: list[Path] = []
+    try:
+        reports = {}
+        for group in venvs:
+            if not (out / group).exists():
+                made.append(out / group)
+            reports[group] = _export_group(loaded, group, venvs, out / group, int8, checks, observations)
+        return reports
+    except BaseException:
+        for path in made:
+            shutil.rmtree(path, ignore_errors=True)
+        raise

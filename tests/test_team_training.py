@@ -1,0 +1,221 @@
+"""Training any PettingZoo env through the library, on the user env package ``tests/user_envs/tiny_marl_pkg``
+(``relay_v0``: a scout with a 4-number observation that leaves after 5 steps, two workers with 3 numbers, all in
+``Discrete(3)``; reward 1 per step for acting on one's cue, so the optimal team return is 5 + 10 + 10 = 25 and
+random play gets a third of it).
+
+Every policy mode learns (shared with padding, per_group, per_agent; PPO and A2C; DQN shared; the centralized
+critic), the run dir holds one model per group and exports one ONNX policy per group, absent agents take no
+learning signal (the masked buffers), the copies can run in worker processes with identical results, and the trust
+callbacks count present agents only.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+from cli_helpers import check_error, run_main
+from gymnasium import spaces
+from stable_baselines3 import DQN, PPO
+
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, export_groups, train
+from sbagents.multiagent.factory import ParallelEnvFactory
+from sbagents.multiagent.groups import team_vec_envs
+from sbagents.multiagent.masking import ActedMaskCallback, MaskedReplayBuffer, MaskedRolloutBuffer
+from sbagents.multiagent.options import TeamOptions
+from sbagents.pipeline.trust import TrustOptions
+from sbagents.registration import PETTINGZOO_ENVS
+
+USER_ENVS = Path(__file__).resolve().parent / "user_envs"
+RELAY = "tiny_marl_pkg.relay_v0"
+OPTIMAL = 25.0
+PPO_PARAMS = {"n_envs": 4, "n_steps": 32, "batch_size": 128, "n_epochs": 4, "learning_rate": 3e-3,
+              "policy_kwargs": {"net_arch": [32]}}
+A2C_PARAMS = {"n_envs": 4, "n_steps": 8, "learning_rate": 3e-3, "policy_kwargs": {"net_arch": [32]}}
+DQN_PARAMS = {"n_envs": 4, "learning_starts": 500, "buffer_size": 20000, "batch_size": 64, "learning_rate": 1e-3,
+              "train_freq": 1, "gradient_steps": 1, "target_update_interval": 250, "exploration_fraction": 0.3,
+              "policy_kwargs": {"net_arch": [32]}}
+PARAMS = {"ppo": PPO_PARAMS, "a2c": A2C_PARAMS, "dqn": DQN_PARAMS}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def user_envs() -> Iterator[None]:
+    """``tests/user_envs`` on ``sys.path`` for this module (the user's package, importable by name)."""
+    saved = dict(PETTINGZOO_ENVS)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.syspath_prepend(str(USER_ENVS))
+        yield
+    PETTINGZOO_ENVS.clear()
+    PETTINGZOO_ENVS.update(saved)
+
+
+def quiet(folder: Path, seed: int = 0, episodes: int = 20, **execution: Any) -> tuple[Any, ...]:
+    return OutputOptions(folder), EvalOptions(eval_freq=-1, final_eval_episodes=episodes), \
+        ExecOptions(seed=seed, verbose=0, **execution)
+
+
+def relay_run(folder: Path, algo: str, n: int = 15000, **team: Any) -> Any:
+    return train(TrainSpec(algo, RELAY, n, {**PARAMS[algo], **team}), *quiet(folder))
+
+
+@pytest.mark.parametrize(("algo", "policies"), [("ppo", "shared"), ("ppo", "per_group"), ("ppo", "per_agent"),
+                                                ("a2c", "shared"), ("a2c", "per_group"), ("a2c", "per_agent"),
+                                                ("dqn", "shared")])
+def test_every_policy_mode_learns_the_relay(tmp_path: Path, algo: str, policies: str) -> None:
+    result = relay_run(tmp_path, algo, policies=policies)
+    files = sorted(p.name for p in result.run_dir.glob("relay_v0*.zip"))
+    expected = {"shared": ["relay_v0.zip"], "per_group": ["relay_v0.scout.zip", "relay_v0.worker.zip"],
+                "per_agent": ["relay_v0.scout_0.zip", "relay_v0.worker_0.zip", "relay_v0.worker_1.zip"]}
+    assert files == expected[policies]
+    summary = evaluate(RunRef(algo, RELAY, tmp_path))
+    assert summary["mean_return"] >= OPTIMAL - 1, summary
+    per_agent = summary["metrics"]["per_agent_return"]
+    assert per_agent["scout_0"] <= 5 and per_agent["worker_0"] <= 10  # real steps only: the scout acts 5 times
+    assert summary["metrics"]["episode_length"] == 10
+    assert summary["metrics"]["correct"] == pytest.approx(summary["mean_return"])  # the declared info metric
+    if policies == "per_group":
+        assert set(summary["metrics"]["per_group_return"]) == {"scout", "worker"}
+
+
+def test_centralized_critic_learns_and_exports_its_actor(tmp_path: Path) -> None:
+    result = relay_run(tmp_path, "ppo", critic="centralized", agent_id=True)
+    model = result.model
+    assert isinstance(model.observation_space, spaces.Dict)
+    obs_dim, state_dim = model.observation_space["obs"].shape[0], model.observation_space["state"].shape[0]
+    assert (obs_dim, state_dim) == (4 + 2 + 3, 10 + 3)  # padded obs + space one-hot + agent id; state + agent id
+    assert model.policy.mlp_extractor.policy_net[0].in_features == obs_dim
+    assert model.policy.mlp_extractor.value_net[0].in_features == state_dim
+    assert result.summary["eval"]["mean_return"] >= OPTIMAL - 1
+    report = export_groups(RunRef("ppo", RELAY, tmp_path), n_observations=200)["shared"]
+    assert report.parity_fp32 <= 1e-6
+    session = ort.InferenceSession(str(report.onnx_path), providers=["CPUExecutionProvider"])
+    assert session.get_inputs()[0].shape[1] == obs_dim  # the actor alone: no state needed to act
+    sidecar = json.loads(report.sidecar_path.read_text())
+    assert sidecar["observation_space"]["shape"] == [obs_dim]
+
+
+def test_per_group_run_exports_one_policy_per_group(tmp_path: Path) -> None:
+    relay_run(tmp_path, "ppo", policies="per_group")
+    reports = export_groups(RunRef("ppo", RELAY, tmp_path), int8=True, n_observations=200)
+    assert set(reports) == {"scout", "worker"}
+    for group, report in reports.items():
+        assert report.onnx_path.parent.name == group and report.onnx_path.exists()
+        assert report.parity_fp32 == 0.0 and report.int8_acceptable
+    scout = ort.InferenceSession(str(reports["scout"].onnx_path), providers=["CPUExecutionProvider"])
+    assert scout.get_inputs()[0].shape[1] == 4  # per_group: each group's own, unpadded observation
+
+
+def test_subprocess_copies_train_exactly_like_local_ones(tmp_path: Path) -> None:
+    runs = []
+    for vec_env in ("dummy", "subproc"):
+        folder = tmp_path / vec_env
+        result = train(TrainSpec("ppo", RELAY, 1024, PPO_PARAMS), *quiet(folder, episodes=5, vec_env=vec_env))
+        runs.append(result)
+    local, remote = (r.model.policy.state_dict() for r in runs)
+    assert all(np.array_equal(local[k].numpy(), remote[k].numpy()) for k in local)
+    assert runs[0].summary["eval"] == runs[1].summary["eval"]
+
+
+def _relay_venv(n_envs: int = 2, policies: str = "shared") -> Any:
+    factory = ParallelEnvFactory(RELAY, (), {}, [])
+    return team_vec_envs(factory, n_envs, TeamOptions(policies), seed=0)
+
+
+def test_rollout_minibatches_hold_acted_transitions_only() -> None:
+    venv = _relay_venv()["shared"]
+    model = PPO("MlpPolicy", venv, n_steps=20, batch_size=10, n_epochs=1, seed=0,
+                rollout_buffer_class=MaskedRolloutBuffer)
+    buffer = model.rollout_buffer
+    model.learn(20 * venv.num_envs, callback=ActedMaskCallback())
+    assert isinstance(buffer, MaskedRolloutBuffer)
+    # slots: (copy 0: scout, worker, worker), (copy 1: ...); 20 steps = two 10-step episodes; the scout acts 5 of 10
+    scout_acted = buffer.acted[:, [0, 3]]
+    assert scout_acted[:, 0].tolist() == [True] * 5 + [False] * 5 + [True] * 5 + [False] * 5
+    assert buffer.acted[:, [1, 2, 4, 5]].all()
+    drawn = np.concatenate([s.observations.numpy() for s in buffer.get(batch_size=7)])
+    assert len(drawn) == int(buffer.acted.sum()) == 20 * 6 - 2 * 10
+    # absent slots carry the all-zero padded observation, with the scout's "agent type" marker at index 4
+    assert not np.any((drawn[:, :4].sum(axis=1) == 0) & (drawn[:, 4] == 1))
+    venv.close()
+
+
+def test_replay_samples_never_hold_absent_agents() -> None:
+    venv = _relay_venv()["shared"]
+    model = DQN("MlpPolicy", venv, learning_starts=10_000, buffer_size=1000, seed=0,
+                replay_buffer_class=MaskedReplayBuffer)
+    model.learn(60 * venv.num_envs)
+    buffer = model.replay_buffer
+    assert isinstance(buffer, MaskedReplayBuffer)
+    assert buffer.acted[:60, [1, 2, 4, 5]].all() and buffer.acted[:60, 0].sum() == 30
+    samples = buffer.sample(2000)
+    obs = samples.observations.numpy()
+    assert not np.any((obs[:, :4].sum(axis=1) == 0) & (obs[:, 4] == 1))
+    venv.close()
+
+
+def test_per_group_trust_files_count_present_agents_only(tmp_path: Path) -> None:
+    trust = TrustOptions(transparency_log="", safety=True)
+    result = train(TrainSpec("ppo", RELAY, 1024, {**PPO_PARAMS, "policies": "per_group"}), *quiet(tmp_path),
+                   trust=trust)
+    with (result.run_dir / "transparency.scout.csv").open() as f:
+        scout_rows = list(csv.DictReader(f))
+    with (result.run_dir / "transparency.worker.csv").open() as f:
+        worker_rows = list(csv.DictReader(f))
+    steps = 96  # 1024 agent steps = 86 team steps of 4 copies x 3 agents, rounded up to whole 32-step rollouts
+    assert {r["agent"] for r in scout_rows} == {"scout_0"}
+    assert len(worker_rows) == 4 * 2 * steps
+    assert len(scout_rows) == 4 * (9 * 5 + 5)  # present in steps 0-4 of each 10-step episode (9 done, 1 begun)
+    assert {r["step"] for r in scout_rows} == {"0", "1", "2", "3", "4"}
+    assert max(int(r["episode"]) for r in scout_rows) == 9  # one scout episode per team episode, not two
+    safety = json.loads((result.run_dir / "safety.scout.json").read_text())
+    assert safety["total_steps"] == len(scout_rows)
+    assert safety["episodes"] == 4 * 9
+
+
+TEAM_ERRORS = [
+    (["--env", "os.path"], "module os.path has no parallel_env(**kwargs)"),
+    (["--env", f"{RELAY}:nope"], f"'nope' is neither a Gymnasium ID registered by {RELAY} nor a function in it"),
+    (["--env", "tiny_marl_pkg.aec_only_v0"], "is a turn-based (AEC-only) PettingZoo env"),
+    (["--env", "tiny_marl_pkg.variants:grid_scout"],
+     "the observation spaces of scout_0, worker_0, worker_1 differ; use policies: per_group or per_agent"),
+    (["--env", "tiny_marl_pkg.variants:steering_scout"],
+     "the action spaces of scout_0, worker_0, worker_1 differ; use policies: per_group or per_agent"),
+    (["--env", "tiny_marl_pkg.variants:steering_scout", "-params", "policies:per_group"],
+     "dqn cannot learn group scout of steering_scout (observation Box, action Box); algos that can:"),
+    (["--env", "tiny_marl_pkg.variants:stateless", "--algo", "ppo", "-params", "critic:centralized"],
+     "critic: centralized needs the env's global state()"),
+    (["--env", RELAY, "-params", "critic:centralized"], "critic: centralized is for ppo and a2c"),
+    (["--env", RELAY, "-params", "policies:everyone"], "policies must be one of shared, per_agent, per_group"),
+    (["--env", RELAY, "-params", "agent_id:3"], "agent_id must be true or false, got 3"),
+    (["--env", RELAY, "-params", "monitor_kwargs:{}"], "monitor_kwargs apply to Gymnasium envs only"),
+    (["--env", RELAY, "--algo", "ppo", "-params", "policies:per_group", "--adversarial-eval", "gaussian:0.1"],
+     "--adversarial-eval and --fairness support policies: shared"),
+    (["--env", RELAY, "--env-kwargs", "scout_steps:0"],
+     "cannot create relay_v0 with env kwargs scout_steps=0: scout_steps must be >= 1"),
+    (["--env", RELAY, "--env-kwargs", "speed:2"], "unknown env kwarg(s) speed for relay_v0; accepted: max_cycles"),
+    (["--env", RELAY, "--vec-env", "batched"], "--vec-env batched supports"),
+]
+
+
+@pytest.mark.parametrize(("args", "expected"), TEAM_ERRORS, ids=[" ".join(a) for a, _ in TEAM_ERRORS])
+def test_bad_team_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str],
+                                    expected: str) -> None:
+    code = run_main("train", "--algo", "dqn", "-n", "64", "-f", str(tmp_path / "logs"), *args)
+    check_error(code, capsys.readouterr().err, expected)
+    assert not list((tmp_path / "logs").glob("*/*")), "a run dir was left behind"
+
+
+def test_a_groups_mapping_must_name_every_agent_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    conf = tmp_path / "groups.yml"
+    conf.write_text(f"{RELAY}:\n  n_timesteps: 64\n  policy: MlpPolicy\n  policies: per_group\n"
+                    "  groups: {eyes: [scout_0], hands: [worker_0, worker_9]}\n")
+    code = run_main("train", "--algo", "ppo", "--env", RELAY, "-conf", str(conf), "-f", str(tmp_path / "logs"))
+    check_error(code, capsys.readouterr().err, "groups must name every agent once (missing: worker_1; unknown: "
+                "worker_9); the env's agents: scout_0, worker_0, worker_1")
+    assert not list((tmp_path / "logs").glob("*/*"))

@@ -1,12 +1,15 @@
-"""TreasureHunt learning benchmark for the Ray RLlib backend (needs ``pip install 'sbagents[distributed]'``).
+"""Learning benchmark for the Ray RLlib backend (needs ``pip install 'sbagents[distributed]'``): TreasureHunt by
+default, any PettingZoo env with ``--env`` (``mpe2.simple_spread_v3``).
 
 Per seed: :func:`sbagents.rllib.training.train_rllib` with the shipped ``zoo_configs/rllib_ppo.yml`` entry
-(parameter-shared PPO on egocentric observations; ``--params`` overrides it), on a local Ray instance with
-``--num-env-runners`` samplers, then the greedy team on 100 seeded episodes (eval seed ``10000 + seed``) from the
-saved checkpoint, without Ray. Reports treasures per episode, team return, wall-clock training time (Ray start
-and algorithm build excluded, as ``summary.json``'s ``train_seconds``) and the learning curve of ``progress.csv``.
+(parameter-shared PPO; ``--params`` overrides it), on a local Ray instance with ``--num-env-runners`` samplers, then
+the greedy team on ``--n-eval`` seeded episodes (eval seed ``10000 + seed``, or ``--eval-seed``) from the saved
+checkpoint, without Ray. Reports team return, the env's declared metrics (treasures per episode), wall-clock training
+time (Ray start and algorithm build excluded, as ``summary.json``'s ``train_seconds``) and the learning curve of
+``progress.csv``.
 
     python -m benchmarks.rllib_learning --seeds 0 1 2
+    python -m benchmarks.rllib_learning --env mpe2.simple_spread_v3 --seeds 0 1 2 --n-eval 300 --eval-seed 10000
     python -m benchmarks.rllib_learning --seeds 0 --params policies:per_agent -n 200000
     python -m benchmarks.rllib_learning --seeds 0 -n 40000 --num-threads 0   # torch's default threads
 """
@@ -16,6 +19,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -33,23 +37,25 @@ ENV = "treasure_hunt_v0"
 
 def run_seed(
     seed: int, params: dict[str, Any], log_folder: str, n_timesteps: int | None, num_env_runners: int | None,
-    num_threads: int, n_eval: int = 100,
+    num_threads: int, n_eval: int = 100, env: str = ENV, eval_seed: int | None = None,
 ) -> dict[str, Any]:
     """Train one seed and evaluate the greedy team; returns a JSON-able dict."""
     start = time.perf_counter()
-    result = train_rllib(TrainSpec("ppo", ENV, n_timesteps, params), OutputOptions(log_folder),
+    result = train_rllib(TrainSpec("ppo", env, n_timesteps, params), OutputOptions(log_folder),
                          EvalOptions(-1, final_eval_episodes=0),
                          ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0,
                                      num_env_runners=num_env_runners))
     wall = time.perf_counter() - start
-    ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, resolve_env(ENV), "ppo", result.experiment.env_kwargs,
-                             result.summary.get("groups"), EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed))
+    ev = evaluate_checkpoint(result.run_dir / CHECKPOINT_DIR, resolve_env(env), "ppo", result.experiment.env_kwargs,
+                             result.summary.get("groups"),
+                             EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed if eval_seed is None else eval_seed))
     with (result.run_dir / PROGRESS_FILE).open() as f:
         rows = list(csv.DictReader(f))
     s = result.summary
     return {
-        "seed": seed, "treasures_per_episode": ev["metrics"]["treasures_collected"],
-        "team_return": ev["mean_return"], "success_rate": ev["success_rate"], "n_eval_episodes": n_eval,
+        "seed": seed, "env": env, "treasures_per_episode": ev["metrics"].get("treasures_collected"),
+        "team_return": ev["mean_return"], "std_return": ev.get("std_return"), "success_rate": ev.get("success_rate"),
+        "n_eval_episodes": n_eval, "load": round(os.getloadavg()[0], 2),
         "env_steps": s["n_timesteps"], "iterations": s["iterations"], "train_seconds": s["train_seconds"],
         "wall_seconds_incl_ray_start": round(wall, 1), "fps": s["fps"], "num_env_runners": s["num_env_runners"],
         "num_threads": num_threads, "policies": s["policies"], "run_dir": str(result.run_dir),
@@ -65,7 +71,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-n", "--n-timesteps", type=int, default=None, help="env steps (default: the config's)")
     p.add_argument("--num-env-runners", type=int, default=None)
     p.add_argument("--num-threads", type=int, default=1, help="torch threads per process (<= 0: torch's default)")
+    p.add_argument("--env", default=ENV, help=f"env id (default: {ENV})")
     p.add_argument("--n-eval", type=int, default=100)
+    p.add_argument("--eval-seed", type=int, default=None, help="first evaluation seed (default: 10000 + seed)")
     p.add_argument("-f", "--log-folder", default=None, help="keep the runs here (default: a temp dir)")
     args = p.parse_args(argv)
     params = parse_overrides(args.params, "--params")
@@ -74,13 +82,18 @@ def main(argv: list[str] | None = None) -> int:
         folder = args.log_folder or tmp
         for seed in args.seeds:
             row = run_seed(seed, params, folder, args.n_timesteps, args.num_env_runners, args.num_threads,
-                           args.n_eval)
+                           args.n_eval, args.env, args.eval_seed)
             print(json.dumps(row), flush=True)
             results.append(row)
-    treasures = [r["treasures_per_episode"] for r in results]
+    returns = [r["team_return"] for r in results]
     seconds = [r["train_seconds"] for r in results]
-    print(json.dumps({"params": params, "treasures_min": min(treasures), "treasures_max": max(treasures),
-                      "train_seconds_min": min(seconds), "train_seconds_max": max(seconds)}))
+    summary: dict[str, Any] = {"env": args.env, "params": params, "team_return_min": min(returns),
+                               "team_return_max": max(returns), "train_seconds_min": min(seconds),
+                               "train_seconds_max": max(seconds)}
+    if results[0]["treasures_per_episode"] is not None:
+        treasures = [r["treasures_per_episode"] for r in results]
+        summary.update(treasures_min=min(treasures), treasures_max=max(treasures))
+    print(json.dumps(summary))
     print(f"reference: {Path('zoo_configs/rllib_ppo.yml')} (shipped entry) + overrides {params}")
     return 0
 

@@ -162,3 +162,36 @@ def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: 
     assert "agent_2/policy_loss" in _progress(run_dir)[0]
     report = evaluate_run(run_dir, "ppo", resolve_env(RUN), EvaluateOptions(n_episodes=2, seed=0))
     assert report["n_episodes"] == 2 and math.isfinite(report["mean_return"])
+
+
+@needs_ray
+def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path) -> None:
+    """The user package's heterogeneous relay_v0 (a scout that leaves early) trains one RLModule per group, and
+    mpe2.simple_spread_v3 trains with its shipped entry; evaluate reads both like SB3 runs."""
+    from sbagents.rllib.evaluation import load_modules
+
+    user_envs = Path(__file__).resolve().parent / "user_envs"
+    logs = tmp_path / "logs"
+    result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-n", "2000",
+                 "--num-env-runners", "0", "-f", str(logs), "--seed", "1", "--eval-freq", "-1", "--verbose", "0",
+                 "-params", "policies:per_group", "train_batch_size_per_learner:1000", "minibatch_size:250",
+                 cwd=user_envs)
+    assert result.returncode == 0, result.stderr
+    run_dir = logs / "ppo" / "relay_v0_1"
+    assert sorted(load_modules(run_dir / CHECKPOINT_DIR)) == ["scout", "worker"]
+    report = last_json(cli("evaluate", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-f", str(logs), "-n",
+                           "6", "--json", cwd=user_envs).stdout)
+    metrics = report["metrics"]
+    assert set(metrics["per_group_return"]) == {"scout", "worker"} and metrics["episode_length"] == 10
+    assert 0 <= metrics["per_agent_return"]["scout_0"] <= 5 and 0 <= metrics["per_agent_return"]["worker_0"] <= 10
+    assert metrics["correct"] == pytest.approx(report["mean_return"])  # one correct action = reward 1
+
+    spread = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", "mpe2.simple_spread_v3", "-n", "3200",
+                 "--num-env-runners", "0", "-f", str(logs), "--seed", "2", "--eval-freq", "-1", "--verbose", "0")
+    assert spread.returncode == 0, spread.stderr
+    s = summary(logs / "ppo" / "simple_spread_v3_1")
+    assert s["policies"] == "shared" and s["n_agent_steps"] == 3 * s["n_timesteps"] >= 3 * 3200
+    report = last_json(cli("evaluate", "--algo", "ppo", "--env", "mpe2.simple_spread_v3", "-f", str(logs), "-n",
+                           "3", "--json").stdout)
+    assert report["mean_length"] == 25 and sorted(report["metrics"]["per_agent_return"]) == [
+        "agent_0", "agent_1", "agent_2"]

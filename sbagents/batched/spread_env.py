@@ -65,7 +65,8 @@ class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
         if not self.agents:
             raise RuntimeError("simple_spread: the episode is over; call reset()")
         self._vec.step_async(np.array([int(actions[a]) for a in self.possible_agents], dtype=np.int64))
-        obs, _, dones, infos = self._vec.step_wait()
+        vec_obs, _, dones, infos = self._vec.step_wait()
+        obs = np.asarray(vec_obs)  # (N, obs_dim): one copy's agents
         rewards = self._vec.last_rewards[0]
         done = bool(dones[0])
         if done:  # the VecEnv reset itself: report the episode's last observations, keep the drawn start

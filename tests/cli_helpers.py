@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -26,12 +27,18 @@ def cli(module: str, *args: str, cwd: Path | None = None, timeout: float = 600) 
     )
 
 
+def _default_sigint() -> None:
+    """In the child: Ctrl-C's default action. A suite started in the background (``cmd &``) inherits an ignored
+    SIGINT, and Python then installs no KeyboardInterrupt handler, so the interrupt tests would wait forever."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def popen(module: str, *args: str, cwd: Path | None = None) -> subprocess.Popen[str]:
-    """Start ``python -m sbagents.<module> args...`` without waiting."""
+    """Start ``python -m sbagents.<module> args...`` without waiting (with Ctrl-C's default action)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen(
         [sys.executable, "-m", f"sbagents.{module}", *args],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env, preexec_fn=_default_sigint,
     )
 
 

@@ -52,11 +52,15 @@ def _acted_minibatches(buffer: RolloutBuffer | DictRolloutBuffer, acted: np.ndar
         yield buffer._get_samples(indices[start : start + batch_size])
 
 
-class MaskedRolloutBuffer(RolloutBuffer):
-    """SB3's ``RolloutBuffer`` that trains on acted transitions only (set :attr:`next_acted` before ``add``)."""
+class _ActedRows:
+    """Mixin for SB3 rollout buffers: an ``acted`` mask ``(buffer_size, n_envs)`` filled from :attr:`next_acted`."""
+
+    buffer_size: int
+    n_envs: int
+    pos: int
 
     def reset(self) -> None:
-        super().reset()
+        super().reset()  # type: ignore[misc]
         self.acted = np.ones((self.buffer_size, self.n_envs), dtype=bool)
         self.next_acted: np.ndarray | None = None
 
@@ -64,25 +68,18 @@ class MaskedRolloutBuffer(RolloutBuffer):
         if self.next_acted is not None:
             self.acted[self.pos] = self.next_acted
             self.next_acted = None
-        super().add(*args, **kwargs)
+        super().add(*args, **kwargs)  # type: ignore[misc]
+
+
+class MaskedRolloutBuffer(_ActedRows, RolloutBuffer):
+    """SB3's ``RolloutBuffer`` that trains on acted transitions only (set :attr:`next_acted` before ``add``)."""
 
     def get(self, batch_size: int | None = None) -> Generator[RolloutBufferSamples, None, None]:
         yield from _acted_minibatches(self, self.acted, batch_size, None)
 
 
-class MaskedDictRolloutBuffer(DictRolloutBuffer):
+class MaskedDictRolloutBuffer(_ActedRows, DictRolloutBuffer):
     """:class:`MaskedRolloutBuffer` for Dict observations (e.g. a centralized critic's ``obs`` and ``state``)."""
-
-    def reset(self) -> None:
-        super().reset()
-        self.acted = np.ones((self.buffer_size, self.n_envs), dtype=bool)
-        self.next_acted: np.ndarray | None = None
-
-    def add(self, *args: Any, **kwargs: Any) -> None:
-        if self.next_acted is not None:
-            self.acted[self.pos] = self.next_acted
-            self.next_acted = None
-        super().add(*args, **kwargs)
 
     def get(self, batch_size: int | None = None) -> Generator[DictRolloutBufferSamples, None, None]:  # type: ignore[override]
         yield from _acted_minibatches(self, self.acted, batch_size, list(self.observations))

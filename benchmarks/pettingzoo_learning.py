@@ -10,6 +10,7 @@ evaluates the last checkpoint its run saved within 5 minutes of training (``--sa
 
     python -m benchmarks.pettingzoo_learning spread --seeds 0 1 2
     python -m benchmarks.pettingzoo_learning tag pursuit kaz --seeds 0 1 2
+    python -m benchmarks.pettingzoo_learning spread-ctde --seeds 1 2 --add    # beside the saved seed 0
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -135,16 +135,11 @@ def _evaluate_checkpoint(task: Task, run_dir: Path, summary: dict[str, Any], log
     if not within:
         return {"timesteps": 0, "train_s": None, "mean_return": None}
     best = max(within, key=lambda p: int(p.stem.split("_")[2]))
-    copy_logs = logs.parent / f"{logs.name}-checkpoint"  # a copy of the run whose final model is the checkpoint
-    copy_dir = copy_logs / task.algo / run_dir.name
-    shutil.copytree(run_dir, copy_dir, ignore=shutil.ignore_patterns("rl_model_*"))
-    shutil.copyfile(best, copy_dir / final.name)
-    evaluation = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(copy_logs),
-                                "--exp-id", run_dir.name.rsplit("_", 1)[1], "-n", str(task.eval_episodes),
-                                "--seed", "10000", "--json").stdout.splitlines()[-1])
-    shutil.rmtree(copy_logs)
-    return {"timesteps": int(best.stem.split("_")[2]), "train_s": round(times[best], 1),
-            "mean_return": round(evaluation["mean_return"], 2)}
+    steps = int(best.stem.split("_")[2])
+    evaluation = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(logs),
+                                "--exp-id", run_dir.name.rsplit("_", 1)[1], "--load-checkpoint", str(steps),
+                                "-n", str(task.eval_episodes), "--seed", "10000", "--json").stdout.splitlines()[-1])
+    return {"timesteps": steps, "train_s": round(times[best], 1), "mean_return": round(evaluation["mean_return"], 2)}
 
 
 def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:
@@ -235,8 +230,11 @@ def plot(name: str, task: Task, result: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
-def run_task(name: str, seeds: list[int], output: str, results_dir: Path) -> dict[str, Any]:
-    """Every seed and budget of one task; writes its JSON, PNG and BENCHMARKS.md section."""
+def run_task(name: str, seeds: list[int], output: str, results_dir: Path, add: bool = False) -> dict[str, Any]:
+    """Every seed and budget of one task; writes its JSON, PNG and BENCHMARKS.md section.
+
+    :param add: keep the saved JSON's runs of other seeds (same budgets) and add these seeds' runs to them.
+    """
     task = TASKS[name]
     full = config_budget(task)
     budgets = [full if b is None else full // -b if b < 0 else b for b in task.budgets]
@@ -247,10 +245,15 @@ def run_task(name: str, seeds: list[int], output: str, results_dir: Path) -> dic
                 row = run_one(task, seed, budget, Path(tmp) / f"n{budget}")
                 print(json.dumps({k: v for k, v in row.items() if k != "curve"}), flush=True)
                 runs.append(row)
+    path = results_dir / f"pettingzoo_{name}.json"
+    if add and path.exists():
+        saved = json.loads(path.read_text())
+        runs = sorted([r for r in saved["runs"] if r["seed"] not in seeds] + runs, key=lambda r: r["seed"])
+        seeds = sorted({r["seed"] for r in runs})
     result = {"task": name, "env": task.env, "seeds": seeds, "budgets": budgets, "runs": runs,
               "baselines": {k: _baseline_row(task, v) for k, v in baselines(task).items()}}
     results_dir.mkdir(parents=True, exist_ok=True)
-    (results_dir / f"pettingzoo_{name}.json").write_text(json.dumps(result, indent=2) + "\n")
+    path.write_text(json.dumps(result, indent=2) + "\n")
     render(name, result, output, results_dir)
     return result
 
@@ -273,13 +276,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--results", default="benchmarks/results", help="folder for the JSON and PNG files")
     parser.add_argument("--render-only", action="store_true",
                         help="no training: redraw the PNG and the BENCHMARKS.md section from the saved JSON")
+    parser.add_argument("--add", action="store_true",
+                        help="add these seeds to the saved JSON's runs (of the other seeds) instead of replacing them")
     args = parser.parse_args(argv)
     for name in args.tasks:
         if args.render_only:
             render(name, json.loads((Path(args.results) / f"pettingzoo_{name}.json").read_text()), args.output,
                    Path(args.results))
         else:
-            run_task(name, args.seeds, args.output, Path(args.results))
+            run_task(name, args.seeds, args.output, Path(args.results), args.add)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,10 @@ time (Ray start and algorithm build excluded, as ``summary.json``'s ``train_seco
     python -m benchmarks.rllib_learning --seeds 0 1 2
     python -m benchmarks.rllib_learning --env mpe2.simple_spread_v3 --seeds 0 1 2 --n-eval 300 --eval-seed 10000
     python -m benchmarks.rllib_learning --seeds 0 --params policies:per_agent -n 200000
-    python -m benchmarks.rllib_learning --seeds 0 -n 40000 --num-threads 0   # torch's default threads
+    python -m benchmarks.rllib_learning --seeds 0 -n 40000 --num-threads 0 --no-write  # torch's default threads
+
+Writes ``benchmarks/results/rllib_<env>.json`` and the env's section of ``BENCHMARKS.md``; ``--render-only`` redraws
+the section from that file.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks.speed import write_section
+from sbagents.cli_common import run
 from sbagents.pipeline.env_names import resolve_env
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.zoo_config import parse_overrides
@@ -59,12 +64,54 @@ def run_seed(
         "env_steps": s["n_timesteps"], "iterations": s["iterations"], "train_seconds": s["train_seconds"],
         "wall_seconds_incl_ray_start": round(wall, 1), "fps": s["fps"], "num_env_runners": s["num_env_runners"],
         "num_threads": num_threads, "policies": s["policies"], "run_dir": str(result.run_dir),
+        "interrupted": result.interrupted,
         "curve": [(int(r["env_steps"]), r["episode_return_mean"]) for r in rows[:: max(len(rows) // 10, 1)]],
     }
 
 
+NOTES: dict[str, str] = {
+    "treasure_hunt_v0": "SB3's PPO on the same env: ~4.8 treasures per episode (BENCHMARKS.md, TreasureHunt learning).",
+    "mpe2.simple_spread_v3": "Same 300 episodes as the SB3 rows of the simple_spread section: random play -77.12, "
+                             "scripted -21.55, SB3's PPO -27.98 / -28.35 / -28.16 after 4M agent steps (1.33M env "
+                             "steps) in 260-433 s; RLlib samples the single-copy PettingZoo env, SB3 the batched "
+                             "one. Before the backend kept time-limit truncation apart from termination "
+                             "(`sbagents/rllib/truncation.py`), seed 0 of this command reached -50.31 (2026-12-02).",
+}
+
+
+def results_path(env: str) -> Path:
+    """``benchmarks/results/rllib_<env stem>.json``."""
+    return Path("benchmarks/results") / f"rllib_{env.rsplit('.', 1)[-1]}.json"
+
+
+def markdown(result: dict[str, Any]) -> str:
+    """The env's section of BENCHMARKS.md from a results file's content."""
+    env, runs = result["env"], result["runs"]
+    seeds = " ".join(str(r["seed"]) for r in runs)
+    extra = f" --params {' '.join(f'{k}:{v}' for k, v in result['params'].items())}" if result["params"] else ""
+    command = (f"python -m benchmarks.rllib_learning --env {env} --seeds {seeds} --n-eval {runs[0]['n_eval_episodes']}"
+               + (f" --eval-seed {result['eval_seed']}" if result.get("eval_seed") is not None else "") + extra)
+    metric = runs[0]["treasures_per_episode"] is not None
+    lines = [f"## RLlib PPO: {env}", "",
+             f"`python -m sbagents.train --backend rllib --algo ppo --env {env}` with the shipped "
+             "`zoo_configs/rllib_ppo.yml` entry (2 env runners, 1 torch thread per process), then the greedy team of "
+             f"the final checkpoint on {runs[0]['n_eval_episodes']} episodes. Command: `{command}`. Train seconds "
+             "exclude Ray's start and the algorithm build.", "",
+             "| seed | env steps | train s | env steps/s | team return | " + ("treasures/episode | " if metric else "")
+             + "load |", "|---:|---:|---:|---:|---:|" + ("---:|" if metric else "") + "---:|"]
+    for r in runs:
+        cells = [str(r["seed"]), f"{r['env_steps']:,}", f"{r['train_seconds']:.0f}", f"{r['fps']:,.0f}",
+                 f"{r['team_return']:.2f}"] + ([f"{r['treasures_per_episode']:.2f}"] if metric else [])
+        lines.append("| " + " | ".join(cells + [str(r["load"])]) + " |")
+    if env in NOTES:
+        lines += ["", NOTES[env]]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Parse arguments, run every seed, print one JSON line per seed and a summary line."""
+    """Parse arguments, run every seed (one JSON line each), then write ``benchmarks/results/rllib_<env>.json`` and
+    the env's section of BENCHMARKS.md (``--no-write``: print only; ``--render-only``: rewrite the section from the
+    results file)."""
     p = argparse.ArgumentParser(prog="python -m benchmarks.rllib_learning", description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--params", nargs="+", metavar="KEY:VALUE", help="overrides of the zoo entry")
@@ -75,7 +122,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--n-eval", type=int, default=100)
     p.add_argument("--eval-seed", type=int, default=None, help="first evaluation seed (default: 10000 + seed)")
     p.add_argument("-f", "--log-folder", default=None, help="keep the runs here (default: a temp dir)")
+    p.add_argument("--no-write", action="store_true", help="print only (no results file, no BENCHMARKS.md)")
+    p.add_argument("--render-only", action="store_true", help="rewrite the BENCHMARKS.md section from the results")
     args = p.parse_args(argv)
+    section = f"rllib-{args.env.rsplit('.', 1)[-1]}"
+    if args.render_only:
+        write_section("BENCHMARKS.md", markdown(json.loads(results_path(args.env).read_text())), section)
+        return 0
     params = parse_overrides(args.params, "--params")
     results = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
                            args.n_eval, args.env, args.eval_seed)
             print(json.dumps(row), flush=True)
             results.append(row)
+            if row["interrupted"]:  # Ctrl-C / SIGTERM: the run kept its checkpoint; no further seeds
+                break
     returns = [r["team_return"] for r in results]
     seconds = [r["train_seconds"] for r in results]
     summary: dict[str, Any] = {"env": args.env, "params": params, "team_return_min": min(returns),
@@ -94,9 +149,14 @@ def main(argv: list[str] | None = None) -> int:
         treasures = [r["treasures_per_episode"] for r in results]
         summary.update(treasures_min=min(treasures), treasures_max=max(treasures))
     print(json.dumps(summary))
-    print(f"reference: {Path('zoo_configs/rllib_ppo.yml')} (shipped entry) + overrides {params}")
+    if not args.no_write and not any(r["interrupted"] for r in results):
+        result = {"env": args.env, "params": params, "eval_seed": args.eval_seed,
+                  "runs": [{k: v for k, v in r.items() if k != "run_dir"} for r in results]}
+        results_path(args.env).parent.mkdir(parents=True, exist_ok=True)
+        results_path(args.env).write_text(json.dumps(result, indent=2) + "\n")
+        write_section("BENCHMARKS.md", markdown(result), section)
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run("python -m benchmarks.rllib_learning", main)  # SIGTERM acts like Ctrl-C: the run saves its checkpoint

@@ -28,7 +28,8 @@ def add_run_arguments(
     load_best: bool = True,
 ) -> None:
     """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
-    ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` for commands on one run.
+    ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` / ``--load-checkpoint`` for commands
+    on one run.
 
     :param required: ``--algo`` and ``--env`` must be given (else they filter, as for ``plot``).
     """
@@ -40,14 +41,17 @@ def add_run_arguments(
     if exp_id:
         parser.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
     if load_best:
-        parser.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
+        which = parser.add_mutually_exclusive_group() if isinstance(parser, argparse.ArgumentParser) else parser
+        which.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
+        which.add_argument("--load-checkpoint", type=int, default=None, metavar="STEPS",
+                           help="use the checkpoint saved after STEPS timesteps (train --save-freq)")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
 
 
 def run_ref(args: argparse.Namespace) -> RunRef:
     """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
     return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
-                  tuple(args.gym_packages))
+                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None))
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:

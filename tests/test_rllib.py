@@ -133,6 +133,8 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
     assert again == report  # greedy + seeded env: reproducible
     best = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "--load-best")
     assert best.returncode == 2 and "--load-best not supported for RLlib runs" in best.stderr
+    checkpoint = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "--load-checkpoint", "1000")
+    assert checkpoint.returncode == 2 and "--load-checkpoint not supported for RLlib runs" in checkpoint.stderr
 
 
 @needs_ray
@@ -195,3 +197,16 @@ def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path) -> None:
                            "3", "--json").stdout)
     assert report["mean_length"] == 25 and sorted(report["metrics"]["per_agent_return"]) == [
         "agent_0", "agent_1", "agent_2"]
+
+
+@needs_ray
+@pytest.mark.parametrize("env", ["mpe2.simple_spread_v3", "treasure_hunt_v0"])
+def test_rllib_benchmark_sections_match_their_results(env: str) -> None:
+    """BENCHMARKS.md's RLlib sections are what ``benchmarks.rllib_learning --render-only`` makes of the results."""
+    from benchmarks.rllib_learning import markdown, results_path
+
+    root = Path(__file__).resolve().parent.parent
+    result = json.loads((root / results_path(env)).read_text())
+    section = markdown(result)
+    assert section in (root / "BENCHMARKS.md").read_text()
+    assert len(result["runs"]) == 3 and all(not r["interrupted"] for r in result["runs"])

@@ -8,9 +8,13 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from cli_helpers import cli, last_json, popen, summary
 from stable_baselines3 import PPO
+
+from sbagents.api import RunRef
+from sbagents.pipeline.run_dir import load_run
 
 GRID = "sbagents/GridWorld-v0"
 RUN = "sbagents_GridWorld-v0"
@@ -164,4 +168,21 @@ def test_list_progress_tensorboard_and_checkpoints(tmp_path: Path) -> None:
     run_dir = tmp_path / "ppo" / f"{RUN}_1"
     assert sorted(p.name for p in run_dir.glob("rl_model_*_steps.zip")) == ["rl_model_1024_steps.zip",
                                                                             "rl_model_2048_steps.zip"]
+    run = ("evaluate", "--algo", "ppo", "--env", GRID, "-f", str(tmp_path), "-n", "2", "--json")
+    checkpoint = cli(*run, "--load-checkpoint", "1024")
+    assert checkpoint.returncode == 0, checkpoint.stderr
+    assert last_json(checkpoint.stdout)["n_episodes"] == 2
+    missing = cli(*run, "--load-checkpoint", "999")
+    assert missing.returncode == 2 and "no checkpoint after 999 steps" in missing.stderr
+    assert "saved: 1024, 2048" in missing.stderr and "Traceback" not in missing.stderr
+    both = cli(*run, "--load-checkpoint", "1024", "--load-best")
+    assert both.returncode == 2 and "not allowed with argument" in both.stderr
+    loaded = load_run(RunRef("ppo", GRID, tmp_path, checkpoint=1024))
+    assert loaded.model_path.name == "rl_model_1024_steps.zip"
+    assert loaded.stats_path.name == "rl_model_vecnormalize_1024_steps.pkl"
+    weights = [p.detach() for p in loaded.model.policy.parameters()]
+    saved = PPO.load(run_dir / "rl_model_1024_steps.zip", device="cpu").policy.parameters()
+    final = PPO.load(run_dir / f"{RUN}.zip", device="cpu").policy.parameters()
+    assert all(torch.equal(w, s.detach()) for w, s in zip(weights, saved, strict=True))
+    assert not all(torch.equal(w, f.detach()) for w, f in zip(weights, final, strict=True))
     assert list((tmp_path / "tb").rglob("events.out.tfevents.*"))

@@ -20,7 +20,6 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.deploy.exporting import ExportChecks, ExportReport, export_run
 from sbagents.multiagent.centralized import OBS_KEY
-from sbagents.multiagent.groups import group_stats_name
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.pipeline.env_factory import make_team_vecs, normalize_for_eval
 from sbagents.pipeline.run_dir import LoadedRun
@@ -63,7 +62,7 @@ def export_team(loaded: LoadedRun, out: Path, int8: bool, checks: ExportChecks) 
     """Export every group's model of a PettingZoo run: group -> report. One group (``shared``) goes to ``out``,
     several to ``out/<group>/`` (a failure removes the group folders it made)."""
     exp, ref = loaded.experiment, loaded.env
-    venvs = {g: normalize_for_eval(v, exp, loaded.run_dir / group_stats_name(g)) for g, v in
+    venvs = {g: normalize_for_eval(v, exp, loaded.stats_paths.get(g)) for g, v in
              make_team_vecs(exp, ref, 1, seed=checks.seed, vec_env="dummy").items()}
     try:
         observations = record_team_observations(venvs, loaded.models, checks.n_observations, checks.seed)

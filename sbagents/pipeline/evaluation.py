@@ -17,7 +17,6 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.errors import UsageError
-from sbagents.multiagent.groups import group_stats_name
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
 from sbagents.pipeline.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
@@ -137,8 +136,7 @@ def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]
     if len(run.models) > 1:
         if options.attacks or options.fairness:
             raise UsageError("--attack and --fairness evaluate one model; this run has one model per group")
-        stats = {g: run.run_dir / group_stats_name(g) for g in run.models}
-        return evaluate_groups(run.models, run.experiment, run.env, options, stats)
+        return evaluate_groups(run.models, run.experiment, run.env, options, run.stats_paths)
     summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path)
     if options.attacks or options.fairness:
         summary.update(trust_report(run, options))

@@ -38,13 +38,19 @@ def new_run_dir(
     log_folder: str | Path, algo: str, env_id: str, hyperparams: dict[str, Any], args: dict[str, Any], command: str
 ) -> Iterator[Path]:
     """Create the next run dir and its ``config.yml``, ``args.yml`` and ``command.txt``; if the block raises
-    (a setup failure), the run dir is removed, so a failed start leaves nothing behind."""
+    (a setup failure), the run dir is removed, with the folders above it that this call created, so a failed start
+    leaves nothing behind."""
+    algo_dir = Path(log_folder) / algo
+    created = [p for p in (algo_dir, *algo_dir.parents) if not p.exists()]  # deepest first
     run_dir = create_run_dir(log_folder, algo, env_id)
     try:
         save_run_config(run_dir, env_id, hyperparams, args, command)
         yield run_dir
     except BaseException:
         shutil.rmtree(run_dir, ignore_errors=True)
+        for folder in created:
+            with contextlib.suppress(OSError):  # not empty: another run started in it meanwhile
+                folder.rmdir()
         raise
 
 

@@ -84,8 +84,30 @@ def find_run_dir(log_folder: str | Path, algo: str, env_id: str, exp_id: int = 0
     return algo_dir / f"{stem}_{k}"
 
 
-def model_path(run_dir: Path, env_id: str, load_best: bool = False) -> Path:
-    """The final (or best) model file of a run, or :class:`UsageError` if it is missing."""
+CHECKPOINT_PREFIX = "rl_model"
+
+
+def checkpoint_path(run_dir: Path, steps: int) -> Path:
+    """The checkpoint ``--save-freq`` saved after ``steps`` timesteps (``rl_model_<steps>_steps.zip``, SB3's
+    ``CheckpointCallback`` name), or :class:`UsageError` listing the run's checkpoints."""
+    path = run_dir / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip"
+    if not path.exists():
+        found = sorted(int(m.group(1)) for p in run_dir.glob(f"{CHECKPOINT_PREFIX}_*_steps.zip")
+                       if (m := re.fullmatch(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip", p.name)))
+        saved = f"saved: {', '.join(map(str, found))}" if found else "it saved none (train with --save-freq N)"
+        raise UsageError(f"no checkpoint after {steps} steps in {run_dir}; {saved}")
+    return path
+
+
+def checkpoint_stats_path(run_dir: Path, steps: int) -> Path:
+    """The ``VecNormalize`` statistics saved with the checkpoint of ``steps`` (the file may not exist)."""
+    return run_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
+
+
+def model_path(run_dir: Path, env_id: str, load_best: bool = False, checkpoint: int | None = None) -> Path:
+    """The final (best, or ``checkpoint``-steps) model file of a run, or :class:`UsageError` if it is missing."""
+    if checkpoint is not None:
+        return checkpoint_path(run_dir, checkpoint)
     path = run_dir / (BEST_MODEL_FILE if load_best else f"{env_stem(env_id)}.zip")
     if not path.exists():
         hint = " (no evaluation ran during training; drop --load-best)" if load_best else ""
@@ -151,6 +173,7 @@ class RunRef:
     :param exp_id: run number k (0: the latest).
     :param load_best: the run's ``best_model.zip`` instead of its final model.
     :param gym_packages: packages to import that register the env.
+    :param checkpoint: the checkpoint saved after this many timesteps (``--save-freq``) instead of the final model.
     """
 
     algo: str | None
@@ -159,6 +182,7 @@ class RunRef:
     exp_id: int = 0
     load_best: bool = False
     gym_packages: tuple[str, ...] = ()
+    checkpoint: int | None = None
 
     def env_ref(self) -> Any:
         """The resolved env (:class:`~sbagents.pipeline.env_names.EnvRef`; imports gymnasium)."""
@@ -180,6 +204,7 @@ class LoadedRun:
     """A finished SB3 run, ready to evaluate, export or record.
 
     :param models: group -> model for a run of one model per group of agents (``{"shared": model}`` otherwise).
+    :param stats_paths: group -> where the ``VecNormalize`` statistics of its model are (the files may not exist).
     """
 
     run_dir: Path
@@ -188,11 +213,12 @@ class LoadedRun:
     model: BaseAlgorithm
     env: Any  # EnvRef
     models: dict[str, BaseAlgorithm] = field(default_factory=dict)
+    stats_paths: dict[str, Path] = field(default_factory=dict)
 
     @property
     def stats_path(self) -> Path:
-        """Where the run's ``VecNormalize`` statistics are (the file may not exist)."""
-        return self.run_dir / VECNORMALIZE_FILE
+        """Where the ``VecNormalize`` statistics of the (first) model are (the file may not exist)."""
+        return next(iter(self.stats_paths.values()), self.run_dir / VECNORMALIZE_FILE)
 
 
 def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
@@ -218,6 +244,7 @@ def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = F
 def load_run(ref: RunRef) -> LoadedRun:
     """Find the run ``ref`` names and load its model(s) and experiment."""
     from sbagents.algos import ALGOS
+    from sbagents.multiagent.groups import group_stats_name
 
     if ref.algo not in ALGOS:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
@@ -227,10 +254,16 @@ def load_run(ref: RunRef) -> LoadedRun:
     cls = ALGOS[ref.algo].cls
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
+        if ref.checkpoint is not None:
+            raise UsageError("--load-checkpoint loads one model; this run has one model per group (its checkpoints "
+                             "are rl_model.<group>_<steps>_steps.zip)")
         paths = {g: group_model_path(run_dir, env.env_id, g, ref.load_best) for g in groups}
         models = {g: cls.load(str(path), device="cpu") for g, path in paths.items()}
         first = next(iter(models))
-        return LoadedRun(run_dir, paths[first], exp, models[first], env, models)
-    path = model_path(run_dir, env.env_id, ref.load_best)
+        stats = {g: run_dir / group_stats_name(g) for g in groups}
+        return LoadedRun(run_dir, paths[first], exp, models[first], env, models, stats)
+    path = model_path(run_dir, env.env_id, ref.load_best, ref.checkpoint)
     model = cls.load(str(path), device="cpu")
-    return LoadedRun(run_dir, path, exp, model, env, {"shared": model})
+    stats_path = (checkpoint_stats_path(run_dir, ref.checkpoint) if ref.checkpoint is not None
+                  else run_dir / VECNORMALIZE_FILE)
+    return LoadedRun(run_dir, path, exp, model, env, {"shared": model}, {"shared": stats_path})

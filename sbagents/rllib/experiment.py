@@ -15,7 +15,6 @@ from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
 from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
-from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 from ray.tune.registry import register_env
 
 from sbagents.errors import UsageError
@@ -26,6 +25,7 @@ from sbagents.pipeline.options import TrainSpec
 from sbagents.pipeline.zoo_config import spec_entry
 from sbagents.registration import PETTINGZOO_ENVS
 from sbagents.rllib import RLLIB_ALGOS, SHARED_MODULE
+from sbagents.rllib.truncation import PettingZooEnv, keep_truncation
 
 #: Zoo-entry keys that describe the experiment (the rest go to RLlib).
 EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "groups", "model")
@@ -122,7 +122,8 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
 
 
 def make_env(config: Mapping[str, Any]) -> MultiAgentEnv:
-    """RLlib env creator (runs in every env runner): the PettingZoo env as a ``MultiAgentEnv``.
+    """RLlib env creator (runs in every env runner): the PettingZoo env as a ``MultiAgentEnv``
+    (:class:`~sbagents.rllib.truncation.PettingZooEnv`).
 
     :param config: ``source`` (``pkg.module`` or ``pkg.module:callable``), ``modules`` (to import first),
         ``env_kwargs`` and ``num_threads`` (torch threads of the env runner process; <= 0 keeps torch's default).
@@ -131,7 +132,7 @@ def make_env(config: Mapping[str, Any]) -> MultiAgentEnv:
     if threads > 0 and torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
     env = make_parallel_env(config["source"], tuple(config.get("modules", ())), **config.get("env_kwargs", {}))
-    return ParallelPettingZooEnv(env)
+    return PettingZooEnv(env)
 
 
 def _to_module(mapping: dict[str, str], agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
@@ -177,6 +178,7 @@ def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int 
             .learners(num_learners=0)
             .multi_agent(policies=set(modules), policy_mapping_fn=functools.partial(_to_module, mapping))
             .training(**exp.training)
+            .callbacks(on_sample_end=keep_truncation)  # truncated agents stay truncated (sbagents.rllib.truncation)
             .rl_module(model_config=DefaultModelConfig(**exp.model))
             .debugging(seed=seed, log_level="ERROR")
         ), modules

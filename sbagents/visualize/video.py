@@ -20,7 +20,6 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
 from sbagents.errors import UsageError
-from sbagents.multiagent.groups import group_stats_name
 from sbagents.pipeline.env_factory import make_team_vecs, make_vec, normalize_for_eval
 from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
 
@@ -94,7 +93,7 @@ def record_video(
         venvs[first].close()
         raise UsageError(f"{ref.env_id} does not render rgb_array frames (render_mode {venvs[first].render_mode!r})")
     frame_rate = fps if fps is not None else _render_fps(venvs[first])
-    stats = {g: loaded.run_dir / group_stats_name(g) for g in venvs} if ref.multi_agent else {first: loaded.stats_path}
+    stats = {g: loaded.stats_paths.get(g, loaded.stats_path) for g in venvs}
     venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g]) for g, v in venvs.items()}
     out = Path(output_dir) if output_dir is not None else loaded.run_dir / "videos"
     try:

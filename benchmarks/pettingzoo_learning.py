@@ -127,19 +127,20 @@ def _evaluate_checkpoint(task: Task, run_dir: Path, summary: dict[str, Any], log
     A checkpoint's training time is ``train_seconds`` minus the time between it and the final model's save, so it
     counts ``model.learn`` up to that checkpoint (periodic evaluations included), as ``train_seconds`` does.
     """
+    from sbagents.pipeline.run_dir import saved_checkpoints
+
     final = run_dir / f"{summary['env']}.zip"
     assert task.checkpoint_seconds is not None
-    times = {p: summary["train_seconds"] - (final.stat().st_mtime - p.stat().st_mtime)
-             for p in run_dir.glob("rl_model_*_steps.zip")}
-    within = [p for p, t in times.items() if t <= task.checkpoint_seconds]
+    times = {steps: summary["train_seconds"] - (final.stat().st_mtime - p.stat().st_mtime)
+             for steps, p in saved_checkpoints(run_dir).items()}
+    within = [steps for steps, t in times.items() if t <= task.checkpoint_seconds]
     if not within:
         return {"timesteps": 0, "train_s": None, "mean_return": None}
-    best = max(within, key=lambda p: int(p.stem.split("_")[2]))
-    steps = int(best.stem.split("_")[2])
+    steps = max(within)
     evaluation = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(logs),
                                 "--exp-id", run_dir.name.rsplit("_", 1)[1], "--load-checkpoint", str(steps),
                                 "-n", str(task.eval_episodes), "--seed", "10000", "--json").stdout.splitlines()[-1])
-    return {"timesteps": steps, "train_s": round(times[best], 1), "mean_return": round(evaluation["mean_return"], 2)}
+    return {"timesteps": steps, "train_s": round(times[steps], 1), "mean_return": round(evaluation["mean_return"], 2)}
 
 
 def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:

@@ -32,6 +32,7 @@ from benchmarks.speed import write_section
 from sbagents.cli_common import run
 from sbagents.pipeline.env_names import resolve_env
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.run_dir import env_stem
 from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
 from sbagents.rllib.evaluation import evaluate_checkpoint
@@ -79,9 +80,14 @@ NOTES: dict[str, str] = {
 }
 
 
+def env_name(env: str) -> str:
+    """The env's name in file and section names: ``mpe2.simple_spread_v3`` -> ``simple_spread_v3``."""
+    return env_stem(env.rsplit(".", 1)[-1])
+
+
 def results_path(env: str) -> Path:
-    """``benchmarks/results/rllib_<env stem>.json``."""
-    return Path("benchmarks/results") / f"rllib_{env.rsplit('.', 1)[-1]}.json"
+    """``benchmarks/results/rllib_<env name>.json``."""
+    return Path("benchmarks/results") / f"rllib_{env_name(env)}.json"
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -125,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-write", action="store_true", help="print only (no results file, no BENCHMARKS.md)")
     p.add_argument("--render-only", action="store_true", help="rewrite the BENCHMARKS.md section from the results")
     args = p.parse_args(argv)
-    section = f"rllib-{args.env.rsplit('.', 1)[-1]}"
+    section = f"rllib-{env_name(args.env)}"
     if args.render_only:
         write_section("BENCHMARKS.md", markdown(json.loads(results_path(args.env).read_text())), section)
         return 0

@@ -41,7 +41,7 @@ def add_run_arguments(
     if exp_id:
         parser.add_argument("--exp-id", type=int, default=0, help="run number k (0 = latest)")
     if load_best:
-        which = parser.add_mutually_exclusive_group() if isinstance(parser, argparse.ArgumentParser) else parser
+        which = parser.add_mutually_exclusive_group()
         which.add_argument("--load-best", action="store_true", help="use best_model.zip instead of the final model")
         which.add_argument("--load-checkpoint", type=int, default=None, metavar="STEPS",
                            help="use the checkpoint saved after STEPS timesteps (train --save-freq)")

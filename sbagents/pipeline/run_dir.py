@@ -87,16 +87,21 @@ def find_run_dir(log_folder: str | Path, algo: str, env_id: str, exp_id: int = 0
 CHECKPOINT_PREFIX = "rl_model"
 
 
+def saved_checkpoints(run_dir: Path) -> dict[int, Path]:
+    """Timesteps -> model zip of the checkpoints ``--save-freq`` saved in a run dir (``rl_model_<steps>_steps.zip``,
+    SB3's ``CheckpointCallback`` names), in step order."""
+    found = {int(m.group(1)): p for p in run_dir.glob(f"{CHECKPOINT_PREFIX}_*_steps.zip")
+             if (m := re.fullmatch(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip", p.name))}
+    return dict(sorted(found.items()))
+
+
 def checkpoint_path(run_dir: Path, steps: int) -> Path:
-    """The checkpoint ``--save-freq`` saved after ``steps`` timesteps (``rl_model_<steps>_steps.zip``, SB3's
-    ``CheckpointCallback`` name), or :class:`UsageError` listing the run's checkpoints."""
-    path = run_dir / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip"
-    if not path.exists():
-        found = sorted(int(m.group(1)) for p in run_dir.glob(f"{CHECKPOINT_PREFIX}_*_steps.zip")
-                       if (m := re.fullmatch(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip", p.name)))
-        saved = f"saved: {', '.join(map(str, found))}" if found else "it saved none (train with --save-freq N)"
-        raise UsageError(f"no checkpoint after {steps} steps in {run_dir}; {saved}")
-    return path
+    """The checkpoint saved after ``steps`` timesteps, or :class:`UsageError` listing the run's checkpoints."""
+    saved = saved_checkpoints(run_dir)
+    if steps not in saved:
+        listed = f"saved: {', '.join(map(str, saved))}" if saved else "it saved none (train with --save-freq N)"
+        raise UsageError(f"no checkpoint after {steps} steps in {run_dir}; {listed}")
+    return saved[steps]
 
 
 def checkpoint_stats_path(run_dir: Path, steps: int) -> Path:
@@ -244,7 +249,6 @@ def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = F
 def load_run(ref: RunRef) -> LoadedRun:
     """Find the run ``ref`` names and load its model(s) and experiment."""
     from sbagents.algos import ALGOS
-    from sbagents.multiagent.groups import group_stats_name
 
     if ref.algo not in ALGOS:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
@@ -254,6 +258,8 @@ def load_run(ref: RunRef) -> LoadedRun:
     cls = ALGOS[ref.algo].cls
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
+        from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo
+
         if ref.checkpoint is not None:
             raise UsageError("--load-checkpoint loads one model; this run has one model per group (its checkpoints "
                              "are rl_model.<group>_<steps>_steps.zip)")

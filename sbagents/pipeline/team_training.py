@@ -35,6 +35,7 @@ from sbagents.pipeline.experiment import Experiment
 from sbagents.pipeline.lifecycle import LearningClock
 from sbagents.pipeline.models import make_model
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions
+from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX
 from sbagents.pipeline.trust import TrustOptions
 
 #: Seed offset of the evaluation team (as single-model runs).
@@ -80,7 +81,7 @@ def _group_callbacks(
         own: list[BaseCallback] = [ActedMaskCallback()] if isinstance(model, OnPolicyAlgorithm) else []
         if output.save_freq > 0:
             own.append(CheckpointCallback(max(round(output.save_freq * calls_per_env_step), 1), str(run_dir),
-                                          name_prefix=f"rl_model.{group}", save_vecnormalize=True))
+                                          name_prefix=f"{CHECKPOINT_PREFIX}.{group}", save_vecnormalize=True))
         own += [cb(**kw) for cb, kw in exp.callbacks]
         own += _trust_callbacks(trust, run_dir, group)
         each[group] = own

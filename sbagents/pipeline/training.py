@@ -32,7 +32,7 @@ from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.run_dir import VECNORMALIZE_FILE, check_model_file, env_stem
+from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, VECNORMALIZE_FILE, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
@@ -83,7 +83,7 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
             eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET)
             callbacks.append(EvalCallback(eval_env, deterministic=True, **common))
     if save_freq > 0:
-        callbacks.append(CheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix="rl_model",
+        callbacks.append(CheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
                                             save_vecnormalize=True))
     callbacks.extend(cb(**kw) for cb, kw in exp.callbacks)
     return callbacks

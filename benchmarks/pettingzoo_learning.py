@@ -47,6 +47,7 @@ class Task:
     eval_episodes: int = 100
     metric: str | None = None  # a per-episode metric of the evaluation to report beside the team return
     checkpoint_seconds: float | None = None  # also evaluate the last checkpoint saved within this much training
+    greedy_too: bool = False  # a config that evaluates stochastically: also report the greedy team's return
     note: str = ""  # what the numbers mean, printed under the table
 
 
@@ -65,11 +66,14 @@ TASKS: dict[str, Task] = {
                 note="Team return sums all four agents (adversaries +10 per catch each, the agent -10), so it is not "
                      "a score of either side. Catches per episode: the trained adversaries against the trained "
                      "agent; random adversaries against the same trained agent; random against random."),
-    "pursuit": Task("SISL pursuit (8 pursuers, 30 evaders)", "pettingzoo.sisl.pursuit_v5",
-                    budgets=(500_000,), eval_episodes=20,
-                    train_args=("--vec-env", "subproc", "--eval-freq", "50000", "--eval-episodes", "5"),
+    "pursuit": Task("SISL pursuit (8 pursuers, 30 evaders)", "pettingzoo.sisl.pursuit_v5", eval_episodes=20,
+                    train_args=("--eval-freq", "500000", "--eval-episodes", "4"), greedy_too=True,
                     note="Team return sums the 8 pursuers' rewards: +5 to each pursuer of a catch, +0.01 per evader "
-                         "touched, -0.1 per step while evaders remain; 500 steps unless all 30 are caught first."),
+                         "touched, -0.1 per step while evaders remain; 500 steps unless all 30 are caught first. The "
+                         "shipped config evaluates the policy as it acts (sampled actions, `deterministic_eval: "
+                         "false`): a pursuer that sees no evader must wander, which a greedy memoryless policy cannot "
+                         "(the greedy column, `evaluate --deterministic`, shows it). Trained on the batched pursuit "
+                         "(`sbagents.batched.pursuit`, step for step the PettingZoo env)."),
     "kaz": Task("Butterfly knights_archers_zombies (vector observations)",
                 "pettingzoo.butterfly.knights_archers_zombies_v11", budgets=(500_000,), eval_episodes=50,
                 note="Team return = zombies killed per episode (+1 per kill); an episode ends when a zombie reaches "
@@ -84,13 +88,13 @@ def cli(module: str, *args: str) -> subprocess.CompletedProcess[str]:
                           check=True)
 
 
-def config_budget(task: Task) -> int:
-    """The shipped config's ``n_timesteps`` for ``task``."""
+def config_experiment(task: Task) -> Any:
+    """The shipped config's :class:`~sbagents.pipeline.experiment.Experiment` for ``task``."""
     from sbagents.pipeline.env_names import resolve_env
     from sbagents.pipeline.experiment import build_experiment
     from sbagents.pipeline.options import TrainSpec
 
-    return build_experiment(TrainSpec(task.algo, task.env), resolve_env(task.env)).n_timesteps
+    return build_experiment(TrainSpec(task.algo, task.env), resolve_env(task.env))
 
 
 def catches(summary: dict[str, Any]) -> float:
@@ -113,6 +117,11 @@ def run_one(task: Task, seed: int, budget: int | None, logs: Path) -> dict[str, 
            "metrics": evaluation["metrics"], "load": round(os.getloadavg()[0], 2),
            "curve": {"timesteps": curve["timesteps"].tolist(),
                      "mean_return": np.mean(curve["results"], axis=1).round(2).tolist()}}
+    if task.greedy_too:
+        greedy = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(logs), "-n",
+                                str(task.eval_episodes), "--seed", "10000", "--deterministic", "--json"
+                                ).stdout.splitlines()[-1])
+        row["greedy_return"] = round(greedy["mean_return"], 2)
     if task.checkpoint_seconds is not None:
         row["checkpoint"] = _evaluate_checkpoint(task, run_dir, summary, logs)
     if task.metric == "catches":
@@ -185,19 +194,22 @@ def markdown(name: str, task: Task, result: dict[str, Any]) -> str:
                                                              if "catches" in v else "")
                      for k, v in result["baselines"].items())
     extra = f" {' '.join(task.train_args)}" if task.train_args else ""
+    how = "greedy" if config_experiment(task).deterministic_eval else "sampling"
     lines = [f"## {task.title}", "",
              f"`python -m sbagents.train --algo {task.algo} --env {task.env}{extra}` with the shipped config "
-             f"(budget `-n` as listed), greedy team evaluated on {task.eval_episodes} episodes (`python -m "
+             f"(budget `-n` as listed), {how} team evaluated on {task.eval_episodes} episodes (`python -m "
              f"sbagents.evaluate -n {task.eval_episodes} --seed 10000`). Baselines on the same episodes: {base}. "
              f"Command: `python -m benchmarks.pettingzoo_learning {name} --seeds "
              f"{' '.join(str(s) for s in result['seeds'])}`. Curve: `benchmarks/results/pettingzoo_{name}.png`.", ""]
     header = "| seed | timesteps | train s | team return |"
+    header += " greedy team return |" if task.greedy_too else ""
     header += " catches/episode | catches, random adversaries |" if task.metric == "catches" else ""
     if task.checkpoint_seconds is not None:
         header += f" checkpoint <= {task.checkpoint_seconds:.0f} s: steps | train s | team return |"
     lines += [header + " load |", "|" + "---:|" * (header.count("|") ) ]
     for row in result["runs"]:
         cells = f"| {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | {row['mean_return']:.2f} |"
+        cells += f" {row['greedy_return']:.2f} |" if task.greedy_too else ""
         if task.metric == "catches":
             cells += f" {row['catches']:.2f} | {row['catches_vs_random_adversaries']:.2f} |"
         if task.checkpoint_seconds is not None:
@@ -223,7 +235,8 @@ def plot(name: str, task: Task, result: dict[str, Any], path: Path) -> None:
     for key, summary in result["baselines"].items():
         ax.axhline(summary["mean_return"], linestyle="--", color="grey" if key == "random" else "black", label=key)
     ax.set_xlabel("agent steps")
-    ax.set_ylabel("team return (greedy evaluation)")
+    ax.set_ylabel(f"team return ({'greedy' if config_experiment(task).deterministic_eval else 'sampling'} "
+                  "evaluation)")
     ax.set_title(task.title)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -237,7 +250,7 @@ def run_task(name: str, seeds: list[int], output: str, results_dir: Path, add: b
     :param add: keep the saved JSON's runs of other seeds (same budgets) and add these seeds' runs to them.
     """
     task = TASKS[name]
-    full = config_budget(task)
+    full = config_experiment(task).n_timesteps
     budgets = [full if b is None else full // -b if b < 0 else b for b in task.budgets]
     runs = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,7 +1,7 @@
 """Env stepping and PPO training speed: reference VecEnvs vs the batched numpy VecEnvs (``sbagents.batched``).
 
-Measured for ``sbagents/GridWorld-v0``, ``treasure_hunt_v0`` and ``mpe2.simple_spread_v3`` (discrete actions; the
-zoo config's env kwargs):
+Measured for ``sbagents/GridWorld-v0``, ``treasure_hunt_v0``, ``mpe2.simple_spread_v3`` (discrete actions) and
+``pettingzoo.sisl.pursuit_v5`` (the zoo config's env kwargs):
 
 - env steps/s with random actions, resets included: one plain env (Python loop), the reference VecEnv
   of 64 copies (``make_vec_env`` DummyVecEnv / ``ParameterSharingVecEnv``, the ``policies: shared`` team VecEnv)
@@ -44,8 +44,9 @@ from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.options import TrainSpec
 
 SIMPLE_SPREAD = "mpe2.simple_spread_v3"
-ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0", SIMPLE_SPREAD)
-MULTI_AGENT: tuple[str, ...] = ("treasure_hunt_v0", SIMPLE_SPREAD)
+PURSUIT = "pettingzoo.sisl.pursuit_v5"
+ENV_IDS: tuple[str, ...] = ("sbagents/GridWorld-v0", "treasure_hunt_v0", SIMPLE_SPREAD, PURSUIT)
+MULTI_AGENT: tuple[str, ...] = ("treasure_hunt_v0", SIMPLE_SPREAD, PURSUIT)
 N_ENVS = 64
 WARMUP_STEPS = 20  # untimed VecEnv steps before each stepping measurement
 #: Steps per measurement (plain env steps, reference and batched VecEnv steps): ~0.3-1.5 s each on this machine.
@@ -53,6 +54,7 @@ STEPS: dict[str, tuple[int, int, int]] = {
     "sbagents/GridWorld-v0": (50_000, 1000, 20_000),
     "treasure_hunt_v0": (50_000, 200, 3000),
     SIMPLE_SPREAD: (2000, 50, 2000),  # mpe2's step is slow: ~2,500 plain env steps/s
+    PURSUIT: (500, 10, 1000),  # pursuit's step is slower: ~250 plain env steps/s
 }
 
 
@@ -62,6 +64,10 @@ def parallel_env_fn(env_id: str) -> Callable[..., Any]:
         from mpe2 import simple_spread_v3
 
         return simple_spread_v3.parallel_env  # type: ignore[no-any-return]
+    if env_id == PURSUIT:
+        from pettingzoo.sisl import pursuit_v5
+
+        return pursuit_v5.parallel_env  # type: ignore[no-any-return]
     return parallel_env
 
 
@@ -248,8 +254,8 @@ def markdown(results: dict[str, Any]) -> str:
         f"load average before/after {m['load_before'][0]} / {m['load_after'][0]} "
         "(shared machine). Command: `python -m benchmarks`.",
         "",
-        "Env transitions/s with random actions (resets included; TreasureHunt and simple spread: one transition = "
-        "one agent step):",
+        "Env transitions/s with random actions (resets included; TreasureHunt, simple spread and pursuit: one "
+        "transition = one agent step):",
         "",
         f"| env | single env | reference x{N_ENVS} | batched x{N_ENVS} | batched / reference | no-op x{N_ENVS} "
         "| no-op / reference (ceiling) |",
@@ -279,8 +285,9 @@ def markdown(results: dict[str, Any]) -> str:
                          f"{_fmt(noop)} | {noop / ref:.2f}x |")
     lines += [
         "",
-        "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt and "
-        "simple spread `sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` (the `policies: shared` team "
+        "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt, "
+        "simple spread and pursuit `sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` (the `policies: "
+        "shared` team "
         "VecEnv). Medians of interleaved rounds. *No-op* is "
         "`benchmarks.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
         "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",

@@ -21,7 +21,10 @@ def build_parser() -> ArgumentParser:
     add_run_arguments(p)
     p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to run (default 10)")
     p.add_argument("--render", action="store_true", help="print each state (text envs) or render in 'human' mode")
-    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the greedy policy")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--deterministic", dest="deterministic", action="store_true", default=None,
+                       help="greedy actions (the default, unless the run's config sets deterministic_eval: false)")
+    group.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation env")
     p.add_argument("--attack", default=None, metavar="SPEC",
                    help='observation attacks, e.g. "gaussian:0.05,0.1 pgd:0.05" (adversarial.csv/.png in the run dir)')
@@ -36,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, evaluate the run, print a table or JSON."""
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
-    options = EvaluateOptions(args.n_episodes, not args.stochastic, args.seed, args.render, args.attack,
+    options = EvaluateOptions(args.n_episodes, args.deterministic, args.seed, args.render, args.attack,
                               args.fairness, args.bins)
     summary = evaluate(run_ref(args), options)
     print(json.dumps(summary) if args.json else format_evaluation(summary))

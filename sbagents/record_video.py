@@ -20,8 +20,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the recording env")
     p.add_argument("--fps", type=float, default=None, help="video frame rate (default: the env's render_fps)")
     group = p.add_mutually_exclusive_group()
-    group.add_argument("--deterministic", dest="deterministic", action="store_true", default=True,
-                       help="greedy actions (default)")
+    group.add_argument("--deterministic", dest="deterministic", action="store_true", default=None,
+                       help="greedy actions (the default, unless the run's config sets deterministic_eval: false)")
     group.add_argument("--stochastic", dest="deterministic", action="store_false", help="sample actions")
     return p
 

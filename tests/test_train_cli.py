@@ -13,7 +13,8 @@ import yaml
 from cli_helpers import cli, last_json, popen, summary
 from stable_baselines3 import PPO
 
-from sbagents.api import RunRef
+from sbagents.api import RunRef, export
+from sbagents.errors import UsageError
 from sbagents.pipeline.run_dir import load_run
 
 GRID = "sbagents/GridWorld-v0"
@@ -177,6 +178,10 @@ def test_list_progress_tensorboard_and_checkpoints(tmp_path: Path) -> None:
     assert "saved: 1024, 2048" in missing.stderr and "Traceback" not in missing.stderr
     both = cli(*run, "--load-checkpoint", "1024", "--load-best")
     assert both.returncode == 2 and "not allowed with argument" in both.stderr
+    export(RunRef("ppo", GRID, tmp_path, checkpoint=1024), n_observations=20)  # not into the final model's export/
+    assert (run_dir / "export_checkpoint_1024" / "policy.onnx").is_file() and not (run_dir / "export").exists()
+    with pytest.raises(UsageError, match="give one of them"):  # the Python API refuses both as the CLI does
+        RunRef("ppo", GRID, tmp_path, load_best=True, checkpoint=1024)
     loaded = load_run(RunRef("ppo", GRID, tmp_path, checkpoint=1024))
     assert loaded.model_path.name == "rl_model_1024_steps.zip"
     assert loaded.stats_path.name == "rl_model_vecnormalize_1024_steps.pkl"

@@ -129,6 +129,52 @@ class BatchedVecEnv(VecEnv):
         return images
 
 
+class BatchedTeamVecEnv(BatchedVecEnv):
+    """Base class of the parameter-sharing team VecEnvs: ``n_envs`` copies of a PettingZoo env, slot ``k`` is agent
+    ``k % slots_per_env`` of copy ``k // slots_per_env``, team episodes go to one SB3 monitor file, as on the
+    reference team VecEnv.
+
+    :param monitor_path: the monitor file (``<path>.monitor.csv``; None: none), its header naming ``env_name``
+        and its columns ``r, l, t`` plus ``extra_keys``.
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        slots_per_env: int,
+        template: Any,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        monitor_path: str | None,
+        env_name: str,
+        extra_keys: tuple[str, ...] = (),
+    ) -> None:
+        super().__init__(num_envs, slots_per_env, template, observation_space, action_space)
+        self._writer: ResultsWriter | None = None
+        if monitor_path is not None:
+            header: dict[str, float | str] = {"t_start": self._t_start, "env_id": env_name}
+            self._writer = ResultsWriter(monitor_path, header=header, extra_keys=extra_keys)
+
+    def seed(self, seed: int | None = None) -> list[int | None]:  # type: ignore[override]
+        """Copy ``i`` (all its slots) is reset with ``seed + i`` at the next reset (a random base seed when None,
+        drawn as the reference draws it)."""
+        if seed is None:
+            seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
+        self._seeds = [seed + k // self.slots_per_env for k in range(self.num_envs)]
+        return list(self._seeds)
+
+    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
+        """Always False, as the reference (PettingZoo envs are never Gymnasium wrappers)."""
+        return [False for _ in self._env_indices(indices)]
+
+    def close(self) -> None:
+        """Close the monitor file and the template env."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        self.template.close()
+
+
 def monitor_writer(monitor_dir: str | None, index: int, env_id: str, t_start: float,
                    extra_keys: tuple[str, ...] = ()) -> ResultsWriter | None:
     """SB3 monitor file ``<monitor_dir>/<index>.monitor.csv`` (None when ``monitor_dir`` is None)."""

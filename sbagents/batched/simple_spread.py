@@ -40,10 +40,9 @@ from typing import Any
 
 import numpy as np
 from gymnasium.utils import seeding
-from stable_baselines3.common.monitor import ResultsWriter
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sbagents.batched.base import BatchedVecEnv
+from sbagents.batched.base import BatchedTeamVecEnv
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 SIMPLE_SPREAD_ID = "mpe2.simple_spread_v3"
@@ -75,7 +74,7 @@ def unsupported_kwargs(env_kwargs: Mapping[str, Any]) -> list[str]:
             if key in _REPRODUCED and not _REPRODUCED[key](value)]
 
 
-class BatchedSimpleSpreadVecEnv(BatchedVecEnv):
+class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
     """``n_envs`` simple-spread teams as one parameter-sharing SB3 ``VecEnv`` (``n_envs * N`` slots).
 
     :param n_envs: number of env copies (teams).
@@ -128,13 +127,9 @@ class BatchedSimpleSpreadVecEnv(BatchedVecEnv):
         self._returns = np.zeros((n, n_a), dtype=np.float64)  # per-agent episode returns, as the reference sums
         self._length = 0  # steps of the current episode: the same in every copy (they start and end together)
         self._rngs: list[np.random.Generator | None] = [None] * n
-        self._env_name = str(env.metadata.get("name", "team"))  # the reference's monitor header, read as it reads it
-        super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]))
+        super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]), monitor_path,
+                         str(env.metadata.get("name", "team")))  # the reference's monitor header, read as it reads it
         self._n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
-        self._writer: ResultsWriter | None = None
-        if monitor_path is not None:
-            header: dict[str, float | str] = {"t_start": self._t_start, "env_id": self._env_name}
-            self._writer = ResultsWriter(monitor_path, header=header, extra_keys=())
 
     # ------------------------------------------------------------------ world constants
     @staticmethod
@@ -163,14 +158,6 @@ class BatchedSimpleSpreadVecEnv(BatchedVecEnv):
         self._u_table = np.stack([unit * (5.0 if a.accel is None else a.accel) for a in agents])
 
     # ------------------------------------------------------------------ reset
-    def seed(self, seed: int | None = None) -> list[int | None]:  # type: ignore[override]
-        """Copy ``i`` (all its agent slots) is reset with ``seed + i`` at the next :meth:`reset` (a random base seed
-        when None, drawn as the reference draws it)."""
-        if seed is None:
-            seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
-        self._seeds = [seed + k // self.n_agents for k in range(self.num_envs)]
-        return list(self._seeds)
-
     def _start_episodes(self) -> None:
         """Draw every copy's start state from its generator (mpe2's ``reset_world`` draws) and zero the episode."""
         shape = (self.n_agents + self.n_landmarks, 2)
@@ -304,13 +291,3 @@ class BatchedSimpleSpreadVecEnv(BatchedVecEnv):
         raw.steps = self._length
         raw.agents = list(self.possible_agents)
         env.agents = list(self.possible_agents)
-
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        """Always False, as the reference (PettingZoo envs are never Gymnasium wrappers)."""
-        return [False for _ in self._env_indices(indices)]
-
-    def close(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        self.template.close()

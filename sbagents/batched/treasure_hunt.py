@@ -25,10 +25,9 @@ from typing import Any
 
 import numpy as np
 from gymnasium.utils import seeding
-from stable_baselines3.common.monitor import ResultsWriter
-from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sbagents.batched.base import BatchedVecEnv
+from sbagents.batched.base import BatchedTeamVecEnv
 from sbagents.batched.kernels import treasure_reset, treasure_step
 from sbagents.envs.treasure_hunt import (
     ACTION_DELTAS,
@@ -46,7 +45,7 @@ EVENTS: tuple[str, ...] = ("move", "wall", "obstacle", "treasure")
 _REWARD_OF = np.array([STEP_REWARD, WALL_REWARD, OBSTACLE_REWARD, STEP_REWARD, TREASURE_REWARD], dtype=np.float64)
 
 
-class BatchedTreasureHuntVecEnv(BatchedVecEnv):
+class BatchedTreasureHuntVecEnv(BatchedTeamVecEnv):
     """``n_envs`` treasure-hunt teams as one parameter-sharing SB3 ``VecEnv`` (``n_envs * n_agents`` slots).
 
     :param n_envs: number of env copies (teams).
@@ -84,11 +83,8 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._final_returns = np.zeros(n, dtype=np.float64)
         self._terminal = np.zeros((n, n_a, self._dim), dtype=np.float32)
         self._rngs: list[np.random.Generator | None] = [None] * n
-        super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]))
-        self._writer: ResultsWriter | None = None
-        if monitor_path is not None:
-            header: dict[str, float | str] = {"t_start": self._t_start, "env_id": TREASURE_HUNT_ID}
-            self._writer = ResultsWriter(monitor_path, header=header, extra_keys=("treasures_collected",))
+        super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]), monitor_path,
+                         TREASURE_HUNT_ID, ("treasures_collected",))
 
     # ------------------------------------------------------------------ tables
     def _build_move_table(self, env: CooperativeTreasureHunt) -> None:
@@ -131,13 +127,6 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         self._tables = (self._move, _REWARD_OF, params, coords, neighbours, book_tail, offs, self._free)
 
     # ------------------------------------------------------------------ reset
-    def seed(self, seed: int | None = None) -> list[int | None]:  # type: ignore[override]
-        """Env ``i`` (all its agent slots) is reset with ``seed + i`` at the next :meth:`reset`."""
-        if seed is None:
-            seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
-        self._seeds = [seed + k // self.n_agents for k in range(self.num_envs)]
-        return self._seeds
-
     def _draw(self, rng: np.random.Generator) -> np.ndarray:
         """A start state as the reference draws it: free-cell indices of the agents, then the treasures."""
         return rng.choice(len(self._free), self.n_agents + self.n_treasures, replace=False)
@@ -224,10 +213,6 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
         env.steps = int(self._counters[env_index, 1])
         env.agents = list(self.possible_agents)
 
-    def env_is_wrapped(self, wrapper_class: type, indices: VecEnvIndices = None) -> list[bool]:
-        """Always False, as the reference (PettingZoo envs are never Gymnasium wrappers)."""
-        return [False for _ in self._env_indices(indices)]
-
     def render(self, mode: str | None = None) -> np.ndarray | None:
         """``human``/``ansi``: each env renders itself; ``rgb_array`` images of all envs are tiled."""
         if self.render_mode in ("human", "ansi"):
@@ -236,8 +221,3 @@ class BatchedTreasureHuntVecEnv(BatchedVecEnv):
                 self.template.render()
             return None
         return super().render(mode)
-
-    def close(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None

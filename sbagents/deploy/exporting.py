@@ -216,8 +216,17 @@ def _export_into(
     return report
 
 
+def default_export_dir(run: RunRef) -> str:
+    """Where in the run dir a model is exported without ``--out``: ``export`` (the final model), ``export_best``
+    (``--load-best``) or ``export_checkpoint_<steps>`` (``--load-checkpoint``), so exports never overwrite each
+    other."""
+    if run.load_best:
+        return "export_best"
+    return "export" if run.checkpoint is None else f"export_checkpoint_{run.checkpoint}"
+
+
 def export(run: RunRef, int8: bool = False, out: str | Path | None = None, n_observations: int = 1000) -> ExportReport:
-    """Export a finished one-model run to ONNX in ``out`` (default: ``<run dir>/export``).
+    """Export a finished one-model run to ONNX in ``out`` (default: ``<run dir>/``:func:`default_export_dir`).
 
     Parity is checked on ``n_observations`` observations recorded with the greedy policy on an env built exactly
     as in training (same env kwargs and wrappers, frozen VecNormalize statistics).
@@ -251,7 +260,7 @@ def export_groups(
             check_exportable(model)
         except TypeError as exc:
             raise UsageError(f"cannot export {run.algo}: {exc}") from None
-    target = Path(out) if out is not None else loaded.run_dir / "export"
+    target = Path(out) if out is not None else loaded.run_dir / default_export_dir(run)
     if ref.multi_agent:
         from sbagents.deploy.team_export import export_team
 

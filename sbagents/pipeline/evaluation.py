@@ -93,7 +93,8 @@ def evaluate_model(
 
     try:
         returns, lengths = evaluate_policy(model, venv, n_eval_episodes=options.n_episodes,
-                                           deterministic=options.deterministic, return_episode_rewards=True,
+                                           deterministic=options.greedy(exp.deterministic_eval),
+                                           return_episode_rewards=True,
                                            callback=on_step, warn=False)
     finally:
         venv.close()
@@ -119,7 +120,7 @@ def evaluate_groups(
                            wrapper=ParallelTextStepPrinter if text else None)
     venvs = {g: normalize_for_eval(v, exp, (stats_paths or {}).get(g)) for g, v in venvs.items()}
     try:
-        actors = {g: model_actor(models[g], options.deterministic) for g in venvs}
+        actors = {g: model_actor(models[g], options.greedy(exp.deterministic_eval)) for g in venvs}
         episodes = run_team_episodes(venvs, actors, options.n_episodes, options.seed)
     finally:
         for venv in venvs.values():

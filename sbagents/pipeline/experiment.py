@@ -110,6 +110,7 @@ class Experiment:
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
     team: TeamOptions | None = None  # set for PettingZoo envs
+    deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -220,6 +221,9 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     for key in ("env_kwargs", "monitor_kwargs"):
         if not isinstance(entry.get(key, {}), dict):
             raise UsageError(f"{key} must be a mapping, got {entry[key]!r} ({source})")
+    deterministic_eval = entry.get("deterministic_eval", True)
+    if not isinstance(deterministic_eval, bool):
+        raise UsageError(f"deterministic_eval must be true or false, got {deterministic_eval!r} ({source})")
     normalize = entry.get("normalize", False)
     if not isinstance(normalize, bool | dict):
         raise UsageError(f"normalize must be true/false or a VecNormalize kwargs mapping, got {normalize!r}")
@@ -243,6 +247,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
         algo_kwargs=algo_kwargs,
         hyperparams=dict(entry),
         team=_team_options(entry, source) if multi_agent else None,
+        deterministic_eval=deterministic_eval,
     )
 
 

@@ -152,7 +152,8 @@ class EvaluateOptions:
     """How ``evaluate`` plays a finished run.
 
     :param n_episodes: episodes to play (``-n``).
-    :param deterministic: greedy actions (``--stochastic`` samples).
+    :param deterministic: greedy actions (``--deterministic``), or sampled ones (``--stochastic``); None: as the
+        run's config says (its ``deterministic_eval``, greedy unless set to false).
     :param seed: seed of the evaluation env (same episodes every time).
     :param render: print each state (text envs) or let the env render itself (``human``).
     :param attacks: observation attacks to evaluate as well (``--attack``, e.g. ``"gaussian:0.05 pgd:0.1"``).
@@ -161,7 +162,7 @@ class EvaluateOptions:
     """
 
     n_episodes: int = 10
-    deterministic: bool = True
+    deterministic: bool | None = None
     seed: int | None = 0
     render: bool = False
     attacks: str | None = None
@@ -174,6 +175,11 @@ class EvaluateOptions:
             raise UsageError(f"the number of evaluation episodes must be >= 1, got {self.n_episodes}")
         if self.fairness:
             check_at_least("--bins", self.bins, 1)
+
+    def greedy(self, default: bool = True) -> bool:
+        """Whether to act greedily: :attr:`deterministic`, or ``default`` (the run's ``deterministic_eval``) when
+        it is None."""
+        return default if self.deterministic is None else self.deterministic
 
 
 @dataclass

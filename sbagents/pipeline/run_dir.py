@@ -189,6 +189,10 @@ class RunRef:
     gym_packages: tuple[str, ...] = ()
     checkpoint: int | None = None
 
+    def __post_init__(self) -> None:
+        if self.load_best and self.checkpoint is not None:
+            raise UsageError("load_best and checkpoint each name a model of the run: give one of them")
+
     def env_ref(self) -> Any:
         """The resolved env (:class:`~sbagents.pipeline.env_names.EnvRef`; imports gymnasium)."""
         from sbagents.pipeline.env_names import resolve_env

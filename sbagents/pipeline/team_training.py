@@ -130,7 +130,8 @@ def build_groups(
         eval_envs = {g: normalize_for_eval(v, exp) for g, v in
                      make_team_vecs(exp, ref, 1, None, vec_env="dummy").items()}
         head.append(TeamEvalCallback(eval_envs, evaluation.eval_episodes, max(eval_freq // slots_per_env_step, 1),
-                                     str(run_dir), str(run_dir), seed=seed + EVAL_SEED_OFFSET, models=models,
+                                     str(run_dir), str(run_dir), exp.deterministic_eval, seed + EVAL_SEED_OFFSET,
+                                     models=models,
                                      callback_after_eval=EvalReportCallback(reporter, scale), verbose=0,
                                      timestep_scale=scale))
     each = _group_callbacks(exp, models, run_dir, output, trust, 1 / slots_per_env_step)

@@ -78,10 +78,11 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
             from sbagents.multiagent.team_eval import TeamEvalCallback
 
             team_env = make_eval_vec(exp, ref, 1, None, vec_env="dummy")
-            callbacks.append(TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET, **common))
+            callbacks.append(TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET,
+                                              deterministic=exp.deterministic_eval, **common))
         else:
             eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET)
-            callbacks.append(EvalCallback(eval_env, deterministic=True, **common))
+            callbacks.append(EvalCallback(eval_env, deterministic=exp.deterministic_eval, **common))
     if save_freq > 0:
         callbacks.append(CheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
                                             save_vecnormalize=True))

@@ -108,7 +108,7 @@ def _objective(spec: TrainSpec, ref: EnvRef, study: StudyOptions, seed: int) -> 
                 raise optuna.TrialPruned(str(exc)) from None
             freq = max(exp.n_timesteps // (study.n_evaluations * env.num_envs), 1)
             callback = _BestEval(trial, k * study.n_evaluations, bests, eval_env=eval_env, eval_freq=freq,
-                                 n_eval_episodes=study.eval_episodes, deterministic=True, verbose=0)
+                                 n_eval_episodes=study.eval_episodes, deterministic=exp.deterministic_eval, verbose=0)
             model.learn(exp.n_timesteps, callback=callback)
             env.close()
             eval_env.close()

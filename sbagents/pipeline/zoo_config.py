@@ -37,6 +37,7 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "groups",
         "agent_id",
         "critic",
+        "deterministic_eval",
     }
 )
 #: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.

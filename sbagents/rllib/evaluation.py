@@ -117,7 +117,7 @@ def evaluate_modules(
                 raise UsageError(f"RLlib evaluation supports Discrete actions; module {module_id} acts in "
                                  f"{venv.action_space}")
         rng = np.random.default_rng(options.seed)
-        actors = {m: module_actor(modules[m], options.deterministic, rng) for m in venvs}
+        actors = {m: module_actor(modules[m], options.greedy(), rng) for m in venvs}
         episodes = run_team_episodes(venvs, actors, options.n_episodes, options.seed)
     finally:
         for venv in venvs.values():

@@ -67,7 +67,7 @@ def record_video(
     n_steps: int = 1000,
     output_dir: str | Path | None = None,
     seed: int = 0,
-    deterministic: bool = True,
+    deterministic: bool | None = None,
     fps: float | None = None,
 ) -> Path:
     """Record ``n_steps`` steps of a finished run's agent to an mp4 and return its path.
@@ -77,7 +77,7 @@ def record_video(
         the video has ``n_steps + 1`` frames of shape ``(H, W, 3)`` (the env's ``render()`` size).
     :param output_dir: where the mp4 goes (default: ``<run dir>/videos``).
     :param seed: seed of the recording env.
-    :param deterministic: greedy actions (``False``: sample from the policy).
+    :param deterministic: greedy actions (``False``: sample from the policy; None: the run's ``deterministic_eval``).
     :param fps: video frame rate (default: the env's ``metadata["render_fps"]``).
     :return: the path of the mp4 file, named ``<algo>-<EnvId>-step-0-to-step-<n_steps>.mp4``.
     """
@@ -86,6 +86,8 @@ def record_video(
     if fps is not None and not fps > 0:
         raise UsageError(f"--fps must be > 0, got {fps}")
     loaded = load_run(run)
+    if deterministic is None:
+        deterministic = loaded.experiment.deterministic_eval
     ref = loaded.env
     venvs = _render_vecs(loaded, seed)
     first = next(iter(venvs))

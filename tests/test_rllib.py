@@ -104,7 +104,8 @@ def _progress(run_dir: Path) -> list[dict[str, str]]:
 @needs_ray
 def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) -> None:
     result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "3000", "--num-env-runners",
-                 "2", "-f", str(tmp_path), "--seed", "3", "--eval-freq", "2000", "--verbose", "0", *SMALL)
+                 "2", "-f", str(tmp_path), "--seed", "3", "--eval-freq", "2000", "--save-freq", "1000", "--verbose",
+                 "0", *SMALL)
     assert result.returncode == 0, result.stderr
     run_dir = tmp_path / "ppo" / f"{RUN}_1"
     assert is_rllib_run(run_dir)
@@ -120,6 +121,18 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
     rows = _progress(run_dir)
     assert [int(r["env_steps"]) for r in rows] == [1000, 2000, 3000]
     assert rows[1]["eval_treasures_collected"] != "" and math.isfinite(float(rows[-1]["shared/policy_loss"]))
+    # --save-freq 1000: a module checkpoint after 1000 and 2000 env steps (3000 is the final rllib_checkpoint)
+    assert [r["checkpoint"] for r in rows] == ["checkpoint_1000", "checkpoint_2000", ""]
+    assert sorted(p.name for p in run_dir.glob("checkpoint_*")) == ["checkpoint_1000", "checkpoint_2000"]
+    seconds = [float(r["train_seconds"]) for r in rows]
+    assert 0 < seconds[0] < seconds[1] < seconds[2] <= s["train_seconds"]
+    from sbagents.pipeline.env_names import resolve_env
+    from sbagents.pipeline.options import EvaluateOptions
+    from sbagents.rllib.evaluation import evaluate_checkpoint
+
+    early = evaluate_checkpoint(run_dir / "checkpoint_1000", resolve_env(RUN), "ppo", {"observation": "egocentric"},
+                                None, EvaluateOptions(n_episodes=2, seed=0))
+    assert early["n_episodes"] == 2 and math.isfinite(early["mean_return"])
     args = (run_dir / RUN / "args.yml").read_text()
     assert "backend: rllib" in args and "seed: 3" in args
     report = last_json(cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(tmp_path), "-n", "4", "--json").stdout)
@@ -210,3 +223,43 @@ def test_rllib_benchmark_sections_match_their_results(env: str) -> None:
     section = markdown(result)
     assert section in (root / "BENCHMARKS.md").read_text()
     assert len(result["runs"]) == 3 and all(not r["interrupted"] for r in result["runs"])
+
+
+@needs_ray
+def test_lean_env_runner_samples_what_rllib_samples() -> None:
+    """LeanMultiAgentEnvRunner (the backend's env runner) returns the episodes and step counts RLlib's own
+    MultiAgentEnvRunner returns for the same config and seed, numpy-ized; no Ray instance is needed."""
+    import numpy as np
+    from ray.rllib.env.multi_agent_env_runner import MultiAgentEnvRunner
+
+    from sbagents.pipeline.env_names import resolve_env
+    from sbagents.pipeline.options import TrainSpec
+    from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
+    from sbagents.rllib.experiment import build_config, build_experiment
+
+    ref = resolve_env("mpe2.simple_spread_v3")
+    exp = build_experiment(TrainSpec("ppo", ref.env_id, 1000, {"num_envs_per_env_runner": 4}), ref, 0)
+    config, _ = build_config(exp, ref, seed=5)
+    assert config.env_runner_cls is LeanMultiAgentEnvRunner
+
+    def sample(cls: type) -> tuple[list, dict]:
+        runner = cls(config=config)
+        try:  # 4 envs x 30 steps a call: the second call continues the episodes the first one cut
+            episodes = runner.sample(num_timesteps=120) + runner.sample(num_timesteps=120)
+            return episodes, runner.get_metrics()
+        finally:
+            runner.stop()
+
+    theirs, their_metrics = sample(MultiAgentEnvRunner)
+    ours, our_metrics = sample(LeanMultiAgentEnvRunner)
+    assert len(ours) == len(theirs) == 16 and all(e.is_numpy for e in ours)
+    for mine, ref_episode in zip(ours, theirs, strict=True):
+        assert mine.env_t_started == ref_episode.env_t_started and mine.env_t == ref_episode.env_t
+        for aid, agent_episode in ref_episode.agent_episodes.items():
+            for get in ("get_observations", "get_actions", "get_rewards"):
+                assert np.array_equal(getattr(mine.agent_episodes[aid], get)(), getattr(agent_episode, get)())
+    counted = ("num_env_steps_sampled", "num_env_steps_sampled_lifetime", "num_episodes", "num_episodes_lifetime",
+               "num_agent_steps_sampled_lifetime", "num_module_steps_sampled_lifetime")
+    assert {k: str(our_metrics[k]) for k in counted} == {k: str(their_metrics[k]) for k in counted}
+    assert our_metrics["num_env_steps_sampled_lifetime"].peek() == 240
+    assert our_metrics["num_module_steps_sampled_lifetime"]["shared"].peek() == 720

@@ -6,7 +6,8 @@ RLlib backend. Training lives in :mod:`sbagents.rllib.training`, evaluation in :
 
 An RLlib run dir has the same layout as an SB3 one (``<log>/<algo>/<env>_<k>/`` with ``<env>/config.yml``,
 ``args.yml``, ``command.txt``, ``summary.json``) plus ``rllib_checkpoint/`` (``Algorithm.save_to_path``) and
-``progress.csv`` (one row per training iteration), instead of the SB3 model zip.
+``progress.csv`` (one row per training iteration), instead of the SB3 model zip; ``--save-freq N`` adds
+``checkpoint_<env steps>/`` module checkpoints.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from sbagents.errors import UsageError
 RLLIB_ALGOS: tuple[str, ...] = ("ppo",)
 #: The RLlib checkpoint inside a run dir; its presence marks an RLlib run.
 CHECKPOINT_DIR = "rllib_checkpoint"
+#: Periodic module checkpoints (``--save-freq``) are ``<run dir>/checkpoint_<env steps>/``.
+CHECKPOINT_PREFIX = "checkpoint"
 #: Per-iteration metrics of an RLlib run.
 PROGRESS_FILE = "progress.csv"
 #: Where the learner's (multi-agent) RLModule sits inside an RLlib checkpoint.
@@ -35,7 +38,6 @@ UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
     ("spec", "trained_agent"): "-i/--trained-agent",
     ("spec", "gym_packages"): "--gym-packages",
     ("output", "tensorboard_log"): "-tb/--tensorboard-log",
-    ("output", "save_freq"): "--save-freq",
     ("evaluation", "n_eval_envs"): "--n-eval-envs",
     ("execution", "vec_env"): "--vec-env",
     ("execution", "log_interval"): "--log-interval",
@@ -109,6 +111,7 @@ def check_options(groups: dict[str, Any]) -> None:
 
 __all__ = [
     "CHECKPOINT_DIR",
+    "CHECKPOINT_PREFIX",
     "MODULE_SUBDIR",
     "NEEDS_RAY",
     "PROGRESS_FILE",

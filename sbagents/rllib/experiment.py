@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import gymnasium as gym
 import torch
 from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
 from ray.rllib.algorithms.ppo import PPOConfig
@@ -25,6 +26,7 @@ from sbagents.pipeline.options import TrainSpec
 from sbagents.pipeline.zoo_config import spec_entry
 from sbagents.registration import PETTINGZOO_ENVS
 from sbagents.rllib import RLLIB_ALGOS, SHARED_MODULE
+from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
 from sbagents.rllib.truncation import PettingZooEnv, keep_truncation
 
 #: Zoo-entry keys that describe the experiment (the rest go to RLlib).
@@ -151,7 +153,9 @@ def agent_modules(exp: RllibExperiment, agents: list[str]) -> dict[str, list[str
 def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int = 1
                  ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
     """The RLlib ``PPOConfig`` of ``exp`` on ``ref`` (one local learner in the driver, ``num_env_runners``
-    samplers, one RLModule per module id of :func:`agent_modules`), and that module -> agents mapping."""
+    samplers of class :class:`~sbagents.rllib.env_runner.LeanMultiAgentEnvRunner`, one RLModule per module id of
+    :func:`agent_modules`), and that module -> agents mapping. With Discrete actions only, the env runners skip
+    RLlib's action normalization (a copy of the integer actions on every step)."""
     try:
         probe = ref.parallel_env(**exp.env_kwargs)
     except (TypeError, ValueError) as exc:
@@ -164,6 +168,7 @@ def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int 
             probe.close()
             raise UsageError(f"the agents of RLlib module {module} ({', '.join(members)}) have different spaces; "
                              "use policies: per_group or per_agent")
+    discrete = all(isinstance(probe.action_space(a), gym.spaces.Discrete) for a in agents)
     probe.close()
     env_name = f"sbagents_{exp.env_id}"
     register_env(env_name, make_env)
@@ -173,8 +178,9 @@ def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int 
     try:
         return (
             PPOConfig()
-            .environment(env_name, env_config=env_config)
-            .env_runners(**{"num_env_runners": 2, **exp.env_runners})
+            # normalize_actions only copies Discrete actions (a deepcopy per step); the env gets the same ints
+            .environment(env_name, env_config=env_config, normalize_actions=not discrete)
+            .env_runners(**{"num_env_runners": 2, **exp.env_runners}, env_runner_cls=LeanMultiAgentEnvRunner)
             .learners(num_learners=0)
             .multi_agent(policies=set(modules), policy_mapping_fn=functools.partial(_to_module, mapping))
             .training(**exp.training)

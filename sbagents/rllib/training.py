@@ -2,7 +2,8 @@
 
 Flow: :class:`TrainSpec` + ``zoo_configs/rllib_<algo>.yml`` -> :class:`~sbagents.rllib.experiment.RllibExperiment`
 -> RLlib ``AlgorithmConfig`` -> Ray (a local instance sized for this machine, or the cluster at ``address``) -> run
-dir with ``rllib_checkpoint/``, ``progress.csv`` and ``summary.json``, through the same run life as SB3 runs
+dir with ``rllib_checkpoint/``, ``progress.csv``, ``summary.json`` and, with ``--save-freq N``, a module checkpoint
+``checkpoint_<env steps>/`` every N env steps (:func:`save_module_checkpoint`), through the same run life as SB3 runs
 (:mod:`sbagents.pipeline.lifecycle`). Ctrl-C / SIGTERM stop training but still leave a checkpoint and
 ``summary.json`` (``interrupted: true``); Ray is shut down in every case.
 """
@@ -15,6 +16,7 @@ import logging
 import math
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -29,7 +31,7 @@ from sbagents.pipeline.env_names import EnvRef, resolve_env
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.training import TrainResult, default_command
-from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE, check_address
+from sbagents.rllib import CHECKPOINT_DIR, CHECKPOINT_PREFIX, PROGRESS_FILE, check_address
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.experiment import RllibExperiment, build_config, build_experiment
 
@@ -78,7 +80,7 @@ def train_rllib(
     ``execution.num_env_runners`` (default: the config's; 0 samples in the driver) and ``execution.address``
     (``auto``, ``host:6379`` or ``ray://host:10001``; None starts a local Ray) size the Ray side;
     ``execution.num_threads`` is the torch thread count of the learner and of every env runner. Periodic greedy team
-    evaluations go to ``progress.csv``.
+    evaluations go to ``progress.csv``; ``output.save_freq > 0`` saves a module checkpoint every that many env steps.
 
     :return: run dir, experiment and summary (``model`` is None: the policy is in ``rllib_checkpoint/``);
         ``interrupted`` after Ctrl-C/SIGTERM (the checkpoint is still saved).
@@ -113,7 +115,8 @@ def train_rllib(
             ray_scope.callback(algo_obj.stop)
         try:
             with clock:
-                _train_loop(algo_obj, (exp, ref, groups), run_dir, done, seed, evaluation, execution)
+                _train_loop(algo_obj, (exp, ref, groups), run_dir, done, seed, evaluation, execution,
+                            output.save_freq)
         finally:
             algo_obj.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
     steps = int(done["env_steps"])
@@ -133,9 +136,23 @@ def train_rllib(
 _LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var")
 
 
+def save_module_checkpoint(algo: Any, path: Path) -> Path:
+    """Save the learner's RLModule(s) (and optimizer state) of ``algo`` under ``path`` in the layout of a full
+    checkpoint (``learner_group/learner/rl_module``), which :func:`~sbagents.rllib.evaluation.evaluate_checkpoint`
+    reads; the env runners' state is left out, which keeps a periodic save short."""
+    algo.learner_group.save_to_path(str((path / "learner_group").resolve()))
+    return path
+
+
 def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[str]]], run_dir: Path,
-                state: dict[str, Any], seed: int, evaluation: EvalOptions, execution: ExecOptions) -> None:
+                state: dict[str, Any], seed: int, evaluation: EvalOptions, execution: ExecOptions,
+                save_freq: int = -1) -> None:
     """``algo.train()`` until ``exp.n_timesteps`` env steps; one ``progress.csv`` row per iteration.
+
+    With ``save_freq > 0``, the first iteration that reaches every multiple of ``save_freq`` env steps saves
+    ``checkpoint_<env steps>/`` (:func:`save_module_checkpoint`); its row names it in ``checkpoint``. The row's
+    ``train_seconds`` is the time since the loop started (milliseconds after the clock of ``summary.json``'s
+    ``train_seconds``), at the end of the iteration, saves and evaluations included.
 
     ``state`` (``env_steps``, ``agent_steps``, ``iterations``) is updated after every iteration, so it is
     current when a KeyboardInterrupt ends the loop.
@@ -146,11 +163,13 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
     metric_keys = list(declared_metrics(getattr(probe, "metadata", None)))
     probe.close()
     fields = ["iteration", "env_steps", "agent_steps", "episodes", "episode_return_mean", "episode_len_mean",
-              "iter_seconds", "time_total_s", "env_steps_per_s", "eval_mean_return",
+              "iter_seconds", "time_total_s", "train_seconds", "env_steps_per_s", "checkpoint", "eval_mean_return",
               *(f"eval_{k}" for k in metric_keys)]
     fields += [f"{m}/{k}" for m in modules for k in _LEARNER_STATS]
     eval_freq = evaluation.frequency(exp.n_timesteps)
     next_eval = eval_freq if eval_freq > 0 else math.inf
+    next_save = save_freq if save_freq > 0 else math.inf
+    start = time.perf_counter()
     reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
     with (run_dir / PROGRESS_FILE).open("w", newline="") as f, contextlib.closing(reporter):
         writer = csv.DictWriter(f, fieldnames=fields)
@@ -182,5 +201,9 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
                 declared = {k: ev["metrics"][k] for k in metric_keys}
                 row.update(eval_mean_return=ev["mean_return"], **{f"eval_{k}": v for k, v in declared.items()})
                 reporter.evaluation(steps, ev["mean_return"], ev["std_return"], ev["success_rate"], declared)
+            if steps >= next_save and steps < exp.n_timesteps:
+                next_save = steps - steps % save_freq + save_freq
+                row["checkpoint"] = save_module_checkpoint(algo, run_dir / f"{CHECKPOINT_PREFIX}_{steps}").name
+            row["train_seconds"] = round(time.perf_counter() - start, 3)
             writer.writerow(row)
             f.flush()

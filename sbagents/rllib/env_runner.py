@@ -34,6 +34,8 @@ from ray.rllib.utils.metrics import (
 class LeanMultiAgentEnvRunner(MultiAgentEnvRunner):  # type: ignore[misc]
     """RLlib's ``MultiAgentEnvRunner`` with per-call (not per-step) numpy conversion and step-count logging."""
 
+    episodes_to_numpy: bool  # RLlib's EnvRunner attribute (declared for type checkers that cannot see Ray)
+
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self._counts: dict[str, Counter[str]] = {"env": Counter(), "agent": Counter(), "module": Counter()}
         self._prometheus: dict[int, tuple[Any, int]] = {}  # id(counter) -> (counter, pending increments)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -173,6 +173,28 @@ class BatchedTeamVecEnv(BatchedVecEnv):
             self._writer.close()
             self._writer = None
         self.template.close()
+
+
+def unreproduced_kwargs(env_kwargs: Mapping[str, Any], reproduced: Mapping[str, Callable[[Any], bool]]
+                        ) -> list[str]:
+    """The env kwargs whose values a batched env does not reproduce, as ``key=value`` (empty: batchable).
+
+    :param reproduced: kwarg -> whether the batched env reproduces a value of it; kwargs not listed take any value.
+        Unknown keys and invalid values are left to the env's constructor (it raises as the reference does).
+    """
+    return [f"{key}={value!r}" for key, value in env_kwargs.items()
+            if key in reproduced and not reproduced[key](value)]
+
+
+def check_batchable(n_envs: int, problems: list[str], env_id: str, support: str) -> None:
+    """Refuse ``n_envs < 1`` and kwargs a batched env does not reproduce (``problems``, naming what it supports).
+
+    :raises ValueError: either.
+    """
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if problems:
+        raise ValueError(f"no batched {env_id} for {', '.join(problems)}; supported: {support}")
 
 
 def monitor_writer(monitor_dir: str | None, index: int, env_id: str, t_start: float,

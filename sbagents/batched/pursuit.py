@@ -39,7 +39,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sbagents.batched.base import BatchedTeamVecEnv
+from sbagents.batched.base import BatchedTeamVecEnv, check_batchable, unreproduced_kwargs
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 PURSUIT_ID = "pettingzoo.sisl.pursuit_v5"
@@ -63,8 +63,7 @@ _AROUND = np.array([[-1, 0], [1, 0], [0, 1], [0, -1]], dtype=np.int64)
 
 def unsupported_kwargs(env_kwargs: Mapping[str, Any]) -> list[str]:
     """The env kwargs whose values the batched env does not reproduce, as ``key=value`` (empty: batchable)."""
-    return [f"{key}={value!r}" for key, value in env_kwargs.items()
-            if key in _REPRODUCED and not _REPRODUCED[key](value)]
+    return unreproduced_kwargs(env_kwargs, _REPRODUCED)
 
 
 def need_to_surround(map_matrix: np.ndarray) -> np.ndarray:
@@ -101,12 +100,8 @@ class BatchedPursuitVecEnv(BatchedTeamVecEnv):
     ) -> None:
         from pettingzoo.sisl import pursuit_v5  # optional dependency (the pettingzoo-envs extra)
 
-        if n_envs < 1:
-            raise ValueError(f"n_envs must be >= 1, got {n_envs}")
         kwargs = dict(env_kwargs or {})
-        problems = unsupported_kwargs(kwargs)
-        if problems:
-            raise ValueError(f"no batched {PURSUIT_ID} for {', '.join(problems)}; supported: {PURSUIT_SUPPORT}")
+        check_batchable(n_envs, unsupported_kwargs(kwargs), PURSUIT_ID, PURSUIT_SUPPORT)
         env = pursuit_v5.parallel_env(**kwargs)  # the template; validates the kwargs as the reference does
         env.reset(seed=0)
         game = env.unwrapped.env  # pursuit's Pursuit object

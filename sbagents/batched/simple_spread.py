@@ -42,7 +42,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
-from sbagents.batched.base import BatchedTeamVecEnv
+from sbagents.batched.base import BatchedTeamVecEnv, check_batchable, unreproduced_kwargs
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 SIMPLE_SPREAD_ID = "mpe2.simple_spread_v3"
@@ -70,8 +70,7 @@ def unsupported_kwargs(env_kwargs: Mapping[str, Any]) -> list[str]:
     Unknown keys and invalid values of the supported keys are left to the env's constructor (it raises as the
     reference does).
     """
-    return [f"{key}={value!r}" for key, value in env_kwargs.items()
-            if key in _REPRODUCED and not _REPRODUCED[key](value)]
+    return unreproduced_kwargs(env_kwargs, _REPRODUCED)
 
 
 class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
@@ -91,13 +90,8 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
     ) -> None:
         from mpe2 import simple_spread_v3  # optional dependency (the pettingzoo-envs extra)
 
-        if n_envs < 1:
-            raise ValueError(f"n_envs must be >= 1, got {n_envs}")
         kwargs = dict(env_kwargs or {})
-        problems = unsupported_kwargs(kwargs)
-        if problems:
-            raise ValueError(f"no batched {SIMPLE_SPREAD_ID} for {', '.join(problems)}; supported: "
-                             f"{SIMPLE_SPREAD_SUPPORT}")
+        check_batchable(n_envs, unsupported_kwargs(kwargs), SIMPLE_SPREAD_ID, SIMPLE_SPREAD_SUPPORT)
         env = simple_spread_v3.parallel_env(**kwargs)  # the template; validates the kwargs as the reference does
         env.reset(seed=0)  # a reset env, so that state() and friends work on it
         raw = env.unwrapped

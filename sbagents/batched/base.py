@@ -68,6 +68,18 @@ class BatchedVecEnv(VecEnv):
             f"actions must be ints in 0..{n_actions - 1}, got {self._actions[slot]} in slot {slot}"
         )
 
+    def _checked_actions(self, started: bool, n_actions: int) -> np.ndarray:
+        """The stored actions, after checking that the VecEnv was reset and every action is in ``0..n_actions-1``.
+
+        :raises RuntimeError: not reset yet. :raises ValueError: an action out of range (naming its slot).
+        """
+        acts = self._actions
+        if not started:
+            raise RuntimeError("reset() the VecEnv before stepping it")
+        if acts.min() < 0 or acts.max() >= n_actions:
+            self._raise_invalid_action(int(np.flatnonzero((acts < 0) | (acts >= n_actions))[0]), n_actions)
+        return acts
+
     def _monitor_seconds(self) -> float:
         """SB3 Monitor's ``episode["t"]``: seconds since creation, rounded as Monitor rounds them."""
         return round(time.time() - self._t_start, 6)

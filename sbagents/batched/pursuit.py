@@ -249,12 +249,7 @@ class BatchedPursuitVecEnv(BatchedTeamVecEnv):
         return total
 
     def step_wait(self) -> VecEnvStepReturn:
-        acts = self._actions
-        if self._rngs[0] is None:
-            raise RuntimeError("reset() the VecEnv before stepping it")
-        if acts.min() < 0 or acts.max() >= self._n_actions:
-            self._raise_invalid_action(int(np.flatnonzero((acts < 0) | (acts >= self._n_actions))[0]),
-                                       self._n_actions)
+        acts = self._checked_actions(self._rngs[0] is not None, self._n_actions)
         evader_counts = self._counts(self._evaders, self._alive)
         tag_old = self._tag_rewards(evader_counts, self._pursuers)
         self._pursuers = self._moved(self._pursuers, acts.reshape(self.n_envs, self.n_pursuers))

@@ -214,12 +214,7 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         return force
 
     def step_wait(self) -> VecEnvStepReturn:
-        acts = self._actions
-        if self._rngs[0] is None:
-            raise RuntimeError("reset() the VecEnv before stepping it")
-        if acts.min() < 0 or acts.max() >= self._n_actions:
-            self._raise_invalid_action(int(np.flatnonzero((acts < 0) | (acts >= self._n_actions))[0]),
-                                       self._n_actions)
+        self._checked_actions(self._rngs[0] is not None, self._n_actions)
         n, n_a, k = self.n_envs, self.n_agents, self.num_envs
         force = self._forces()
         # integrate (mpe2's World.integrate_state)

@@ -19,7 +19,7 @@ def build_parser() -> ArgumentParser:
     """The ``evaluate`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.evaluate", description="Evaluate a trained run.")
     add_run_arguments(p)
-    p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes to run (default 10)")
+    p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes (games) to run (default 10)")
     p.add_argument("--render", action="store_true", help="print each state (text envs) or render in 'human' mode")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--deterministic", dest="deterministic", action="store_true", default=None,
@@ -31,6 +31,10 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--fairness", default=None, metavar="KEYS",
                    help="info keys to bucket episodes by, e.g. preferred_temp,preferred_light")
     p.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
+    p.add_argument("--opponent", default=None, metavar="SPEC",
+                   help="turn-based games: who plays the other seats: random, heuristic (connect four), minimax "
+                        "(tic-tac-toe), a run dir, a model .zip, or module:function (observation, action_mask) -> "
+                        "action; default: the run's self_play.eval_opponent. Seats alternate.")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object (last line)")
     return p
 
@@ -40,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
     options = EvaluateOptions(args.n_episodes, args.deterministic, args.seed, args.render, args.attack,
-                              args.fairness, args.bins)
+                              args.fairness, args.bins, args.opponent)
     summary = evaluate(run_ref(args), options)
     print(json.dumps(summary) if args.json else format_evaluation(summary))
     return 0

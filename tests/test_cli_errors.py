@@ -132,6 +132,10 @@ def _other_cli_cases(logs: Path, tmp: Path) -> list[tuple[str, list[str], str]]:
         ("record_video", [*ppo, "--fps", "0"], "--fps must be > 0, got 0.0"),
         ("record_video", [*ppo, "-n", "5", "-o", str(blocked / "v")], f"cannot use {blocked}"),
         ("record_video", ["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp / "none")], "no ppo run"),
+        ("play", ppo, "sbagents/GridWorld-v0 is not a turn-based game"),
+        ("play", ["--algo", "ppo_mask", "--env", "pettingzoo.classic.tictactoe_v3", "-f", str(logs)],
+         "no ppo_mask run for tictactoe_v3"),
+        ("evaluate", [*ppo, "--opponent", "random"], "--opponent applies to turn-based games"),
         ("plot", ["-f", str(tmp / "none")], "does not exist"),
         ("plot", ["-f", str(logs), "--window", "-1"], "--window must be >= 0 (0: automatic), got -1"),
         ("plot", ["-f", str(logs), "-o", str(blocked / "c.png")], f"cannot use {blocked}"),
@@ -156,7 +160,8 @@ def _other_cli_cases(logs: Path, tmp: Path) -> list[tuple[str, list[str], str]]:
 def test_bad_input_to_every_other_cli(logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     before = sorted(p.relative_to(logs) for p in logs.rglob("*"))
     cases = _other_cli_cases(logs, tmp_path)
-    assert {module for module, _, _ in cases} == {"evaluate", "export", "serve", "record_video", "plot", "tune"}
+    assert {module for module, _, _ in cases} == {"evaluate", "export", "serve", "record_video", "plot", "tune",
+                                                           "play"}
     for module, args, expected in cases:
         code = run_main(module, *args)
         check_error(code, capsys.readouterr().err, expected)
@@ -174,6 +179,7 @@ def test_real_entry_points_print_one_line(logs: Path, tmp_path: Path) -> None:
         "record_video": (["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(logs), "--fps", "0"], "--fps"),
         "plot": (["-f", str(logs), "--window", "-1"], "--window"),
         "tune": (["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp_path), "-n", "0"], "-n/--n-timesteps"),
+        "play": (["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(logs)], "not a turn-based game"),
     }
     for module, (args, expected) in calls.items():
         result = cli(module, *args, cwd=tmp_path)

@@ -131,8 +131,10 @@ def test_shipped_configs_parse() -> None:
         from sbagents.pipeline.zoo_config import load_yaml
 
         for env_id, entry in load_yaml(path).items():
-            exp = resolve(algo, env_id, dict(entry), str(path), multi_agent=_is_pettingzoo_entry(env_id))
+            game = env_id not in ("default", "atari", PETTINGZOO_DEFAULT_ENTRY) and resolve_env(env_id).game
+            exp = resolve(algo, env_id, dict(entry), str(path), multi_agent=_is_pettingzoo_entry(env_id), game=game)
             assert exp.n_timesteps > 0, (path, env_id)
+            assert (exp.self_play is not None) == game, (path, env_id)
 
 
 def _is_pettingzoo_entry(key: str) -> bool:

@@ -181,7 +181,7 @@ def test_per_group_trust_files_count_present_agents_only(tmp_path: Path) -> None
 TEAM_ERRORS = [
     (["--env", "os.path"], "module os.path has no parallel_env(**kwargs)"),
     (["--env", f"{RELAY}:nope"], f"'nope' is neither a Gymnasium ID registered by {RELAY} nor a function in it"),
-    (["--env", "tiny_marl_pkg.aec_only_v0"], "is a turn-based (AEC-only) PettingZoo env"),
+    (["--env", "tiny_marl_pkg.aec_only_v0"], "is a turn-based env without action masks"),
     (["--env", "tiny_marl_pkg.variants:grid_scout"],
      "the observation spaces of scout_0, worker_0, worker_1 differ; use policies: per_group or per_agent"),
     (["--env", "tiny_marl_pkg.variants:steering_scout"],

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from gymnasium import spaces
-from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ
+from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ, MaskablePPO
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -23,12 +23,14 @@ class AlgoSpec:
     :param action_spaces: action space types it can act in.
     :param observation_spaces: observation space types it can read.
     :param off_policy: True for replay-buffer algorithms (they accept ``replay_buffer_class``, e.g. HER).
+    :param masked: acts with action masks (the env must have ``action_masks()``: turn-based games).
     """
 
     cls: type[BaseAlgorithm]
     action_spaces: tuple[type[spaces.Space], ...]
     observation_spaces: tuple[type[spaces.Space], ...] = _ANY_OBS
     off_policy: bool = False
+    masked: bool = False
 
     def supports(self, observation_space: spaces.Space, action_space: spaces.Space) -> bool:
         """Whether this algorithm can learn in an env with these spaces."""
@@ -41,6 +43,7 @@ ALGOS: dict[str, AlgoSpec] = {
     "a2c": AlgoSpec(A2C, _ANY_ACTION),
     "ppo": AlgoSpec(PPO, _ANY_ACTION),
     "trpo": AlgoSpec(TRPO, _ANY_ACTION),
+    "ppo_mask": AlgoSpec(MaskablePPO, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary), masked=True),
     "ars": AlgoSpec(ARS, (spaces.Box, spaces.Discrete), (spaces.Box, spaces.Discrete)),
     "dqn": AlgoSpec(DQN, (spaces.Discrete,), off_policy=True),
     "qrdqn": AlgoSpec(QRDQN, (spaces.Discrete,), off_policy=True),
@@ -54,9 +57,14 @@ ALGOS: dict[str, AlgoSpec] = {
 }
 
 
-def algos_for(observation_space: spaces.Space, action_space: spaces.Space) -> list[str]:
-    """Names of the algorithms that can learn in an env with these spaces."""
-    return [name for name, spec in ALGOS.items() if spec.supports(observation_space, action_space)]
+def algos_for(observation_space: spaces.Space, action_space: spaces.Space, masks: bool = False) -> list[str]:
+    """Names of the algorithms that can learn in an env with these spaces.
+
+    :param masks: the env has action masks (turn-based games): only the masked algorithms fit; without masks
+        they do not.
+    """
+    return [name for name, spec in ALGOS.items()
+            if spec.supports(observation_space, action_space) and spec.masked == masks]
 
 
 __all__ = ["ALGOS", "AlgoSpec", "QLearning", "SARSA", "algos_for"]

@@ -253,6 +253,9 @@ def export_groups(
         raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
     loaded = load_run(run)
     exp, ref = loaded.experiment, loaded.env
+    if ref.game:
+        raise UsageError(f"cannot export {run.algo} on {ref.env_id} yet: its policy needs the action mask as an input, "
+                         "which the ONNX policy and serve do not take (an exported argmax could pick illegal moves)")
     if exp.frame_stack or exp.env_wrapper:
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
     for model in loaded.models.values():

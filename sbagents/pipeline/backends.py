@@ -40,7 +40,12 @@ def train(
     execution = execution or ExecOptions()
     execution.validate()
     if execution.backend == "rllib":
+        from sbagents.pipeline.env_names import resolve_env
         from sbagents.rllib import check_options, require_ray
+
+        if resolve_env(spec.env, spec.gym_packages).game:
+            raise UsageError(f"{spec.env} is a turn-based game: it trains with --backend sb3 and ppo_mask (self-play "
+                             "with action masks)")
 
         check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution,
                        "trust": trust})
@@ -54,7 +59,7 @@ def train(
 
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.
-_RLLIB_UNSUPPORTED = {"attacks": "--attack", "fairness": "--fairness"}
+_RLLIB_UNSUPPORTED = {"attacks": "--attack", "fairness": "--fairness", "opponent": "--opponent"}
 
 
 def evaluate(run: RunRef, options: EvaluateOptions | None = None) -> dict[str, Any]:

@@ -131,8 +131,16 @@ class EvalReportCallback(BaseCallback):
 
 def format_evaluation(summary: Mapping[str, Any]) -> str:
     """An evaluation summary (``evaluate``) as a two-column text table, trust results included."""
-    rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
-                                      "success_rate")]
+    if "win_rate" in summary:  # a turn-based game's match
+        rows = [(k, summary[k]) for k in ("env", "algo", "opponent", "n_games", "win_rate", "draw_rate",
+                                          "loss_rate", "mean_reward")]
+        rows.append(("reward_ci95", "[{:.4g}, {:.4g}]".format(*summary["reward_ci95"])))
+        rows += [(f"{seat}.win/draw/loss", "{win_rate:.3f} / {draw_rate:.3f} / {loss_rate:.3f}".format(**rates))
+                 for seat, rates in summary["per_seat"].items() if rates["n_games"]]
+        rows += [("illegal_moves", summary["illegal_moves"]), ("mean_length", summary["mean_length"])]
+    else:
+        rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
+                                          "success_rate")]
     for key, value in summary["metrics"].items():
         items = value.items() if isinstance(value, dict) else [(None, value)]
         rows += [(f"metrics.{key}" + (f".{sub}" if sub is not None else ""), v) for sub, v in items]
@@ -151,7 +159,11 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         return [f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {run_dir}"]
     lines = [f"run dir: {run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)"]
     ev = summary.get("eval")
-    if ev:
+    if ev and "win_rate" in ev:
+        lines.append(f"evaluation against {ev['opponent']}: win {ev['win_rate']:.2f}, draw {ev['draw_rate']:.2f}, "
+                     f"loss {ev['loss_rate']:.2f} over {ev['n_games']} games (seats alternating), "
+                     f"mean reward {ev['mean_reward']:.3f}")
+    elif ev:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
         metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "

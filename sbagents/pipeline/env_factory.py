@@ -33,6 +33,10 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
     """The class or function that builds one env of ``ref`` (for keyword checks)."""
     if ref.multi_agent:
         return pettingzoo_factory(ref.source)
+    if ref.game:
+        from sbagents.games.aec import game_factory
+
+        return game_factory(ref.source)
     entry_point = gym.spec(ref.env_id).entry_point
     if callable(entry_point):
         return entry_point
@@ -42,7 +46,7 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
 def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
     """The keyword arguments ``ref``'s constructor takes, when they can be known (None: any)."""
     candidates: list[Any] = [env_constructor(ref)]
-    if ref.multi_agent and ":" not in ref.source:  # PettingZoo's parallel_env(**kwargs) forwards to raw_env
+    if (ref.multi_agent or ref.game) and ":" not in ref.source:  # PettingZoo's (parallel_)env forwards to raw_env
         module = importlib.import_module(ref.source)
         declared = getattr(module, "ACCEPTED_KWARGS", None)
         if declared is not None:
@@ -60,6 +64,10 @@ def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
 
 def check_env_kwargs(ref: EnvRef, env_kwargs: dict[str, Any]) -> None:
     """Raise :class:`UsageError` listing the accepted keys if ``env_kwargs`` has a key the env does not take."""
+    if ref.game:
+        from sbagents.games.selfplay import SELFPLAY_KWARGS
+
+        env_kwargs = {k: v for k, v in env_kwargs.items() if k not in SELFPLAY_KWARGS}
     if not env_kwargs:
         return
     names = _accepted_kwargs(ref)

@@ -34,14 +34,17 @@ class EnvRef:
     :param multi_agent: True for PettingZoo envs.
     :param modules: modules to import before building the env in any process (``--gym-packages``, the ``module``
         of ``module:EnvId``, ``ale_py`` for Atari ids): a worker process starts with none of them imported.
-    :param source: where a PettingZoo env comes from: ``pkg.module`` (with ``parallel_env``) or
-        ``pkg.module:callable``.
+    :param source: where a PettingZoo env comes from: ``pkg.module`` (with ``parallel_env``, or ``env`` for a
+        turn-based game) or ``pkg.module:callable``.
+    :param game: a turn-based (AEC) game with action masks: trained and evaluated from one seat against opponents
+        (:class:`sbagents.games.selfplay.SelfPlayEnv`, a Gymnasium env; ``multi_agent`` is False).
     """
 
     env_id: str
     multi_agent: bool = False
     modules: tuple[str, ...] = ()
     source: str = ""
+    game: bool = False
 
     @property
     def is_atari(self) -> bool:
@@ -53,11 +56,17 @@ class EnvRef:
         """Zoo-config entries to look up, in order (``default`` comes after them)."""
         if self.multi_agent:
             return tuple(dict.fromkeys((self.source, self.env_id, PETTINGZOO_DEFAULT_ENTRY)))
+        if self.game:
+            return tuple(dict.fromkeys((self.source, self.env_id)))
         return (self.env_id, "atari") if self.is_atari else (self.env_id,)
 
     def make_fn(self) -> str | Callable[..., gym.Env]:
         """The ``env_id`` argument for SB3's ``make_vec_env``: the id itself, or (when :attr:`modules` is not
         empty) a picklable callable that imports them first, so subprocess workers find the env."""
+        if self.game:
+            from sbagents.games.selfplay import make_selfplay_env
+
+            return functools.partial(make_selfplay_env, self.source, self.modules)
         if not self.modules:
             return self.env_id
         return functools.partial(make_registered, self.env_id, self.modules)
@@ -146,10 +155,20 @@ def _pettingzoo_module_ref(name: str, modules: tuple[str, ...]) -> EnvRef | None
     if callable(getattr(module, "parallel_env", None)):
         return EnvRef(name.rpartition(".")[2], multi_agent=True, modules=modules, source=name)
     if callable(getattr(module, "env", None)):
-        raise UsageError(f"{name} is a turn-based (AEC-only) PettingZoo env: it has env() but no parallel_env(); "
-                         "turn-based games are not supported yet (only parallel envs are)")
+        return EnvRef(name.rpartition(".")[2], modules=modules, source=name, game=True)
     raise UsageError(f"module {name} has no parallel_env(**kwargs); name a PettingZoo env module, or "
                      f"'{name}:<function>' for a function that returns a ParallelEnv")
+
+
+def _returns_aec_env(fn: Callable[..., Any]) -> bool:
+    """Whether ``fn()`` builds a turn-based (AEC) env rather than a ``ParallelEnv`` (one is built to see)."""
+    try:
+        env = fn()
+    except Exception:  # noqa: BLE001 - a function that needs arguments: treated as a ParallelEnv source
+        return False
+    is_aec = hasattr(env, "agent_selection") and callable(getattr(env, "observe", None))
+    env.close()
+    return is_aec
 
 
 def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
@@ -174,6 +193,8 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
             if candidate in gym.registry:
                 return EnvRef(candidate, modules=(*modules, module_name))
         if callable(getattr(module, attr, None)):
+            if _returns_aec_env(getattr(module, attr)):
+                return EnvRef(attr, modules=modules, source=name, game=True)
             return EnvRef(attr, multi_agent=True, modules=modules, source=name)
         raise UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
     atari = "NoFrameskip" in name or name.startswith("ALE/")

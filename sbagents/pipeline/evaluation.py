@@ -68,6 +68,12 @@ def evaluate_model(
     """
     options = options or EvaluateOptions()
     options.validate()
+    if ref.game:
+        from sbagents.games.training import evaluate_game
+
+        return evaluate_game(model, exp, ref, options)
+    if options.opponent is not None:
+        raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
     if ref.multi_agent:
         return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path})
     text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
@@ -138,6 +144,9 @@ def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]
         if options.attacks or options.fairness:
             raise UsageError("--attack and --fairness evaluate one model; this run has one model per group")
         return evaluate_groups(run.models, run.experiment, run.env, options, run.stats_paths)
+    if run.env.game and (options.attacks or options.fairness):
+        raise UsageError("--attack and --fairness are not available for turn-based games; --opponent picks who to "
+                         "play against")
     summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path)
     if options.attacks or options.fairness:
         summary.update(trust_report(run, options))

@@ -21,7 +21,7 @@ from sbagents.errors import UsageError
 from sbagents.multiagent.options import CRITICS, POLICY_MODES, TeamOptions
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
+from sbagents.pipeline.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh,
@@ -111,6 +111,7 @@ class Experiment:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     team: TeamOptions | None = None  # set for PettingZoo envs
     deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
+    self_play: Any = None  # sbagents.games.pool.SelfPlayOptions for turn-based games
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -183,17 +184,21 @@ def _positive_int(entry: dict[str, Any], key: str, default: int | None) -> int |
     return value
 
 
-def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_agent: bool = False) -> Experiment:
+def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_agent: bool = False,
+            game: bool = False) -> Experiment:
     """Validate a zoo entry (after CLI overrides) and build the :class:`Experiment`.
 
     :param source: where the entry came from, for error messages (file and env id).
     :param multi_agent: a PettingZoo env (the multi-agent keys apply; ``monitor_kwargs`` does not).
+    :param game: a turn-based game (``self_play`` applies).
     """
     misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs"}))
     if misplaced:
         kind = ("PettingZoo envs only" if not multi_agent
                 else "Gymnasium envs only (team VecEnvs write their own monitor)")
         raise UsageError(f"{', '.join(misplaced)} apply to {kind} ({source})")
+    if not game and set(entry) & GAME_KEYS:
+        raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only ({source})")
     accepted = accepted_algo_kwargs(algo)
     unknown = sorted(k for k in entry if k not in ZOO_KEYS and k not in accepted)
     if unknown:
@@ -248,7 +253,14 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
         hyperparams=dict(entry),
         team=_team_options(entry, source) if multi_agent else None,
         deterministic_eval=deterministic_eval,
+        self_play=_self_play(entry.get("self_play"), source) if game else None,
     )
+
+
+def _self_play(value: Any, source: str) -> Any:
+    from sbagents.games.pool import SelfPlayOptions
+
+    return SelfPlayOptions.from_mapping(value, source)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
@@ -258,4 +270,4 @@ def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
     entry, where = spec_entry(spec, spec.algo, ref)
-    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent)
+    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game)

@@ -25,9 +25,17 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
     """Build one env to read its spaces; raise :class:`UsageError` if the algorithm cannot handle them."""
     probe = make_vec(exp, ref, 1, seed=None)
     obs_space, act_space = probe.observation_space, probe.action_space
+    masks = ref.game or probe.has_attr("action_masks")
     probe.close()
+    if ALGOS[exp.algo].masked != masks:
+        able = ", ".join(algos_for(obs_space, act_space, masks)) or "none"
+        if masks:
+            raise UsageError(f"{ref.env_id} is a turn-based game with action masks: it trains with {able} (masks "
+                             f"drive every move), not {exp.algo}")
+        raise UsageError(f"{exp.algo} acts with action masks and {ref.env_id} has none (turn-based PettingZoo "
+                         f"games with {{observation, action_mask}} observations do); algos that fit: {able}")
     if not ALGOS[exp.algo].supports(obs_space, act_space):
-        able = ", ".join(algos_for(obs_space, act_space)) or "none"
+        able = ", ".join(algos_for(obs_space, act_space, masks)) or "none"
         raise UsageError(
             f"{exp.algo} cannot learn {ref.env_id} (observation {type(obs_space).__name__}, "
             f"action {type(act_space).__name__}); algos that can: {able}"

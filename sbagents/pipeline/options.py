@@ -159,6 +159,8 @@ class EvaluateOptions:
     :param attacks: observation attacks to evaluate as well (``--attack``, e.g. ``"gaussian:0.05 pgd:0.1"``).
     :param fairness: info keys to bucket episodes by (``--fairness``).
     :param bins: buckets per fairness key.
+    :param opponent: turn-based games: the opponent of every other seat (``random``, ``heuristic``, ``minimax``,
+        a run dir, a model zip or ``module:function``; None: the run's ``self_play.eval_opponent``).
     """
 
     n_episodes: int = 10
@@ -168,6 +170,7 @@ class EvaluateOptions:
     attacks: str | None = None
     fairness: str | None = None
     bins: int = 3
+    opponent: str | None = None
 
     def validate(self) -> None:
         """Check the counts."""

@@ -146,12 +146,14 @@ def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
     return load_yaml(path) or {}
 
 
-def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False) -> Experiment:
+def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False,
+                    game: bool = False) -> Experiment:
     """The :class:`~sbagents.pipeline.experiment.Experiment` a run was trained with (so evaluation wraps the
-    env identically); ``multi_agent`` for PettingZoo envs."""
+    env identically); ``multi_agent`` for PettingZoo envs, ``game`` for turn-based games."""
     from sbagents.pipeline.experiment import resolve
 
-    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent)
+    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent,
+                   game)
 
 
 def check_model_file(path: str | Path) -> Path:
@@ -258,7 +260,7 @@ def load_run(ref: RunRef) -> LoadedRun:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
-    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent)
+    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game)
     cls = ALGOS[ref.algo].cls
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:

@@ -70,7 +70,13 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
     """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``), checkpoints, config callbacks."""
     exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
     callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
-    if ctx.eval_freq > 0:
+    if ref.game:
+        from sbagents.games.training import game_callbacks
+
+        eval_calls = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else 0
+        callbacks += game_callbacks(exp, ref, run_dir, ctx.seed, ctx.train_env.num_envs, eval_calls,
+                                    ctx.eval_episodes, EvalReportCallback(reporter))
+    elif ctx.eval_freq > 0:
         common: dict[str, Any] = dict(
             n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.calls(ctx.eval_freq), log_path=str(run_dir),
             best_model_save_path=str(run_dir), verbose=0, callback_after_eval=EvalReportCallback(reporter))
@@ -133,8 +139,8 @@ def train_sb3(
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
-        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env), exp,
-                                           stats)
+        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env,
+                                                    env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
                            max(execution.verbose - 1, 0), agent_path)
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
@@ -157,6 +163,8 @@ def train_sb3(
         _save(model, ctx)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
+    for callback in own:  # e.g. turn-based games: the learner's illegal moves during training
+        summary.update(getattr(callback, "summary_items", dict)())
 
     def final_eval() -> dict[str, Any]:
         return evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed),
@@ -164,6 +172,15 @@ def train_sb3(
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+
+
+def _selfplay_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
+    """Turn-based games: the training envs draw opponents from the run's snapshot pool."""
+    if not ref.game:
+        return None
+    from sbagents.games.training import selfplay_env_kwargs
+
+    return selfplay_env_kwargs(exp, ref, run_dir)
 
 
 def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:

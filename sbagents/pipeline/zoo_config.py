@@ -38,10 +38,13 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "agent_id",
         "critic",
         "deterministic_eval",
+        "self_play",
     }
 )
 #: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.
 MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
+#: The keys of :data:`ZOO_KEYS` that only turn-based games take.
+GAME_KEYS: frozenset[str] = frozenset({"self_play"})
 
 
 class ZooLoader(yaml.SafeLoader):

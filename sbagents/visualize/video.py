@@ -86,6 +86,9 @@ def record_video(
     if fps is not None and not fps > 0:
         raise UsageError(f"--fps must be > 0, got {fps}")
     loaded = load_run(run)
+    if loaded.env.game:
+        raise UsageError(f"record_video does not record turn-based games yet; play {loaded.env.env_id} against the "
+                         "agent with python -m sbagents.play, or measure it with sbagents.evaluate --opponent")
     if deterministic is None:
         deterministic = loaded.experiment.deterministic_eval
     ref = loaded.env

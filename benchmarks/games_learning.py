@@ -12,6 +12,8 @@ minutes of training; texas hold'em mean chips per hand against random > 0 with i
 of the game tasks run in the same command, else the saved ones), all evaluated by the same matches.
 
     python -m benchmarks.games_learning connect4 tictactoe holdem tutorial --seeds 0 1 2
+    python -m benchmarks.games_learning connect4 --seeds 1 --add   # a seed beside the saved ones
+    python -m benchmarks.games_learning tutorial --render-only     # redraw a section from the saved results
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ from benchmarks.speed import write_section
 
 RESULTS = Path(__file__).resolve().parent / "results"
 EVAL_SEED = 10_000
+#: ``--smoke``: games per match and training budget (a check that the script runs end to end; 0: off).
+SMOKE_GAMES = 0
+SMOKE_STEPS = 2048
 
 
 @dataclass(frozen=True)
@@ -76,13 +81,14 @@ def evaluate_run(game: Game, logs: Path) -> dict[str, Any]:
     out = {}
     for opponent in game.opponents:
         done = cli("evaluate", "--algo", "ppo_mask", "--env", game.env, "-f", str(logs), "--opponent", opponent,
-                   "-n", str(game.n_games), "--seed", str(EVAL_SEED), "--json")
+                   "-n", str(SMOKE_GAMES or game.n_games), "--seed", str(EVAL_SEED), "--json")
         out[opponent] = match_row(json.loads(done.stdout.splitlines()[-1]))
     return out
 
 
 def train_ours(game: Game, seed: int, logs: Path, budget: int | None = None) -> dict[str, Any]:
     """Train with the shipped config (``-n budget`` if given) and evaluate; one row."""
+    budget = SMOKE_STEPS if SMOKE_GAMES else budget
     extra = ["-n", str(budget)] if budget is not None else []
     cli("train", "--algo", "ppo_mask", "--env", game.env, "--seed", str(seed), "-f", str(logs), *extra,
         "--final-eval-episodes", "0")
@@ -90,7 +96,7 @@ def train_ours(game: Game, seed: int, logs: Path, budget: int | None = None) -> 
     summary = json.loads((run_dir / "summary.json").read_text())
     row = {"seed": seed, "n_timesteps": summary["n_timesteps"], "train_s": summary["train_seconds"],
            "load": round(os.getloadavg()[0], 2), "vs": evaluate_run(game, logs)}
-    if seed == 0 and budget is None and (run_dir / "elo.png").exists():
+    if seed == 0 and budget is None and not SMOKE_GAMES and (run_dir / "elo.png").exists():
         shutil.copyfile(run_dir / "elo.png", RESULTS / f"games_{game.stem}_elo.png")
         shutil.copyfile(run_dir / "elo.csv", RESULTS / f"games_{game.stem}_elo.csv")
     return row
@@ -112,16 +118,17 @@ def tutorial_rows(name: str, seeds: list[int], logs: Path) -> list[dict[str, Any
     for seed in seeds:
         for variant in ("fixed", "original"):
             start = time.perf_counter()
-            model = train_tutorial_recipe(game.env, TUTORIAL_STEPS, seed, variant=variant)
+            steps = SMOKE_STEPS if SMOKE_GAMES else TUTORIAL_STEPS
+            model = train_tutorial_recipe(game.env, steps, seed, variant=variant)
             seconds = time.perf_counter() - start
             vs = {}
             for opponent in game.opponents:
                 env = make_selfplay_env(game.env, opponent=opponent)
-                result = play_games(env, ModelPlayer(model, True, rng=np.random.default_rng(seed)), game.n_games,
-                                    seed=EVAL_SEED)
+                result = play_games(env, ModelPlayer(model, True, rng=np.random.default_rng(seed)),
+                                    SMOKE_GAMES or game.n_games, seed=EVAL_SEED)
                 vs[opponent] = match_row(match_summary(result, game.stem, "tutorial", opponent))
             own = eval_tutorial_recipe(model, game.env)
-            rows.append({"who": f"tutorial ({variant})", "seed": seed, "n_timesteps": TUTORIAL_STEPS,
+            rows.append({"who": f"tutorial ({variant})", "seed": seed, "n_timesteps": steps,
                          "train_s": round(seconds, 1), "tutorial_winrate": own["winrate"], "vs": vs})
             print(json.dumps(rows[-1]), flush=True)
         row = train_ours(game, seed, logs / f"{name}_tutorial_budget", TUTORIAL_STEPS)
@@ -201,8 +208,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("tasks", nargs="+", choices=[*GAMES, "tutorial"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
+    parser.add_argument("--add", action="store_true",
+                        help="keep the saved runs of other seeds (run seeds as separate commands, then --render-only)")
+    parser.add_argument("--render-only", action="store_true",
+                        help="rewrite the tasks' sections from the saved results (no training)")
+    parser.add_argument("--smoke", action="store_true",
+                        help=f"{SMOKE_STEPS} training steps, 20 games per match, results into a temporary folder "
+                             "(checks the script; use with --output '')")
     args = parser.parse_args(argv)
+    if args.smoke:
+        global RESULTS, SMOKE_GAMES
+        RESULTS, SMOKE_GAMES = Path(tempfile.mkdtemp(prefix="games_smoke_")), 20
     RESULTS.mkdir(exist_ok=True)
+    if args.render_only:
+        for name in args.tasks:
+            text = (tutorial_markdown(_saved("tutorial"), {n: _saved(n) for n in TUTORIAL_GAMES}) if name == "tutorial"
+                    else game_markdown(name, _saved(name)))
+            print(text)
+            if args.output:
+                write_section(args.output, text, f"games-{name}")
+        return 0
     done: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.tasks:
@@ -211,8 +236,7 @@ def main(argv: list[str] | None = None) -> int:
             runs = [train_ours(GAMES[name], seed, Path(tmp) / f"{name}_{seed}") for seed in args.seeds]
             for row in runs:
                 print(json.dumps(row), flush=True)
-            done[name] = {"seeds": args.seeds, "runs": runs}
-            (RESULTS / f"games_{name}.json").write_text(json.dumps(done[name], indent=1) + "\n")
+            done[name] = _store(name, runs, args.add)
             if args.output:
                 write_section(args.output, game_markdown(name, done[name]), f"games-{name}")
         if "tutorial" in args.tasks:
@@ -223,6 +247,21 @@ def main(argv: list[str] | None = None) -> int:
             if args.output:
                 write_section(args.output, tutorial_markdown(result, shipped), "games-tutorial")
     return 0
+
+
+def _store(name: str, runs: list[dict[str, Any]], add: bool) -> dict[str, Any]:
+    """Write ``games_<name>.json`` (with ``add``: beside the saved runs of other seeds; a lock keeps concurrent
+    commands for different seeds from losing each other's runs) and return what it holds."""
+    import fcntl
+
+    with (RESULTS / ".games.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        seeds = {row["seed"] for row in runs}
+        kept = [row for row in _saved(name).get("runs", []) if row["seed"] not in seeds] if add else []
+        merged = sorted([*kept, *runs], key=lambda row: row["seed"])
+        result = {"seeds": [row["seed"] for row in merged], "runs": merged}
+        (RESULTS / f"games_{name}.json").write_text(json.dumps(result, indent=1) + "\n")
+    return result
 
 
 def _saved(name: str) -> dict[str, Any]:

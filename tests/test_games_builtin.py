@@ -18,6 +18,7 @@ from sbagents.games.builtin import (
     C4_LINES,
     builtin_for,
     connect_four_heuristic,
+    connect_four_opportunist,
     tictactoe_minimax,
 )
 
@@ -234,6 +235,19 @@ def test_heuristic_beats_random_and_never_plays_illegally() -> None:
         assert len(moves) >= 7 and sum(totals) == 0
 
 
+def test_opportunist_takes_wins_never_blocks_and_otherwise_plays_uniformly() -> None:
+    _, _, obs, mask = position(connect_four_v3.env, [0, 6, 1, 6, 2, 5])  # a win at 3
+    assert {connect_four_opportunist(obs, mask, np.random.default_rng(seed)) for seed in range(10)} == {3}
+    _, _, obs, mask = position(connect_four_v3.env, [0, 6, 1, 6, 2])  # only the opponent threatens (at 3)
+    picks = [connect_four_opportunist(obs, mask, np.random.default_rng(seed)) for seed in range(700)]
+    counts = np.bincount(picks, minlength=7) / 700
+    assert np.all(np.abs(counts - 1 / 7) < 0.05)  # no blocking, no centre preference
+    results = match(connect_four_v3.env, scripted(connect_four_heuristic, 0), scripted(connect_four_opportunist, 1),
+                    100)
+    assert len(results) == 100  # play() checked every move's legality
+    assert builtin_for("opportunist", "connect_four_v3") is connect_four_opportunist
+
+
 # --------------------------------------------------------------------------------------------------------------------
 # Tic-tac-toe minimax
 # --------------------------------------------------------------------------------------------------------------------
@@ -313,7 +327,7 @@ def test_minimax_respects_the_mask() -> None:
 
 
 def test_builtin_for() -> None:
-    assert set(BUILTIN_OPPONENTS) == {"heuristic", "minimax"}
+    assert set(BUILTIN_OPPONENTS) == {"heuristic", "opportunist", "minimax"}
     assert BUILTIN_OPPONENTS["heuristic"] == {"connect_four_v3": connect_four_heuristic}
     assert BUILTIN_OPPONENTS["minimax"] == {"tictactoe_v3": tictactoe_minimax}
     assert builtin_for("heuristic", "connect_four_v3") is connect_four_heuristic

@@ -57,8 +57,8 @@ def base_game_name(name: str) -> str:
 
 
 def is_aec_env(env: Any) -> bool:
-    """Whether ``env`` is a PettingZoo AEC env (it has ``agent_selection`` and ``observe``)."""
-    return hasattr(env, "agent_selection") and callable(getattr(env, "observe", None))
+    """Whether ``env`` is a PettingZoo AEC env (it has ``agent_iter`` and ``observe``)."""
+    return callable(getattr(env, "agent_iter", None)) and callable(getattr(env, "observe", None))
 
 
 def masked_spaces(env: Any, name: str, algo_hint: str = "ppo_mask") -> tuple[spaces.Box, spaces.Discrete]:

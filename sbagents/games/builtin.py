@@ -5,6 +5,7 @@ observation of a PettingZoo AEC env (``env.observe(agent)["observation"]`` and `
 action. They need no training and no torch, so they serve as fixed benchmarks and sparring partners:
 
 - ``"heuristic"`` for ``connect_four_v3``: :func:`connect_four_heuristic` (win, else block, else prefer the centre).
+- ``"opportunist"`` for ``connect_four_v3``: :func:`connect_four_opportunist` (win if it can, else random).
 - ``"minimax"`` for ``tictactoe_v3``: :func:`tictactoe_minimax` (perfect play; never loses).
 
 :func:`builtin_for` looks one up by opponent name and game name (``"connect_four_v3"``; later versions of the same game
@@ -90,6 +91,36 @@ def _pick_column(cells: int, rng: np.random.Generator) -> int:
     return columns[min(int(rng.random() * len(columns)), len(columns) - 1)]
 
 
+def _c4_bits(observation: np.ndarray, action_mask: np.ndarray, who: str) -> tuple[int, int, int, int]:
+    """Bitboards of a connect four position: legal columns (a byte), the mover's pieces, the opponent's, and the
+    cells a piece would land on in the legal columns."""
+    legal = int(np.packbits(np.asarray(action_mask).reshape(_C4_COLS) != 0, bitorder="little")[0])
+    if not legal:
+        raise ValueError(f"{who}: the action mask allows no column")
+    planes = np.asarray(observation).reshape(_C4_ROWS, _C4_COLS, 2).transpose(2, 0, 1) != 0
+    packed = np.packbits(planes, axis=2, bitorder="little").tobytes()  # 6 row bytes of mine, then 6 of theirs
+    mine = int.from_bytes(packed[:_C4_ROWS], "little")
+    theirs = int.from_bytes(packed[_C4_ROWS:], "little")
+    filled = mine | theirs
+    # A piece lands on an empty cell whose cell below (bit + 8) is filled, or on the bottom row.
+    landing = ~filled & ((filled >> 8) | _BB_BOTTOM) & _BB_CELLS & (legal * _BB_ROWS_REPEAT)
+    return legal, mine, theirs, landing
+
+
+def connect_four_opportunist(observation: np.ndarray, action_mask: np.ndarray, rng: np.random.Generator) -> int:
+    """Random play that never misses a win: a winning column if there is one, else a uniformly random legal one.
+
+    A sparring partner for self-play (``mix: {opportunist: ...}``): random-looking positions in which a threat left
+    open is punished at once. Same arguments and bitboards as :func:`connect_four_heuristic`.
+    """
+    legal, mine, _, landing = _c4_bits(observation, action_mask, "connect_four_opportunist")
+    wins = _threats(mine) & landing
+    if wins:
+        return _pick_column(wins, rng)
+    columns = [col for col in range(_C4_COLS) if legal >> col & 1]
+    return columns[min(int(rng.random() * len(columns)), len(columns) - 1)]
+
+
 def connect_four_heuristic(observation: np.ndarray, action_mask: np.ndarray, rng: np.random.Generator) -> int:
     """
     A one-ply connect four player: win if it can, else block, else prefer the centre.
@@ -109,16 +140,7 @@ def connect_four_heuristic(observation: np.ndarray, action_mask: np.ndarray, rng
     :return: a column ``0..6`` that ``action_mask`` allows.
     :raises ValueError: when ``action_mask`` allows no column.
     """
-    legal = int(np.packbits(np.asarray(action_mask).reshape(_C4_COLS) != 0, bitorder="little")[0])
-    if not legal:
-        raise ValueError("connect_four_heuristic: the action mask allows no column")
-    planes = np.asarray(observation).reshape(_C4_ROWS, _C4_COLS, 2).transpose(2, 0, 1) != 0
-    packed = np.packbits(planes, axis=2, bitorder="little").tobytes()  # 6 row bytes of mine, then 6 of theirs
-    mine = int.from_bytes(packed[:_C4_ROWS], "little")
-    theirs = int.from_bytes(packed[_C4_ROWS:], "little")
-    filled = mine | theirs
-    # A piece lands on an empty cell whose cell below (bit + 8) is filled, or on the bottom row.
-    landing = ~filled & ((filled >> 8) | _BB_BOTTOM) & _BB_CELLS & (legal * _BB_ROWS_REPEAT)
+    legal, mine, theirs, landing = _c4_bits(observation, action_mask, "connect_four_heuristic")
     if landing:
         wins = _threats(mine) & landing
         if wins:
@@ -219,6 +241,7 @@ def tictactoe_minimax(observation: np.ndarray, action_mask: np.ndarray, rng: np.
 #: Opponent name -> game (last component of the pettingzoo module, e.g. ``"connect_four_v3"``) -> policy.
 BUILTIN_OPPONENTS: dict[str, dict[str, OpponentFn]] = {
     "heuristic": {"connect_four_v3": connect_four_heuristic},
+    "opportunist": {"connect_four_v3": connect_four_opportunist},
     "minimax": {"tictactoe_v3": tictactoe_minimax},
 }
 

@@ -166,7 +166,9 @@ def _returns_aec_env(fn: Callable[..., Any]) -> bool:
         env = fn()
     except Exception:  # noqa: BLE001 - a function that needs arguments: treated as a ParallelEnv source
         return False
-    is_aec = hasattr(env, "agent_selection") and callable(getattr(env, "observe", None))
+    from sbagents.games.aec import is_aec_env
+
+    is_aec = is_aec_env(env)
     env.close()
     return is_aec
 

@@ -57,6 +57,16 @@ GAMES: dict[str, Game] = {
     "holdem": Game("texas hold'em (limit, 2 players)", "pettingzoo.classic.texas_holdem_v4", ("random",), 10_000,
                    "texas_holdem_v4"),
 }
+#: The issue's bar per game: (text, row -> met).
+BARS: dict[str, tuple[str, Any]] = {
+    "tictactoe": ("no loss in 1,000 games against random, >= 95% draws against minimax",
+                  lambda r: r["vs"]["random"]["loss_rate"] == 0 and r["vs"]["minimax"]["draw_rate"] >= 0.95),
+    "connect4": (">= 98% wins against random and >= 60% against the heuristic within 900 s of training",
+                 lambda r: r["vs"]["random"]["win_rate"] >= 0.98 and r["vs"]["heuristic"]["win_rate"] >= 0.6
+                 and r["train_s"] <= 900),
+    "holdem": ("mean chips per hand against random > 0 with the 95% interval above zero",
+               lambda r: r["vs"]["random"]["reward_ci95"][0] > 0),
+}
 #: Games of the tutorial comparison (the tutorial's own game, and the one its test said "still loses").
 TUTORIAL_GAMES = ("connect4", "tictactoe")
 
@@ -152,8 +162,10 @@ def game_markdown(name: str, result: dict[str, Any]) -> str:
     poker = name == "holdem"
     cols = [f"vs {o}: {'chips/hand (big blinds) [95% CI]' if poker else 'win / draw / loss'}"
             for o in game.opponents]
-    lines += ["| seed | timesteps | train s | " + " | ".join(cols) + " | illegal moves | load |",
-              "|---:|---:|---:|" + "---|" * len(cols) + "---:|---:|"]
+    bar, met = BARS[name]
+    lines += [f"Bar: {bar}.", "",
+              "| seed | timesteps | train s | " + " | ".join(cols) + " | illegal moves | load | bar met |",
+              "|---:|---:|---:|" + "---|" * len(cols) + "---:|---:|---|"]
     for row in result["runs"]:
         cells = []
         for o in game.opponents:
@@ -165,7 +177,7 @@ def game_markdown(name: str, result: dict[str, Any]) -> str:
                 cells.append(" / ".join(_rate(row["vs"], o, k) for k in ("win_rate", "draw_rate", "loss_rate")))
         illegal = sum(v["illegal_moves"] for v in row["vs"].values())
         lines.append(f"| {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | " + " | ".join(cells)
-                     + f" | {illegal} | {row['load']} |")
+                     + f" | {illegal} | {row['load']} | {'yes' if met(row) else 'no'} |")
     if (RESULTS / f"games_{game.stem}_elo.png").exists():
         lines += ["", f"Ratings of seed 0's snapshots during training: `benchmarks/results/games_{game.stem}_elo.png`"
                   f" (`elo.csv` beside it)."]

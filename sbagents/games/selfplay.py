@@ -107,7 +107,7 @@ class SelfPlayEnv(gym.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = int(np.asarray(action).reshape(-1)[0])
-        illegal = not (0 <= action < len(self._mask) and self._mask[action])
+        illegal = not _legal(action, self._mask)
         self.illegal_moves += int(illegal)
         (self.game if illegal else self._raw).step(action)  # the game's own wrappers rule on illegal moves
         reward = float(self._raw.rewards[self.learner])
@@ -154,7 +154,7 @@ class SelfPlayEnv(gym.Env):
             seen = raw.observe(agent)
             mask = np.asarray(seen[MASK_KEY])
             action = int(self.opponents[agent](seen[OBS_KEY], mask))
-            illegal = not (0 <= action < len(mask) and mask[action])
+            illegal = not _legal(action, mask)
             self.opponent_illegal_moves += int(illegal)
             (self.game if illegal else raw).step(action)
             reward += float(raw.rewards[self.learner])
@@ -178,6 +178,11 @@ def make_selfplay_env(source: str, modules: tuple[str, ...] = (), opponent: Any 
         options = SelfPlayOptions.from_mapping(pool or {})
         return SelfPlayEnv(game_fn, OpponentPool(pool_dir, options, name), seat=seat, name=name, **game_kwargs)
     return SelfPlayEnv(game_fn, opponent, seat=seat, name=name, greedy_opponent=greedy_opponent, **game_kwargs)
+
+
+def _legal(action: int, mask: np.ndarray) -> bool:
+    """Whether ``action`` is in range and allowed by ``mask`` (n_actions,)."""
+    return 0 <= action < len(mask) and bool(mask[action])
 
 
 class _GameFn:

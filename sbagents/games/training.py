@@ -43,11 +43,12 @@ def selfplay_env_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str
 
     :raises UsageError: a ``mix`` opponent that does not load for this game.
     """
+    options = self_play_options(exp)
     probe = make_selfplay_env(ref.source, ref.modules, **exp.env_kwargs)
-    for name in self_play_options(exp).mix:
+    for name in options.mix:
         load_player(name, ref.env_id, None, False, len(probe.seats), probe.observation_space.shape)
     probe.close()
-    return {"pool": self_play_options(exp).as_mapping(), "pool_dir": str(run_dir / SNAPSHOT_DIR)}
+    return {"pool": options.as_mapping(), "pool_dir": str(run_dir / SNAPSHOT_DIR)}
 
 
 def game_env(exp: Experiment, ref: EnvRef, opponent: Player | str, seat: int | None = None) -> SelfPlayEnv:

@@ -6,7 +6,7 @@ A backend does::
     seed = draw_seed(execution.seed)
     with new_run_dir(log_folder, algo, env_id, hyperparams, args, command) as run_dir:
         ...build everything; an exception here removes the half-made run dir...
-    clock = LearningClock()
+    clock = LearningClock()  # LearningClock(graceful=True): a callback polls clock.stop_requested instead
     with clock:
         ...learn; Ctrl-C / SIGTERM (KeyboardInterrupt) ends the block with clock.interrupted = True...
     summary = finish_run(run_dir, {**base_summary(...), ...}, clock.interrupted, final_eval)
@@ -17,10 +17,12 @@ from __future__ import annotations
 import contextlib
 import json
 import shutil
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from types import TracebackType
+from types import FrameType, TracebackType
 from typing import Any
 
 import numpy as np
@@ -56,23 +58,44 @@ def new_run_dir(
 
 class LearningClock:
     """Times the learning block (wall and process CPU seconds) and turns Ctrl-C / SIGTERM into
-    :attr:`interrupted` instead of an exception, so the caller still saves the model and writes the summary."""
+    :attr:`interrupted` instead of an exception, so the caller still saves the model and writes the summary.
 
-    def __init__(self) -> None:
+    :param graceful: inside the block (in the main thread), the first Ctrl-C / SIGTERM only sets
+        :attr:`stop_requested`, which the learning loop polls (an SB3 callback returning False) to stop between two
+        steps, so no file that training is writing (``best_model.zip`` mid-save) is cut short; a second one raises
+        KeyboardInterrupt at once. A signal the process ignores (a job started in the background) stays ignored.
+    """
+
+    def __init__(self, graceful: bool = False) -> None:
         self.seconds = 0.0
         self.cpu_seconds = 0.0
         self.interrupted = False
+        self.stop_requested = False
+        self._graceful = graceful
         self._start = self._cpu_start = 0.0
+        self._previous: dict[int, Any] = {}
+
+    def _request_stop(self, signum: int, frame: FrameType | None) -> None:
+        if self.stop_requested:
+            raise KeyboardInterrupt(f"signal {signum}")
+        self.stop_requested = True
 
     def __enter__(self) -> LearningClock:
+        if self._graceful and threading.current_thread() is threading.main_thread():
+            ignored = {sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) == signal.SIG_IGN}
+            self._previous = {sig: signal.signal(sig, self._request_stop)
+                              for sig in (signal.SIGINT, signal.SIGTERM) if sig not in ignored}
         self._start, self._cpu_start = time.perf_counter(), time.process_time()
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> bool:
         self.seconds = time.perf_counter() - self._start
         self.cpu_seconds = time.process_time() - self._cpu_start
-        self.interrupted = kind is not None and issubclass(kind, KeyboardInterrupt)
-        return self.interrupted
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous = {}
+        self.interrupted = self.stop_requested or (kind is not None and issubclass(kind, KeyboardInterrupt))
+        return kind is not None and issubclass(kind, KeyboardInterrupt)
 
 
 def base_summary(algo: str, env_id: str, seed: int, n_timesteps: int, steps_done: int, clock: LearningClock

@@ -66,6 +66,18 @@ def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
     return "python -m sbagents.train " + shlex.join(args)
 
 
+class StopOnRequestCallback(BaseCallback):
+    """Ends ``learn`` between two steps once ``clock.stop_requested`` (the first Ctrl-C / SIGTERM of a graceful
+    :class:`~sbagents.pipeline.lifecycle.LearningClock`)."""
+
+    def __init__(self, clock: LearningClock) -> None:
+        super().__init__(verbose=0)
+        self.clock = clock
+
+    def _on_step(self) -> bool:
+        return not self.clock.stop_requested
+
+
 def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: ProgressReporter) -> list[BaseCallback]:
     """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``), checkpoints, config callbacks."""
     exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
@@ -153,10 +165,10 @@ def train_sb3(
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
     steps_before = model.num_timesteps if agent_path is not None else 0
-    clock = LearningClock()
+    clock = LearningClock(graceful=True)
     try:
         with clock:
-            model.learn(exp.n_timesteps, callback=[*own, *trust_cbs, *callbacks],
+            model.learn(exp.n_timesteps, callback=[StopOnRequestCallback(clock), *own, *trust_cbs, *callbacks],
                         reset_num_timesteps=agent_path is None, log_interval=log_interval)
     finally:
         reporter.close()

@@ -20,6 +20,7 @@ from sbagents.games.builtin import (
     connect_four_heuristic,
     connect_four_opportunist,
     tictactoe_minimax,
+    tictactoe_opportunist,
 )
 
 Policy = Callable[[np.ndarray, np.ndarray], int]
@@ -319,6 +320,20 @@ def test_minimax_respects_the_mask() -> None:
     assert all(mask[tictactoe_minimax(obs, mask, rng)] == 1 for _ in range(20))
     with pytest.raises(ValueError, match="no square"):
         tictactoe_minimax(empty, np.zeros(9, np.int8), rng)
+
+
+def test_tictactoe_opportunist_takes_wins_never_blocks_and_otherwise_plays_uniformly() -> None:
+    _, _, obs, mask = position(tictactoe_v3.env, [0, 3, 1, 4])  # player_0 wins at 2 (player_1 threatens 5)
+    assert {tictactoe_opportunist(obs, mask, np.random.default_rng(seed)) for seed in range(20)} == {2}
+    _, _, obs, mask = position(tictactoe_v3.env, [0, 4, 8, 3])  # only the opponent threatens (at 5)
+    picks = [tictactoe_opportunist(obs, mask, np.random.default_rng(seed)) for seed in range(1000)]
+    assert set(picks) == {1, 2, 5, 6, 7}  # legal squares only
+    assert np.all(np.abs(np.bincount(picks, minlength=9)[[1, 2, 5, 6, 7]] / 1000 - 1 / 5) < 0.05)  # no blocking
+    results = match(tictactoe_v3.env, scripted(tictactoe_minimax, 0), scripted(tictactoe_opportunist, 1), 100)
+    assert -1 not in results and len(results) == 100  # minimax never loses; play() checked every move
+    assert builtin_for("opportunist", "tictactoe_v3") is tictactoe_opportunist
+    with pytest.raises(ValueError, match="no square"):
+        tictactoe_opportunist(obs, np.zeros(9, np.int8), np.random.default_rng(0))
 
 
 # --------------------------------------------------------------------------------------------------------------------

@@ -156,3 +156,14 @@ def test_users_own_masked_game_trains_and_is_measured(tmp_path: Path) -> None:
 def test_summary_json_is_plain_data(ttt_run: Path) -> None:
     data = json.loads((run_dir(ttt_run) / "summary.json").read_text())
     assert np.isfinite(data["eval"]["mean_reward"]) and data["eval"]["n_episodes"] > 0
+
+
+def test_shipped_tictactoe_entry_learns_on_a_small_budget(tmp_path: Path) -> None:
+    """The shipped tic-tac-toe entry on 1/16 of its budget (seeded): already far better than random play."""
+    done = cli("train", "--algo", "ppo_mask", "--env", TTT, "-n", "24576", "-f", str(tmp_path), "--seed", "0",
+               "--eval-freq", "0", "--final-eval-episodes", "0")
+    assert done.returncode == 0, done.stderr
+    result = last_json(cli("evaluate", "--algo", "ppo_mask", "--env", TTT, "-f", str(tmp_path), "--opponent",
+                           "random", "-n", "400", "--seed", "3", "--json").stdout)
+    assert result["win_rate"] > 0.7 and result["loss_rate"] < 0.15  # type: ignore[operator]
+    assert result["illegal_moves"] == 0

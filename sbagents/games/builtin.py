@@ -7,6 +7,7 @@ action. They need no training and no torch, so they serve as fixed benchmarks an
 - ``"heuristic"`` for ``connect_four_v3``: :func:`connect_four_heuristic` (win, else block, else prefer the centre).
 - ``"opportunist"`` for ``connect_four_v3``: :func:`connect_four_opportunist` (win if it can, else random).
 - ``"minimax"`` for ``tictactoe_v3``: :func:`tictactoe_minimax` (perfect play; never loses).
+- ``"opportunist"`` for ``tictactoe_v3``: :func:`tictactoe_opportunist` (win if it can, else random).
 
 :func:`builtin_for` looks one up by opponent name and game name (``"connect_four_v3"``; later versions of the same game
 match too).
@@ -234,6 +235,22 @@ def tictactoe_minimax(observation: np.ndarray, action_mask: np.ndarray, rng: np.
     return int(optimal[min(int(rng.random() * len(optimal)), len(optimal) - 1)])
 
 
+def tictactoe_opportunist(observation: np.ndarray, action_mask: np.ndarray, rng: np.random.Generator) -> int:
+    """Random play that never misses a win: a square completing three of the mover's marks if there is one, else a
+    uniformly random legal square. Connect four's :func:`connect_four_opportunist` for tic-tac-toe: in random-looking
+    positions, a line left open is punished at once. Same arguments as :func:`tictactoe_minimax`.
+
+    :raises ValueError: when ``action_mask`` allows no square.
+    """
+    legal = np.flatnonzero(np.asarray(action_mask).reshape(9) != 0).tolist()
+    if not legal:
+        raise ValueError("tictactoe_opportunist: the action mask allows no square")
+    mine = np.asarray(observation).reshape(9, 2)[:, 0] != 0
+    wins = [a for a in legal if any(a in line and sum(mine[s] for s in line if s != a) == 2 for line in TTT_LINES)]
+    choices = wins or legal
+    return int(choices[min(int(rng.random() * len(choices)), len(choices) - 1)])
+
+
 # --------------------------------------------------------------------------------------------------------------------
 # Lookup
 # --------------------------------------------------------------------------------------------------------------------
@@ -241,7 +258,7 @@ def tictactoe_minimax(observation: np.ndarray, action_mask: np.ndarray, rng: np.
 #: Opponent name -> game (last component of the pettingzoo module, e.g. ``"connect_four_v3"``) -> policy.
 BUILTIN_OPPONENTS: dict[str, dict[str, OpponentFn]] = {
     "heuristic": {"connect_four_v3": connect_four_heuristic},
-    "opportunist": {"connect_four_v3": connect_four_opportunist},
+    "opportunist": {"connect_four_v3": connect_four_opportunist, "tictactoe_v3": tictactoe_opportunist},
     "minimax": {"tictactoe_v3": tictactoe_minimax},
 }
 

@@ -150,7 +150,7 @@ def load_player(spec: str | Player, game: str, rng: np.random.Generator | None =
             raise UsageError(f"the {spec} opponent plays two-seat games; this {game} has {n_seats} seats")
         if fn is None:
             raise UsageError(f"no built-in {spec!r} opponent for {game}; built-ins: random everywhere, heuristic "
-                             "and opportunist for connect four, minimax for tic-tac-toe")
+                             "and opportunist for connect four, minimax and opportunist for tic-tac-toe")
         return BuiltinPlayer(fn, rng)
     path = Path(spec)
     if path.is_dir() or path.suffix == ".zip":
@@ -164,8 +164,9 @@ def load_player(spec: str | Player, game: str, rng: np.random.Generator | None =
         return player
     if ":" in spec:
         return _import_callable(spec)
-    raise UsageError(f"--opponent {spec!r} is not an opponent; accepted: random, heuristic and opportunist (connect "
-                     "four), minimax (tic-tac-toe), a run dir, a model .zip, or module:function")
+    raise UsageError(f"--opponent {spec!r} is not an opponent; accepted: random, heuristic (connect four), "
+                     "opportunist (connect four, tic-tac-toe), minimax (tic-tac-toe), a run dir, a model .zip, or "
+                     "module:function")
 
 
 def _import_callable(spec: str) -> Player:

@@ -196,3 +196,25 @@ def test_noop_vec_env_replays_a_step_with_fresh_outputs() -> None:
     assert obs.shape == first.shape == (6, vec.observation_space.shape[0]) and obs is not again[0]
     assert rewards.tolist() == [0.0] * 6 and not dones.any()
     assert set(infos[0]) == {"treasures_collected", "event"} and infos[0] is not again[3][0]
+
+
+@pytest.mark.parametrize("task", ["tictactoe", "connect4", "holdem", "tutorial"])
+def test_games_sections_match_their_results(task: str) -> None:
+    """BENCHMARKS.md's game sections are what ``benchmarks.games_learning --render-only`` makes of the saved results;
+    every recorded run played without an illegal move and is judged by the bar its section shows."""
+    from benchmarks import games_learning as games
+
+    saved = json.loads((RESULTS / f"games_{task}.json").read_text())
+    if task == "tutorial":
+        shipped = {n: json.loads((RESULTS / f"games_{n}.json").read_text()) for n in games.TUTORIAL_GAMES}
+        section = games.tutorial_markdown(saved, shipped)
+        rows = [r for game_rows in saved["games"].values() for r in game_rows]
+    else:
+        section = games.game_markdown(task, saved)
+        rows = saved["runs"]
+        _, met = games.BARS[task]
+        verdicts = [c[-1] for c in _cells(section)[1:]]
+        assert verdicts == ["yes" if met(r) else "no" for r in rows]
+    assert section.strip() == _section((ROOT / "BENCHMARKS.md").read_text(), f"games-{task}").strip()
+    assert sorted({r["seed"] for r in rows}) == [0, 1, 2]
+    assert all(vs["illegal_moves"] == 0 for r in rows for vs in r["vs"].values())

@@ -167,3 +167,20 @@ def test_shipped_tictactoe_entry_learns_on_a_small_budget(tmp_path: Path) -> Non
                            "random", "-n", "400", "--seed", "3", "--json").stdout)
     assert result["win_rate"] > 0.7 and result["loss_rate"] < 0.15  # type: ignore[operator]
     assert result["illegal_moves"] == 0
+
+
+def test_two_seat_opponents_are_refused_in_a_three_seat_game(tmp_path: Path) -> None:
+    """Texas hold'em with 3 players trains and is measured against random play; a two-seat built-in opponent is
+    refused in one line (training's ``mix`` goes through the same check: test_games_selfplay)."""
+    holdem = ["--env", "pettingzoo.classic.texas_holdem_v4"]
+    done = cli("train", "--algo", "ppo_mask", *holdem, "--env-kwargs", "num_players:3", "-n", "256", "-f",
+               str(tmp_path), "--eval-freq", "0", "--final-eval-episodes", "0", "-params", "n_envs:1", "n_steps:256",
+               "batch_size:64")
+    assert done.returncode == 0, done.stderr
+    result = last_json(cli("evaluate", "--algo", "ppo_mask", *holdem, "-f", str(tmp_path), "--opponent", "random",
+                           "-n", "12", "--json").stdout)
+    assert sorted(result["per_seat"]) == ["player_0", "player_1", "player_2"]  # type: ignore[call-overload]
+    assert result["illegal_moves"] == 0
+    refused = cli("evaluate", "--algo", "ppo_mask", *holdem, "-f", str(tmp_path), "--opponent", "heuristic")
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "the heuristic opponent plays two-seat games" in refused.stderr and "has 3 seats" in refused.stderr

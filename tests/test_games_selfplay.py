@@ -29,8 +29,8 @@ def test_selfplay_env_passes_gymnasium_and_sb3_checks(source: str) -> None:
     sb3_check_env(make_selfplay_env(source), warn=False)
 
 
-def first_legal(obs: np.ndarray, mask: np.ndarray) -> int:
-    return int(np.flatnonzero(mask)[0])
+def first_legal(observation: np.ndarray, action_mask: np.ndarray) -> int:
+    return int(np.flatnonzero(action_mask)[0])
 
 
 def test_learner_move_then_opponent_reply_match_the_aec_game() -> None:
@@ -125,6 +125,10 @@ def test_load_player_specs_and_errors(tmp_path: Path) -> None:
     for spec, message in bad.items():
         with pytest.raises(UsageError, match=message):
             load_player(spec, "tictactoe_v3")
+    for spec in ("heuristic", "minimax", "opportunist"):  # two-seat built-ins in a three-seat game
+        with pytest.raises(UsageError, match=f"the {spec} opponent plays two-seat games.*has 3 seats"):
+            load_player(spec, "texas_holdem_v4", n_seats=3)
+    assert load_player("random", "texas_holdem_v4", np.random.default_rng(0), n_seats=3)(obs, mask) in (1, 2)
 
 
 def test_snapshot_pool_draws_latest_uniform_and_mixed(tmp_path: Path) -> None:
@@ -182,6 +186,7 @@ def test_numpy_actor_matches_the_torch_policy(activation: str) -> None:
     for _ in range(40):
         mask = env.action_masks()
         dist = model.policy.get_distribution(th.as_tensor(obs[None]), action_masks=mask[None])
+        assert isinstance(dist.distribution, th.distributions.Categorical)
         expected = dist.distribution.probs.detach().numpy()[0]
         logits = np.where(mask, actor.logits(obs), -np.inf)
         probs = np.exp(logits - logits.max())

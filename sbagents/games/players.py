@@ -145,9 +145,10 @@ def load_player(spec: str | Player, game: str, rng: np.random.Generator | None =
     if spec in GAME_OPPONENTS:
         from sbagents.games.builtin import builtin_for
 
+        if n_seats != 2:
+            raise UsageError(f"the {spec} opponent plays two-seat games (connect four, tic-tac-toe); this {game} has "
+                             f"{n_seats} seats: use random, a run dir, a model .zip or module:function")
         fn = builtin_for(spec, game)
-        if fn is not None and n_seats != 2:
-            raise UsageError(f"the {spec} opponent plays two-seat games; this {game} has {n_seats} seats")
         if fn is None:
             raise UsageError(f"no built-in {spec!r} opponent for {game}; built-ins: random everywhere, heuristic "
                              "and opportunist for connect four, minimax and opportunist for tic-tac-toe")

@@ -20,6 +20,7 @@ from sbagents.pipeline.run_dir import RunRef
 from sbagents.pipeline.training import TrainResult
 from sbagents.pipeline.trust import TrustOptions
 from sbagents.pipeline.tuning import tune
+from sbagents.private.options import PrivacyOptions
 from sbagents.visualize.curves import plot
 from sbagents.visualize.video import record_video
 
@@ -28,6 +29,7 @@ __all__ = [
     "EvaluateOptions",
     "ExecOptions",
     "OutputOptions",
+    "PrivacyOptions",
     "RunRef",
     "StudyOptions",
     "TrainResult",

@@ -1,13 +1,15 @@
-"""``python -m sbagents.serve``: serve an exported policy over stdin/stdout, one JSON line per decision.
+"""``python -m sbagents.serve``: serve an exported policy over stdin/stdout (one JSON line per decision) or HTTP.
 
 Usage::
 
     python -m sbagents.serve --model policy.onnx [--meta policy.json] [--csv decisions.csv]
     python -m sbagents.serve --algo ddpg --env SmartHome-v0 [-f logs] [--exp-id K] [--int8]   # a run's export
+    python -m sbagents.serve --model policy.onnx --http 127.0.0.1:8000                       # POST one observation
 
 With ``--model`` it needs only numpy and onnxruntime (no torch, SB3 or gymnasium): an edge device installs those
-two and copies the export folder. The protocol is in :mod:`sbagents.deploy.serving`. Exit status: 0 at end of input;
-2 with one line on stderr when the model or sidecar is missing or invalid.
+two and copies the export folder. The protocols are in :mod:`sbagents.deploy.serving` and
+:mod:`sbagents.deploy.http_serving`. Exit status: 0 at end of input (stdin) or on Ctrl-C / SIGTERM (HTTP); 2 with
+one line on stderr when the model or sidecar is missing or invalid, or the address cannot be bound.
 """
 
 from __future__ import annotations
@@ -28,6 +30,10 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--model", default=None, help="policy.onnx or policy.int8.onnx (or pick a run's export below)")
     p.add_argument("--meta", default=None, help="sidecar JSON (default: policy.json next to the model)")
     p.add_argument("--csv", default=None, help="append every decision to this CSV file")
+    p.add_argument("--http", default=None, metavar="HOST:PORT",
+                   help="serve over HTTP instead of stdin/stdout: POST one observation, get one action (PORT alone: "
+                        "127.0.0.1; port 0: a free one). Loopback unless you name another host: there is no "
+                        "authentication")
     run_flags = p.add_argument_group("or a run's export (<run dir>/export, made by python -m sbagents.export)")
     add_run_arguments(run_flags, required=False, load_best=False)
     run_flags.add_argument("--int8", action="store_true", help="serve policy.int8.onnx")
@@ -58,7 +64,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         policy = Policy(path, args.meta)
     except (OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
-    serve(policy, sys.stdin, sys.stdout, args.csv)
+    if args.http is None:
+        serve(policy, sys.stdin, sys.stdout, args.csv)
+        return 0
+    return serve_http(policy, args.http, args.csv)
+
+
+def serve_http(policy: Policy, address: str, csv_path: str | None) -> int:
+    """Serve ``policy`` on ``address`` until Ctrl-C or SIGTERM; one line on stderr when it starts and stops."""
+    from sbagents.deploy.http_serving import bind, is_loopback, parse_address
+
+    try:
+        host, port = parse_address(address)
+        server = bind((host, port), policy, csv_path)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    bound_host, bound_port = str(server.server_address[0]), int(server.server_address[1])
+    shown = f"[{bound_host}]" if ":" in bound_host else bound_host
+    note = "" if is_loopback(host) else " (reachable from other machines, no authentication)"
+    print(f"serving {policy.path.name} on http://{shown}:{bound_port}/{note}: POST one observation, GET / "
+          "describes the policy; Ctrl-C stops", file=sys.stderr, flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    print(f"stopped: {server.served} decisions, {server.errors} malformed requests", file=sys.stderr)
     return 0
 
 

@@ -13,12 +13,14 @@ from typing import Any
 
 from sbagents.algos import ALGOS
 from sbagents.cli_common import ArgumentParser, run
+from sbagents.errors import UsageError
 from sbagents.pipeline.backends import train
 from sbagents.pipeline.console import train_summary_lines
 from sbagents.pipeline.env_names import sbagents_env_ids
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.trust import TrustOptions, trust_summary_lines
 from sbagents.pipeline.zoo_config import parse_overrides
+from sbagents.private.options import PrivacyOptions
 from sbagents.visualize.showcase import describe_policy
 
 
@@ -62,6 +64,16 @@ def build_parser() -> ArgumentParser:
     trust.add_argument("--fairness", default=None, metavar="KEYS",
                        help="info keys to bucket episodes by, e.g. object_scale,object_mass")
     trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
+    private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac; pip install 'sbagents[private]')")
+    private.add_argument("--dp-epsilon", type=float, default=None, metavar="E",
+                         help="train with (E, delta)-DP per transition: noise calibrated to the run's draws (with "
+                              "--dp-noise: stop before passing E)")
+    private.add_argument("--dp-delta", type=float, default=None, metavar="D",
+                         help="delta, below 1 / the transitions trained on (default 1e-5)")
+    private.add_argument("--dp-clip", type=float, default=None, metavar="C",
+                         help="per-transition gradient clipping norm (default 1.0)")
+    private.add_argument("--dp-noise", type=float, default=None, metavar="SIGMA",
+                         help="noise multiplier instead of a calibrated one (epsilon is reported)")
     p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
     p.add_argument("--log-interval", type=int, default=-1,
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
@@ -74,6 +86,15 @@ def build_parser() -> ArgumentParser:
     dist.add_argument("--address", default=None, metavar="ADDR",
                       help="Ray cluster to join (auto, host:6379 or ray://host:10001); default: a local Ray")
     return p
+
+
+def privacy_from_args(args: argparse.Namespace) -> PrivacyOptions:
+    """The ``--dp-*`` flags; ``--dp-delta`` / ``--dp-clip`` alone are refused (they would do nothing)."""
+    if args.dp_epsilon is None and args.dp_noise is None and (args.dp_delta is not None or args.dp_clip is not None):
+        raise UsageError("--dp-delta and --dp-clip apply to DP training: add --dp-epsilon E or --dp-noise SIGMA")
+    defaults = PrivacyOptions()
+    return PrivacyOptions(args.dp_epsilon, defaults.delta if args.dp_delta is None else args.dp_delta,
+                          defaults.clip if args.dp_clip is None else args.dp_clip, args.dp_noise)
 
 
 def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
@@ -89,6 +110,7 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
         "trust": TrustOptions(args.transparency_log, args.safety, args.cost_limit, args.max_violations,
                               args.adversarial_eval, args.fairness, args.bins,
                               book_header=args.transparency_format == "book"),
+        "privacy": privacy_from_args(args),
     }
 
 

@@ -47,6 +47,7 @@ class Policy:
         import onnxruntime as ort
 
         path = Path(model_path)
+        self.path = path
         if not path.is_file():
             raise FileNotFoundError(f"model file not found: {path}")
         options = ort.SessionOptions()
@@ -138,6 +139,61 @@ class Policy:
         return [float(a) for a in np.asarray(action).reshape(-1)]
 
 
+class DecisionLog:
+    """The CSV log of served decisions: ``timestamp, <obs_names>, <action_names>`` per decision, flushed per row.
+
+    The header is written when the file is new or empty (appending to an existing log keeps one header); LF line
+    ends. A context manager; ``path=None`` logs nothing.
+    """
+
+    def __init__(self, policy: Policy, path: str | Path | None) -> None:
+        self._file: TextIO | None = None
+        self._writer: Any = None
+        if path is None:
+            return
+        path = Path(path)
+        new = not path.exists() or path.stat().st_size == 0
+        self._file = path.open("a", newline="")
+        self._writer = csv.writer(self._file, lineterminator="\n")
+        if new:
+            self._writer.writerow(["timestamp", *policy.obs_names, *policy.action_names])
+            self._file.flush()
+
+    def write(self, obs: Sequence[float], action: list[float] | int) -> None:
+        """Append one decision (a no-op without a file)."""
+        if self._file is None:
+            return
+        stamp = datetime.now(timezone.utc).isoformat()  # noqa: UP017 (py3.10 target)
+        acts = action if isinstance(action, list) else [action]
+        self._writer.writerow([stamp, *obs, *acts])
+        self._file.flush()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def __enter__(self) -> DecisionLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def decide(policy: Policy, text: str, log: DecisionLog) -> tuple[bool, str]:
+    """One observation (JSON text) -> ``(ok, reply JSON)``: the action, or ``{"error": reason}`` for malformed input.
+
+    Served decisions are appended to ``log``.
+    """
+    try:
+        obs = policy.parse(text)
+    except ServeError as exc:
+        return False, json.dumps({"error": str(exc)})
+    action = policy.act(obs)
+    log.write(obs, action)
+    return True, json.dumps(action)
+
+
 def serve(
     policy: Policy, lines: TextIO, out: TextIO, csv_path: str | Path | None = None
 ) -> tuple[int, int]:
@@ -146,36 +202,13 @@ def serve(
     :return: ``(n_served, n_errors)``.
     """
     served = errors = 0
-    csv_file = writer = None
-    if csv_path is not None:
-        path = Path(csv_path)
-        new = not path.exists() or path.stat().st_size == 0
-        csv_file = path.open("a", newline="")
-        writer = csv.writer(csv_file, lineterminator="\n")
-        if new:
-            writer.writerow(["timestamp", *policy.obs_names, *policy.action_names])
-            csv_file.flush()
-    try:
+    with DecisionLog(policy, csv_path) as log:
         for line in lines:
             if not line.strip():
                 continue
-            try:
-                obs = policy.parse(line)
-            except ServeError as exc:
-                errors += 1
-                out.write(json.dumps({"error": str(exc)}) + "\n")
-                out.flush()
-                continue
-            action = policy.act(obs)
-            out.write(json.dumps(action) + "\n")
+            ok, reply = decide(policy, line, log)
+            out.write(reply + "\n")
             out.flush()
-            served += 1
-            if writer is not None and csv_file is not None:
-                stamp = datetime.now(timezone.utc).isoformat()  # noqa: UP017 (py3.10 target)
-                acts = action if isinstance(action, list) else [action]
-                writer.writerow([stamp, *obs, *acts])
-                csv_file.flush()
-    finally:
-        if csv_file is not None:
-            csv_file.close()
+            served += ok
+            errors += not ok
     return served, errors

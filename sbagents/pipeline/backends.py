@@ -17,6 +17,7 @@ from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions,
 from sbagents.pipeline.run_dir import RunRef, load_run
 from sbagents.pipeline.training import TrainResult, train_sb3
 from sbagents.pipeline.trust import TrustOptions, parse_attacks
+from sbagents.private.options import PrivacyOptions
 
 
 def train(
@@ -26,6 +27,7 @@ def train(
     execution: ExecOptions | None = None,
     trust: TrustOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
+    privacy: PrivacyOptions | None = None,
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` and write a run directory (``python -m sbagents.train``).
 
@@ -35,6 +37,7 @@ def train(
     :param execution: seed, backend (``sb3`` or ``rllib``), vec env, device, threads, verbosity.
     :param trust: transparency log, safety counting, attacks and fairness during training (SB3 only).
     :param callbacks: extra SB3 callbacks (SB3 only).
+    :param privacy: DP-SGD training, ``--dp-*`` (SB3's DDPG, TD3 and SAC).
     :return: the run dir, the model (SB3) and the summary; ``interrupted`` after Ctrl-C/SIGTERM.
     """
     execution = execution or ExecOptions()
@@ -51,11 +54,13 @@ def train(
                        "trust": trust})
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
+        if privacy is not None and privacy.enabled:
+            raise UsageError("DP training (--dp-*) is for --backend sb3 (ddpg, td3, sac)")
         require_ray()
         from sbagents.rllib.training import train_rllib
 
         return train_rllib(spec, output, evaluation, execution)
-    return train_sb3(spec, output, evaluation, execution, trust, callbacks)
+    return train_sb3(spec, output, evaluation, execution, trust, callbacks, privacy)
 
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.

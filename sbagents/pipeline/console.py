@@ -168,5 +168,11 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{metrics}")
+    dp = summary.get("dp")
+    if dp:
+        stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""
+        lines.append(f"privacy: epsilon {dp['epsilon']:.2f} at delta {dp['delta']:g} per transition (noise "
+                     f"{dp['noise_multiplier']:.3g}, clip {dp['max_grad_norm']:g}; RDP accountant, Poisson "
+                     f"batches){stop}")
     return lines
 

@@ -34,6 +34,7 @@ from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, VECNORMALIZE_FILE, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
+from sbagents.private.options import PrivacyOptions
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
 EVAL_SEED_OFFSET = 10_000
@@ -115,15 +116,18 @@ def train_sb3(
     execution: ExecOptions | None = None,
     trust: TrustOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
+    privacy: PrivacyOptions | None = None,
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
 
     :param callbacks: extra SB3 callbacks, after sbagents' own.
+    :param privacy: DP-SGD training (:mod:`sbagents.private`; needs the ``private`` extra).
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
     output, evaluation = output or OutputOptions(), evaluation or EvalOptions()
     execution, trust = execution or ExecOptions(), trust or TrustOptions()
-    for group in (spec, evaluation, execution, trust):
+    privacy = privacy or PrivacyOptions()
+    for group in (spec, evaluation, execution, trust, privacy):
         group.validate()
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
@@ -131,6 +135,8 @@ def train_sb3(
     exp = build_experiment(spec, ref)
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
+    if privacy.enabled:
+        exp = _private(privacy, exp, spec.trained_agent is not None)
     groups = team_agents(exp, ref) if exp.team is not None else None
     if groups is not None and len(groups) > 1 and spec.trained_agent is not None:
         raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
@@ -153,11 +159,19 @@ def train_sb3(
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env,
                                                     env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats)
+        if privacy.enabled:
+            from sbagents.private.training import freeze_normalization
+
+            train_env = freeze_normalization(train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
                            max(execution.verbose - 1, 0), agent_path)
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
+        if privacy.enabled:
+            from sbagents.private.training import make_dp_callback
+
+            own.append(make_dp_callback(model, privacy, exp.n_timesteps))
         if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
             own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
         trust_cbs = trust_callbacks(trust, ctx)
@@ -184,6 +198,16 @@ def train_sb3(
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+
+
+def _private(privacy: PrivacyOptions, exp: Experiment, resuming: bool) -> Experiment:
+    """The DP version of ``exp`` (checked; Opacus imported here so runs without DP never need it)."""
+    try:
+        from sbagents.private.training import check_dp_experiment, private_experiment
+    except ImportError as exc:
+        raise UsageError(f"DP training needs Opacus: pip install 'sbagents[private]' ({exc})") from None
+    check_dp_experiment(privacy, exp, resuming)
+    return private_experiment(exp)
 
 
 def _selfplay_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:

@@ -1,0 +1,2 @@
+"""Private agents: DP-SGD training of SB3 actor-critics with Opacus (:func:`make_private`), Poisson-sampled replay
+(:class:`PoissonReplayBuffer`) and the privacy ledger (:mod:`sbagents.private.accounting`)."""

@@ -1,0 +1,89 @@
+"""DP training in ``python -m sbagents.train`` (``--dp-epsilon`` / ``--dp-noise``): options, checks, and wiring.
+
+Everything that reads the training data goes through the noisy steps: the replay buffer draws Poisson batches,
+the actor and critic take DP-SGD steps, and observation normalization (``normalize`` in the config) uses fixed
+statistics from the observation bounds instead of running statistics of the data (which would leak).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from sbagents.errors import UsageError
+from sbagents.pipeline.experiment import Experiment
+from sbagents.private.dp_sgd import DP_ALGOS
+from sbagents.private.options import PrivacyOptions
+
+
+def check_dp_experiment(options: PrivacyOptions, exp: Experiment, resuming: bool) -> None:
+    """Refuse, in one line, what DP training cannot do here (before a run dir exists)."""
+    if exp.algo not in DP_ALGOS:
+        raise UsageError(f"DP training (--dp-*) is for {', '.join(DP_ALGOS)}, whose actor and critic Opacus "
+                         f"privatizes; not {exp.algo}")
+    if exp.team is not None or exp.self_play is not None:
+        raise UsageError("DP training is for single-agent envs")
+    if resuming:
+        raise UsageError("-i with DP training: the privacy already spent is not in the model file; train anew")
+    if exp.algo == "sac" and str(exp.algo_kwargs.get("ent_coef", "auto")).startswith("auto"):
+        raise UsageError("DP training with sac needs a fixed ent_coef (e.g. -params ent_coef:0.05): the automatic "
+                         "one is tuned on the batch without noise")
+    if exp.algo_kwargs.get("optimize_memory_usage"):
+        raise UsageError("DP training does not support optimize_memory_usage")
+    transitions = min(int(exp.algo_kwargs.get("buffer_size", 1_000_000)), exp.n_timesteps)
+    if options.delta >= 1 / transitions:
+        raise UsageError(f"--dp-delta {options.delta:g} must be below 1 / {transitions:,} (the transitions trained "
+                         f"on), e.g. {10 ** math.floor(math.log10(0.1 / transitions)):g}")
+    if options.epsilon is not None and options.noise is None and exp.algo_kwargs.get("train_freq") is not None:
+        freq = exp.algo_kwargs["train_freq"]
+        if isinstance(freq, list | tuple) and len(freq) == 2 and freq[1] != "step":
+            raise UsageError("--dp-epsilon calibrates the noise on a train_freq in steps, not episodes; give "
+                             "--dp-noise or train_freq in steps")
+
+
+def private_experiment(exp: Experiment) -> Experiment:
+    """``exp`` with the replay buffer that draws Poisson batches."""
+    from sbagents.private.replay import PoissonReplayBuffer
+
+    exp.algo_kwargs = {**exp.algo_kwargs, "replay_buffer_class": PoissonReplayBuffer}
+    return exp
+
+
+def freeze_normalization(venv: VecEnv) -> VecEnv:
+    """A :class:`VecNormalize` of the training env with statistics from the observation bounds, never updated:
+    observations are scaled to [-1, 1] without reading the data; rewards are left unscaled.
+
+    :raises UsageError: an unbounded observation space (no data-free statistics).
+    """
+    if not isinstance(venv, VecNormalize) or not venv.norm_obs:
+        return venv
+    space = venv.observation_space
+    low, high = np.asarray(getattr(space, "low", -np.inf)), np.asarray(getattr(space, "high", np.inf))
+    if not (np.isfinite(low).all() and np.isfinite(high).all()):
+        raise UsageError("DP training with normalize needs a bounded observation space (the statistics come from "
+                         "its bounds, not the data); set normalize: false")
+    rms: Any = venv.obs_rms
+    rms.mean = ((low + high) / 2).astype(np.float64)
+    rms.var = (np.maximum((high - low) / 2, 1e-8) ** 2).astype(np.float64)
+    venv.norm_reward = False
+    venv.training = False
+    return venv
+
+
+def make_dp_callback(model: BaseAlgorithm, options: PrivacyOptions, n_timesteps: int) -> Any:
+    """Make ``model`` private and return the :class:`~sbagents.private.callback.DPCallback` that reports it."""
+    from sbagents.private.callback import DPCallback
+    from sbagents.private.dp_sgd import make_private
+
+    try:
+        dp = make_private(model, options.clip, options.noise,  # type: ignore[arg-type]
+                          options.epsilon if options.noise is None else None, options.delta, n_timesteps)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    dp.target_epsilon = options.epsilon
+    return DPCallback(dp, stop_at=options.epsilon if options.noise is not None else None,
+                      total_timesteps=n_timesteps)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import http.client
 import json
+import os
 import re
 import select
 import subprocess
@@ -140,8 +141,9 @@ def run(n: int = 2000) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         model = export_policy(Path(tmp))
         bodies = observations(n + WARMUP)
-        return {"machine": machine_info(), "n": n, "env_id": ENV_ID, "stdio": time_stdio(model, bodies),
-                "http": time_http(model, bodies)}
+        load = os.getloadavg()[0]
+        return {"machine": machine_info(), "load": round(load, 2), "n": n, "env_id": ENV_ID,
+                "stdio": time_stdio(model, bodies), "http": time_http(model, bodies)}
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -149,7 +151,8 @@ def markdown(result: dict[str, Any]) -> str:
     m = result["machine"]
     base = result["stdio"]
     lines = ["## Serving an exported policy: HTTP vs stdin/stdout", "",
-             f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; {m['date']}. SmartHome DDPG (shipped "
+             f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; {m['date']}, load average "
+             f"{result['load']} at the start. SmartHome DDPG (shipped "
              "64-64 network, VecNormalize baked in), `policy.onnx` served by the torch-free "
              "`python -m sbagents.serve`; the client is on the same machine (loopback). "
              f"{result['n']:,} timed round trips per variant after {WARMUP} warm-up ones; memory of the server "

@@ -218,3 +218,15 @@ def test_games_sections_match_their_results(task: str) -> None:
     assert section.strip() == _section((ROOT / "BENCHMARKS.md").read_text(), f"games-{task}").strip()
     assert sorted({r["seed"] for r in rows}) == [0, 1, 2]
     assert all(vs["illegal_moves"] == 0 for r in rows for vs in r["vs"].values())
+
+
+def test_serve_latency_tiny() -> None:
+    """Both serving variants answer every timed request; the table has their ratio and memory."""
+    from benchmarks import serve_latency
+
+    result = serve_latency.run(n=30)
+    for variant in ("stdio", "http"):
+        row = result[variant]
+        assert 0 < row["p50_us"] <= row["p99_us"] and row["rss_mib"] > 0 and row["peak_rss_mib"] >= row["rss_mib"]
+    cells = _cells(serve_latency.markdown(result))
+    assert cells[0][4] == "p50 / stdio" and cells[1][4] == "1.00x" and cells[2][4].endswith("x")

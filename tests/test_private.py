@@ -198,6 +198,8 @@ def test_train_with_a_given_noise_stops_before_the_budget(tmp_path: Path) -> Non
     (["--algo", "ddpg", "--dp-noise", "0"], "--dp-noise must be a finite number > 0"),
     (["--algo", "ddpg", "--dp-clip", "2"], "add --dp-epsilon E or --dp-noise SIGMA"),
     (["--algo", "sac", "--dp-epsilon", "8"], "needs a fixed ent_coef"),
+    (["--algo", "ddpg", "--dp-noise", "1", "--dp-epsilon", "5", "-params", "train_freq:[1, episode]"],
+     "--dp-epsilon plans the run's batches, which needs train_freq in steps"),
 ])
 def test_bad_dp_input_is_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     done = cli("train", "--env", "SmartHome-v0", "-f", str(tmp_path), *args)

@@ -5,8 +5,8 @@ critic and the actor, k = 2; TD3: k = 1 or 2 with its policy delay). Each step c
 ``C`` and adds N(0, (sigma C)^2) noise to the sum. The ``k`` releases on one batch together form a Gaussian mechanism
 of sensitivity ``sqrt(k) C`` (adaptive composition of Gaussian mechanisms is exactly Gaussian), so the draw is
 accounted as one subsampled Gaussian mechanism with noise multiplier ``sigma / sqrt(k)`` and sample rate ``q``, by
-Opacus's RDP accountant. Sample rates are rounded *up* to a grid of 1% steps (at most 2.3% higher), so the
-ledger stays small over millions of draws and the epsilon it reports is an upper bound.
+Opacus's RDP accountant. Sample rates are rounded *up* to a logarithmic grid (100 steps a decade: at most 2.3%
+higher), so the ledger stays small over millions of draws and the epsilon it reports is an upper bound.
 
 The unit of privacy is one transition ``(s, a, r, s', done)`` of the replay buffer.
 """

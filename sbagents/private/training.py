@@ -38,11 +38,11 @@ def check_dp_experiment(options: PrivacyOptions, exp: Experiment, resuming: bool
     if options.delta >= 1 / transitions:
         raise UsageError(f"--dp-delta {options.delta:g} must be below 1 / {transitions:,} (the transitions trained "
                          f"on), e.g. {10 ** math.floor(math.log10(0.1 / transitions)):g}")
-    if options.epsilon is not None and options.noise is None and exp.algo_kwargs.get("train_freq") is not None:
-        freq = exp.algo_kwargs["train_freq"]
-        if isinstance(freq, list | tuple) and len(freq) == 2 and freq[1] != "step":
-            raise UsageError("--dp-epsilon calibrates the noise on a train_freq in steps, not episodes; give "
-                             "--dp-noise or train_freq in steps")
+    freq = exp.algo_kwargs.get("train_freq")
+    if options.epsilon is not None and isinstance(freq, list | tuple) and len(freq) == 2 and freq[1] != "step":
+        # calibrating the noise and stopping at the budget both plan the run's draws, which needs steps
+        raise UsageError("--dp-epsilon plans the run's batches, which needs train_freq in steps, not episodes; give "
+                         "--dp-noise alone or train_freq in steps")
 
 
 def private_experiment(exp: Experiment) -> Experiment:

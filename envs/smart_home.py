@@ -13,7 +13,7 @@ with their own preferred temperature and light level.
 - Action ``Box([-1, -10], [1, 10])`` (``action_names``): thermostat and light adjustments, added to the
   state, which is then clipped to its range; the hour advances by one per step, modulo 24.
 - Reward: ``-|temp - pref_temp| - 0.5 |light - pref_light| - 0.1 (|a_temp| + 0.05 |a_light|)``, on the
-  state after the action.
+  state after the action; ``info["energy"]`` is the step's ``|a_temp| + 0.05 |a_light|`` (energy use).
 - ``max_steps`` (100) steps, then truncation; the episode never terminates.
 
 Choices the book leaves open (documented in the README table):
@@ -190,6 +190,7 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         self._last_action = act.astype(np.float32)
         reward = self.reward(a_temp, a_light)
         info = self._info()
+        info["energy"] = abs(a_temp) + 0.05 * abs(a_light)
         if self.steps > self.warmup_steps and info["comfortable"]:
             self._n_comfortable += 1
         truncated = self.steps >= self.max_steps
@@ -245,11 +246,13 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         without that key the errors are compared with the given tolerances.
 
         :return: ``criterion_share`` (share of counted steps meeting both tolerances), ``mean_temp_error``
-            (C) and ``mean_light_error`` (lux) over the counted steps; NaN when no step counts.
+            (C) and ``mean_light_error`` (lux) over the counted steps; NaN when no step counts. With ``energy`` in
+            the infos (``step`` puts it there) also ``mean_energy``: the mean ``|a_temp| + 0.05 |a_light|``.
         """
         ok: list[float] = []
         temp_errors: list[float] = []
         light_errors: list[float] = []
+        energy: list[float] = []
         for position, info in enumerate(infos, start=1):
             if int(info.get("step", position)) <= warmup_steps:
                 continue
@@ -261,14 +264,19 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
             ok.append(float(bool(comfortable)))
             temp_errors.append(t_err)
             light_errors.append(l_err)
+            if "energy" in info:
+                energy.append(float(info["energy"]))
+        nan = float("nan")
         if not ok:
-            nan = float("nan")
             return {"criterion_share": nan, "mean_temp_error": nan, "mean_light_error": nan}
-        return {
+        metrics = {
             "criterion_share": float(np.mean(ok)),
             "mean_temp_error": float(np.mean(temp_errors)),
             "mean_light_error": float(np.mean(light_errors)),
         }
+        if energy:
+            metrics["mean_energy"] = float(np.mean(energy))
+        return metrics
 
     # ------------------------------------------------------------------ rendering
     def state_text(self) -> str:

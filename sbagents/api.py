@@ -7,6 +7,9 @@
 """
 
 from sbagents.deploy.exporting import export, export_groups
+from sbagents.federated.personal import personalize
+from sbagents.federated.runner import federate
+from sbagents.federated.settings import FederatedSettings
 from sbagents.pipeline.backends import evaluate, train
 from sbagents.pipeline.options import (
     EvalOptions,
@@ -28,6 +31,7 @@ __all__ = [
     "EvalOptions",
     "EvaluateOptions",
     "ExecOptions",
+    "FederatedSettings",
     "OutputOptions",
     "PrivacyOptions",
     "RunRef",
@@ -38,6 +42,8 @@ __all__ = [
     "evaluate",
     "export",
     "export_groups",
+    "federate",
+    "personalize",
     "plot",
     "record_video",
     "train",

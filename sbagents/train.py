@@ -64,10 +64,11 @@ def build_parser() -> ArgumentParser:
     trust.add_argument("--fairness", default=None, metavar="KEYS",
                        help="info keys to bucket episodes by, e.g. object_scale,object_mass")
     trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
-    private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac; pip install 'sbagents[private]')")
+    private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac, ppo, a2c; "
+                                   "pip install 'sbagents[private]')")
     private.add_argument("--dp-epsilon", type=float, default=None, metavar="E",
-                         help="train with (E, delta)-DP per transition: noise calibrated to the run's draws (with "
-                              "--dp-noise: stop before passing E)")
+                         help="train with (E, delta)-DP per transition: noise calibrated to the run's draws (ppo, "
+                              "a2c: to one rollout's; with --dp-noise: stop before passing E)")
     private.add_argument("--dp-delta", type=float, default=None, metavar="D",
                          help="delta, below 1 / the transitions trained on (default 1e-5)")
     private.add_argument("--dp-clip", type=float, default=None, metavar="C",

@@ -230,3 +230,20 @@ def test_serve_latency_tiny() -> None:
         assert 0 < row["p50_us"] <= row["p99_us"] and row["rss_mib"] > 0 and row["peak_rss_mib"] >= row["rss_mib"]
     cells = _cells(serve_latency.markdown(result))
     assert cells[0][4] == "p50 / stdio" and cells[1][4] == "1.00x" and cells[2][4].endswith("x")
+
+
+def test_federated_section_matches_its_results() -> None:
+    """BENCHMARKS.md's federated-homes section is what ``benchmarks.federated_homes --render-only`` makes of the saved
+    results, and those back the claim made of them: on every seed the federated policy meets the criterion on >= 95%
+    of held-out-home steps and home 0's local model does not."""
+    from benchmarks import federated_homes
+
+    saved = json.loads((RESULTS / "federated_homes.json").read_text())
+    section = _section((ROOT / "BENCHMARKS.md").read_text(), "federated-homes")
+    assert federated_homes.markdown(saved).strip() == section.strip()
+    assert sorted(r["seed"] for r in saved["runs"]) == [0, 1, 2]
+    for run in saved["runs"]:
+        rows = run["rows"]
+        assert rows["federated"]["heldout_share"] >= 0.95 > rows["local only (home 0)"]["heldout_share"]
+        assert run["bytes_per_round_per_home"] > 2 * 4 * run["parameters"]  # float32, down and up
+        assert {p["kind"] for p in run["personal"]} == {"client", "held-out"}

@@ -19,7 +19,7 @@ def test_train_evaluate_export_serve(tmp_path: Path) -> None:
     run_dir = tmp_path / "ddpg" / "sbagents_SmartHome-v0_1"
     assert (run_dir / "vecnormalize.pkl").exists()
     report = last_json(cli("evaluate", "--algo", "ddpg", "--env", ENV, "-f", str(tmp_path), "-n", "2", "--json").stdout)
-    assert set(report["metrics"]) == {"criterion_share", "mean_temp_error", "mean_light_error"}
+    assert set(report["metrics"]) == {"criterion_share", "mean_temp_error", "mean_light_error", "mean_energy"}
     share = report["metrics"]["criterion_share"]  # the mean of 2 episodes' shares of their 90 steps after step 10
     assert 0.0 <= share <= 1.0 and abs(180 * share - round(180 * share)) < 1e-6
 

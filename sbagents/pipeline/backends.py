@@ -37,7 +37,7 @@ def train(
     :param execution: seed, backend (``sb3`` or ``rllib``), vec env, device, threads, verbosity.
     :param trust: transparency log, safety counting, attacks and fairness during training (SB3 only).
     :param callbacks: extra SB3 callbacks (SB3 only).
-    :param privacy: DP-SGD training, ``--dp-*`` (SB3's DDPG, TD3 and SAC).
+    :param privacy: DP-SGD training, ``--dp-*`` (SB3's DDPG, TD3, SAC, PPO and A2C).
     :return: the run dir, the model (SB3) and the summary; ``interrupted`` after Ctrl-C/SIGTERM.
     """
     execution = execution or ExecOptions()
@@ -55,7 +55,7 @@ def train(
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
         if privacy is not None and privacy.enabled:
-            raise UsageError("DP training (--dp-*) is for --backend sb3 (ddpg, td3, sac)")
+            raise UsageError("DP training (--dp-*) is for --backend sb3 (ddpg, td3, sac, ppo, a2c)")
         require_ray()
         from sbagents.rllib.training import train_rllib
 

@@ -171,8 +171,13 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
     dp = summary.get("dp")
     if dp:
         stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""
-        lines.append(f"privacy: epsilon {dp['epsilon']:.2f} at delta {dp['delta']:g} per transition (noise "
+        rollout = ""
+        if dp.get("composition"):  # on-policy: the exposure of one transition is its own rollout's steps
+            all_steps = dp.get("epsilon_all_steps")
+            rollout = "; per rollout" + ("" if all_steps is None else f", {all_steps:.2f} over all steps composed")
+        unit = dp.get("unit", "transition")
+        lines.append(f"privacy: epsilon {dp['epsilon']:.2f} at delta {dp['delta']:g} per {unit} (noise "
                      f"{dp['noise_multiplier']:.3g}, clip {dp['max_grad_norm']:g}; RDP accountant, Poisson "
-                     f"batches){stop}")
+                     f"batches{rollout}){stop}")
     return lines
 

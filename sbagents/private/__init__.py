@@ -1,2 +1,3 @@
 """Private agents: DP-SGD training of SB3 actor-critics with Opacus (:func:`make_private`), Poisson-sampled replay
-(:class:`PoissonReplayBuffer`) and the privacy ledger (:mod:`sbagents.private.accounting`)."""
+(:class:`PoissonReplayBuffer`) and rollouts (:class:`PoissonRolloutBuffer`, PPO and A2C), and the privacy ledger
+(:mod:`sbagents.private.accounting`)."""

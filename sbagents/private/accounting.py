@@ -9,6 +9,13 @@ Opacus's RDP accountant. Sample rates are rounded *up* to a logarithmic grid (10
 higher), so the ledger stays small over millions of draws and the epsilon it reports is an upper bound.
 
 The unit of privacy is one transition ``(s, a, r, s', done)`` of the replay buffer.
+
+On-policy learners (PPO, A2C: :class:`RolloutLedger`) train each rollout of ``N = n_steps * n_envs`` transitions for
+``n_epochs`` passes of ``ceil(N / batch_size)`` Poisson minibatches (rate ``q = batch_size / N``), one noisy step each,
+and then never read it again. Rollouts hold disjoint transitions, so one transition is exposed only to the steps of
+its own rollout (parallel composition; later rollouts depend on it only through the private networks, i.e. by
+post-processing): the epsilon reported is that of the worst rollout. The composition over every noisy step of
+training, the bound that does not rely on rollouts being disjoint, is kept beside it (``epsilon_all_steps``).
 """
 
 from __future__ import annotations
@@ -136,6 +143,72 @@ class PrivacyLedger:
         if self._pending_q is not None and self._pending_k:
             self.draws[(self._pending_q, self._pending_k)] += 1
         self._pending_q, self._pending_k = None, 0
+
+
+class RolloutLedger(PrivacyLedger):
+    """:class:`PrivacyLedger` of an on-policy learner: draws grouped by rollout (see the module docstring).
+
+    :meth:`epsilon` is the worst rollout's (parallel composition over disjoint rollouts); :meth:`epsilon_all_steps`
+    composes every noisy step of training.
+    """
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self._rollout_start: Counter[tuple[float, int]] = Counter()
+        #: the distinct per-rollout schedules of the finished rollouts, as sorted ``((q, k), count)`` tuples
+        self.rollout_schedules: set[tuple[tuple[tuple[float, int], int], ...]] = set()
+        self.n_rollouts = 0
+
+    def on_rollout(self) -> None:
+        """A new rollout begins (new transitions): the draws of the previous one are closed."""
+        self._commit()
+        self._close_rollout()
+        self.n_rollouts += 1
+
+    def current_rollout(self) -> Counter[tuple[float, int]]:
+        """The draws on the current rollout's transitions, as ``{(q, k): count}``."""
+        return self.spent() - self._rollout_start
+
+    def epsilon(self) -> float:
+        """Epsilon spent on any one transition so far: the worst rollout's."""
+        schedules = [*self.rollout_schedules, _as_key(self.current_rollout())]
+        return max(_epsilon_of_key(s, self.noise_multiplier, self.delta) for s in schedules)
+
+    def epsilon_all_steps(self) -> float:
+        """Epsilon of every noisy step of training composed (an upper bound of :meth:`epsilon`)."""
+        return epsilon_of(self.spent(), self.noise_multiplier, self.delta)
+
+    def _close_rollout(self) -> None:
+        current = self.current_rollout()
+        if current:
+            self.rollout_schedules.add(_as_key(current))
+        self._rollout_start = self.spent()
+
+
+def _as_key(draws: Counter[tuple[float, int]]) -> tuple[tuple[tuple[float, int], int], ...]:
+    """``draws`` as a hashable, sorted tuple."""
+    return tuple(sorted(draws.items()))
+
+
+@lru_cache(maxsize=256)
+def _epsilon_of_key(key: tuple[tuple[tuple[float, int], int], ...], noise_multiplier: float, delta: float) -> float:
+    """:func:`epsilon_of` of a schedule given by :func:`_as_key` (cached: a run has one or two schedules)."""
+    return epsilon_of(Counter(dict(key)), noise_multiplier, delta)
+
+
+def rollout_schedule(n_transitions: int, batch_size: int | None, n_epochs: int) -> Counter[tuple[float, int]]:
+    """The draws on one rollout of ``n_transitions``: ``n_epochs`` passes of ``ceil(N / batch_size)`` Poisson
+    minibatches at ``q = batch_size / N`` (``batch_size`` None: one full batch a pass, ``q = 1``), one noisy step
+    each, as ``{(q, 1): count}``."""
+    if batch_size is None or batch_size >= n_transitions:
+        return Counter({(1.0, 1): n_epochs * (1 if batch_size is None else math.ceil(n_transitions / batch_size))})
+    q = round_rate_up(batch_size / n_transitions)
+    return Counter({(q, 1): n_epochs * math.ceil(n_transitions / batch_size)})
+
+
+def planned_rollouts(total_timesteps: int, n_transitions: int) -> int:
+    """The rollouts SB3's on-policy ``learn(total_timesteps)`` trains on: full rollouts until ``total_timesteps``."""
+    return math.ceil(max(total_timesteps, 0) / n_transitions)
 
 
 def planned_draws(total_timesteps: int, n_envs: int, batch_size: int, learning_starts: int, train_freq: int,

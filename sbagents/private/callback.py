@@ -6,8 +6,8 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sbagents.private.accounting import epsilon_of
-from sbagents.private.dp_sgd import PrivateTraining, planned_model_draws
+from sbagents.private.accounting import RolloutLedger
+from sbagents.private.dp_sgd import PrivateTraining, planned_epsilon
 
 #: Env steps between ``dp/epsilon`` log entries (TensorBoard, SB3's logger).
 LOG_EVERY = 1000
@@ -15,7 +15,8 @@ LOG_EVERY = 1000
 
 class DPCallback(BaseCallback):
     """Logs ``dp/epsilon`` every ``log_every`` env steps and stops ``learn`` before the draws would spend more than
-    ``stop_at`` (for a noise given directly; a noise calibrated to the budget never reaches it).
+    ``stop_at`` (for a noise given directly; a noise calibrated to the budget never reaches it). On-policy, every
+    rollout spends the same epsilon: a noise that passes the budget in one rollout stops before the first update.
 
     :param dp: the state :func:`~sbagents.private.dp_sgd.make_private` returned.
     :param stop_at: the epsilon budget (None: never stop).
@@ -34,13 +35,14 @@ class DPCallback(BaseCallback):
         if self.stop_at is None or self.total_timesteps is None:
             return
         ledger = self.dp.ledger
-        planned = planned_model_draws(self.model, self.total_timesteps)  # type: ignore[arg-type]
-        if epsilon_of(planned, ledger.noise_multiplier, ledger.delta) > self.stop_at:
+        if planned_epsilon(self.model, self.total_timesteps, ledger.noise_multiplier, ledger.delta) > self.stop_at:
             self.stop_step = last_step_within(self.model, self.total_timesteps, self.dp, self.stop_at)
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next_log:
             self.logger.record("dp/epsilon", self.dp.ledger.epsilon())
+            if isinstance(self.dp.ledger, RolloutLedger):
+                self.logger.record("dp/epsilon_all_steps", self.dp.ledger.epsilon_all_steps())
             self._next_log = self.num_timesteps + self.log_every
         if self.stop_step is not None and self.num_timesteps >= self.stop_step:
             self.stopped_at_budget = True
@@ -57,7 +59,7 @@ def last_step_within(model: Any, total_timesteps: int, dp: PrivateTraining, budg
     ledger = dp.ledger
 
     def fits(steps: int) -> bool:
-        return epsilon_of(planned_model_draws(model, steps), ledger.noise_multiplier, ledger.delta) <= budget
+        return planned_epsilon(model, steps, ledger.noise_multiplier, ledger.delta) <= budget
 
     lo, hi = 0, total_timesteps
     while hi - lo > max(model.n_envs, 1):

@@ -1,4 +1,5 @@
-"""DP-SGD for SB3's off-policy actor-critics (DDPG, TD3, SAC): per-transition gradients clipped and noised by Opacus.
+"""DP-SGD for SB3's actor-critics: per-transition gradients clipped and noised by Opacus. Off-policy (DDPG, TD3,
+SAC) here; on-policy (PPO, A2C) in :mod:`sbagents.private.on_policy`, through the same :func:`make_private`.
 
 :func:`make_private` turns an SB3 model built with ``replay_buffer_class=PoissonReplayBuffer`` into a private
 learner, in place: Opacus's per-sample gradient hooks on the actor and critic networks, their optimizers wrapped
@@ -10,6 +11,9 @@ The model's ``learn`` and saved files stay plain SB3: target networks are copies
 and a saved model loads without Opacus. What must not see the data outside the noisy steps is refused: SAC's
 automatic entropy coefficient (its loss reads the batch; use a fixed ``ent_coef``), and layers Opacus cannot
 compute per-sample gradients for.
+
+For PPO and A2C, ``make_private`` needs ``rollout_buffer_class=PoissonRolloutBuffer`` and ``normalize_advantage=False``
+instead, and the ledger is a :class:`~sbagents.private.accounting.RolloutLedger` (epsilon per rollout).
 """
 
 from __future__ import annotations
@@ -20,13 +24,17 @@ from dataclasses import dataclass
 from typing import Any
 
 from stable_baselines3 import DDPG, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-from sbagents.private.accounting import PrivacyLedger, noise_for_epsilon, planned_draws
+from sbagents.private.accounting import PrivacyLedger, RolloutLedger, epsilon_of, noise_for_epsilon, planned_draws
 from sbagents.private.replay import PoissonReplayBuffer
 
+#: Off-policy algorithms DP-SGD is wired for.
+OFF_POLICY_DP_ALGOS = ("ddpg", "td3", "sac")
 #: Algorithms DP-SGD is wired for (the class names accepted by :func:`make_private`).
-DP_ALGOS = ("ddpg", "td3", "sac")
+DP_ALGOS = (*OFF_POLICY_DP_ALGOS, "ppo", "a2c")
 
 
 @dataclass
@@ -36,11 +44,13 @@ class PrivateTraining:
     :param ledger: draws and noisy steps so far; ``ledger.epsilon()`` is the privacy spent.
     :param max_grad_norm: the per-transition clipping norm ``C``.
     :param target_epsilon: the budget the noise was calibrated to (None: noise given directly).
+    :param unit: what one record of the guarantee is (see docs/private.md).
     """
 
     ledger: PrivacyLedger
     max_grad_norm: float
     target_epsilon: float | None = None
+    unit: str = "transition"
 
     @property
     def noise_multiplier(self) -> float:
@@ -48,11 +58,19 @@ class PrivateTraining:
 
     def summary(self) -> dict[str, Any]:
         """What ``summary.json`` keeps under ``dp``."""
-        eps = self.ledger.epsilon()
-        return {"epsilon": round(eps, 4) if math.isfinite(eps) else None, "delta": self.ledger.delta,
-                "noise_multiplier": self.noise_multiplier, "max_grad_norm": self.max_grad_norm,
-                "target_epsilon": self.target_epsilon, "accountant": "rdp", "sampling": "poisson",
-                "unit": "transition", "draws": self.ledger.n_draws, "noisy_steps": self.ledger.n_steps}
+        out = {"epsilon": _rounded(self.ledger.epsilon()), "delta": self.ledger.delta,
+               "noise_multiplier": self.noise_multiplier, "max_grad_norm": self.max_grad_norm,
+               "target_epsilon": self.target_epsilon, "accountant": "rdp", "sampling": "poisson",
+               "unit": self.unit, "draws": self.ledger.n_draws, "noisy_steps": self.ledger.n_steps}
+        if isinstance(self.ledger, RolloutLedger):
+            out.update(composition="per rollout (parallel)", rollouts=self.ledger.n_rollouts,
+                       epsilon_all_steps=_rounded(self.ledger.epsilon_all_steps()))
+        return out
+
+
+def _rounded(eps: float) -> float | None:
+    """Epsilon for JSON: 4 decimals, None for infinity."""
+    return round(eps, 4) if math.isfinite(eps) else None
 
 
 def steps_per_draw(model: OffPolicyAlgorithm) -> tuple[int, ...]:
@@ -65,6 +83,11 @@ def check_private_model(model: Any) -> None:
     """Raise :class:`ValueError` (one line, saying what fits) for a model DP-SGD cannot be wired into."""
     from opacus.validators import ModuleValidator
 
+    if isinstance(model, OnPolicyAlgorithm):
+        from sbagents.private.on_policy import check_on_policy_model
+
+        check_on_policy_model(model)
+        return
     if not isinstance(model, DDPG | TD3 | SAC):
         raise ValueError(f"DP training is wired for {', '.join(DP_ALGOS)} (their actor and critic), not "
                          f"{type(model).__name__}")
@@ -81,11 +104,12 @@ def check_private_model(model: Any) -> None:
                              "element-wise activations (MlpPolicy)")
 
 
-def make_private(model: OffPolicyAlgorithm, max_grad_norm: float = 1.0, noise_multiplier: float | None = None,
+def make_private(model: BaseAlgorithm, max_grad_norm: float = 1.0, noise_multiplier: float | None = None,
                  target_epsilon: float | None = None, delta: float = 1e-5,
                  total_timesteps: int | None = None) -> PrivateTraining:
     """Make ``model`` train with DP-SGD (in place); give ``noise_multiplier``, or ``target_epsilon`` and
-    ``total_timesteps`` to calibrate the noise to the draws ``learn(total_timesteps)`` will make.
+    ``total_timesteps`` to calibrate the noise to the draws ``learn(total_timesteps)`` will make (on-policy: to the
+    draws of one rollout, which is what one transition is exposed to).
 
     :raises ValueError: a model that cannot be made private, or bad privacy parameters.
     """
@@ -103,9 +127,17 @@ def make_private(model: OffPolicyAlgorithm, max_grad_norm: float = 1.0, noise_mu
     if noise_multiplier is None:
         if target_epsilon is None or total_timesteps is None:
             raise ValueError("give noise_multiplier, or target_epsilon with total_timesteps")
-        noise_multiplier = noise_for_epsilon(planned_model_draws(model, total_timesteps), target_epsilon, delta)
+        noise_multiplier = noise_for_epsilon(exposure_draws(model, total_timesteps), target_epsilon, delta)
     elif noise_multiplier < 0:
         raise ValueError(f"the noise multiplier must be >= 0, got {noise_multiplier}")
+    if isinstance(model, OnPolicyAlgorithm):
+        from sbagents.private.on_policy import wire_on_policy
+
+        rollout_ledger = RolloutLedger(noise_multiplier, delta)
+        wire_on_policy(model, rollout_ledger, max_grad_norm)
+        unit = "transition" if float(getattr(model, "gae_lambda", 0.0)) == 0.0 else "rollout sample"
+        return PrivateTraining(rollout_ledger, max_grad_norm, target_epsilon, unit)
+    assert isinstance(model, OffPolicyAlgorithm)
     ledger = PrivacyLedger(noise_multiplier, delta)
     buffer = model.replay_buffer
     assert isinstance(buffer, PoissonReplayBuffer)
@@ -121,10 +153,31 @@ def make_private(model: OffPolicyAlgorithm, max_grad_norm: float = 1.0, noise_mu
     return PrivateTraining(ledger, max_grad_norm, target_epsilon)
 
 
-def planned_model_draws(model: OffPolicyAlgorithm, total_timesteps: int) -> Any:
-    """:func:`~sbagents.private.accounting.planned_draws` with ``model``'s own settings."""
+def planned_model_draws(model: BaseAlgorithm, total_timesteps: int) -> Any:
+    """The draws ``learn(total_timesteps)`` will make, as ``{(q, k): count}``: off-policy,
+    :func:`~sbagents.private.accounting.planned_draws` with ``model``'s own settings; on-policy, every rollout's."""
+    if isinstance(model, OnPolicyAlgorithm):
+        from sbagents.private.on_policy import planned_on_policy_draws
+
+        return planned_on_policy_draws(model, total_timesteps)
+    assert isinstance(model, OffPolicyAlgorithm)
     freq: Any = model.train_freq  # a TrainFreq once the model is set up
     if getattr(freq.unit, "value", freq.unit) != "step":
         raise ValueError("DP calibration to a target epsilon needs train_freq in steps (not episodes)")
     return planned_draws(total_timesteps, model.n_envs, model.batch_size, model.learning_starts, int(freq.frequency),
                          model.gradient_steps, model.buffer_size, steps_per_draw(model))
+
+
+def exposure_draws(model: BaseAlgorithm, total_timesteps: int) -> Any:
+    """The draws one transition is exposed to in ``learn(total_timesteps)``: off-policy, all of them; on-policy, its
+    own rollout's (none if no rollout is trained on)."""
+    if isinstance(model, OnPolicyAlgorithm):
+        from sbagents.private.on_policy import model_rollout_schedule
+
+        return model_rollout_schedule(model) if total_timesteps > 0 else type(model_rollout_schedule(model))()
+    return planned_model_draws(model, total_timesteps)
+
+
+def planned_epsilon(model: BaseAlgorithm, total_timesteps: int, noise_multiplier: float, delta: float) -> float:
+    """The epsilon ``learn(total_timesteps)`` will report (for calibration and stopping before a budget)."""
+    return epsilon_of(exposure_draws(model, total_timesteps), noise_multiplier, delta)

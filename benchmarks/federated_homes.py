@@ -34,7 +34,7 @@ from typing import Any
 
 import torch
 
-from benchmarks.speed import write_section
+from benchmarks.speed import publish
 from sbagents.federated.evaluation import evaluate_homes, for_home
 from sbagents.federated.homes import Home, client_homes, held_out_homes
 from sbagents.federated.local import home_experiment, make_env, new_model
@@ -220,7 +220,6 @@ def main(argv: list[str] | None = None) -> int:
                     run["rows"][name] = row
                     print(json.dumps({"seed": run["seed"], name: row}), flush=True)
         result.setdefault("added", []).append({"seeds": args.seeds, "add": args.add, "dp_clip": args.dp_clip})
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
     else:
         torch.set_num_threads(1)
         params = parse_overrides(args.params, "--params")
@@ -233,13 +232,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(runs[-1]), flush=True)
         result = {"settings": {"rounds": args.rounds, "local_steps": args.local_steps, "strategy": args.strategy},
                   "params": params, "episodes": args.episodes, "personal_steps": args.personal_steps, "runs": runs}
-        if args.json:
-            result.setdefault("added", []).append({"seeds": args.seeds, "add": args.add, "dp_clip": args.dp_clip})
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    print(text)
-    if args.output:
-        write_section(args.output, text, SECTION)
+    publish(markdown(result), result, args.output, None if args.render_only else args.json, SECTION)
     return 0
 
 

@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import write_section
+from benchmarks.speed import publish
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, PrivacyOptions, TrainSpec, train
 from sbagents.pipeline.zoo_config import parse_overrides
 
@@ -81,12 +81,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(json.dumps(runs[-1]), flush=True)
     result = {"epsilons": args.epsilons, "seeds": args.seeds, "clip": args.clip, "episodes": args.episodes,
               "params": params, "runs": runs}
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
-    text = markdown(result)
-    print(text)
-    if args.output:
-        write_section(args.output, text, SECTION)
+    publish(markdown(result), result, args.output, args.json, SECTION)
     return 0
 
 

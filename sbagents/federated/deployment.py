@@ -141,12 +141,12 @@ def stop(proc: subprocess.Popen[bytes], grace: float = 10.0) -> None:
 
 def run_deployment(settings: FederatedSettings, run_dir: Path, port: int, report: Any = print) -> None:
     """Start a SuperLink on ``127.0.0.1:port``, run the federation on the homes that connect, stop the SuperLink.
+    The caller checks the port first (:func:`check_port_free`, before it makes the run dir).
 
-    :raises UsageError: the port is in use, the SuperLink does not start, or the run fails (logs named).
+    :raises UsageError: the SuperLink does not start, or the run fails (logs named).
     """
     from sbagents.federated.server import ROUNDS_FILE
 
-    check_port_free("127.0.0.1", port, "--port")
     with tempfile.TemporaryDirectory(prefix="sbagents-flwr-") as tmp:
         flwr_home = Path(tmp) / "flwr"
         write_connection(flwr_home, port)

@@ -151,7 +151,7 @@ def finish(settings: FederatedSettings, run_dir: Path, clock: LearningClock, fin
     """``summary.json`` (with the final evaluation on SmartHome's random users), the rounds plot, the result."""
     from sbagents.federated.plots import plot_rounds
     from sbagents.federated.server import FEDERATED_FILE, ROUNDS_FILE
-    from sbagents.pipeline.run_dir import RunRef, load_run
+    from sbagents.pipeline.run_dir import RunRef, env_stem, load_run
 
     record_path = run_dir / FEDERATED_FILE
     record = json.loads(record_path.read_text()) if record_path.exists() else {}  # written after every round
@@ -166,7 +166,7 @@ def finish(settings: FederatedSettings, run_dir: Path, clock: LearningClock, fin
         "dp_delta": settings.dp_delta if settings.strategy == "dp-fedavg" else None}
     if (run_dir / ROUNDS_FILE).exists():
         plot_rounds(run_dir / ROUNDS_FILE, run_dir / "rounds.png", f"{settings.strategy}, {settings.homes} homes")
-    model_file = run_dir / f"{settings.env.replace('/', '_')}.zip"
+    model_file = run_dir / f"{env_stem(settings.env)}.zip"
     if not model_file.exists():
         clock.interrupted = True
         summary["interrupted"] = True

@@ -45,6 +45,7 @@ def run_federation(grid: Any, settings: FederatedSettings, run_dir: Path, report
     model = new_model(exp, env, settings.seed)
     initial = ArrayRecord(shared_state(model))
     size = initial.count_bytes()
+    n_parameters = sum(int(v.numel()) for v in shared_state(model).values())
     held_out = held_out_homes(settings.held_out, settings.seed)
     rows: list[dict[str, Any]] = []
     replies: list[dict[str, Any]] = []
@@ -60,7 +61,7 @@ def run_federation(grid: Any, settings: FederatedSettings, run_dir: Path, report
         return {"settings": settings.to_run_config(), "homes": [vars(h) for h in homes],
                 "held_out_homes": [vars(h) for h in held_out], "rounds": rows, "replies": replies,
                 "bytes_per_round_per_home": 2 * size,
-                "parameters": sum(int(v.numel()) for v in shared_state(model).values()),
+                "parameters": n_parameters,
                 "seconds": round(time.perf_counter() - start, 2)}
 
     def evaluate(server_round: int, arrays: ArrayRecord) -> MetricRecord:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import torch
 
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
-from sbagents.visualize.video import record_video
+from sbagents.visualize.video import record_video, sidecar_path
 
 
 def build_parser() -> ArgumentParser:
@@ -27,11 +27,13 @@ def build_parser() -> ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse ``argv``, record the video, print its path."""
+    """Parse ``argv``, record the video, print its path (and its decisions sidecar's)."""
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
     path = record_video(run_ref(args), args.n_steps, args.output_folder, args.seed, args.deterministic, args.fps)
     print(f"video: {path}")
+    if sidecar_path(path).exists():
+        print(f"decisions: {sidecar_path(path)}")
     return 0
 
 

@@ -154,6 +154,12 @@ def _other_cli_cases(logs: Path, tmp: Path) -> list[tuple[str, list[str], str]]:
         ("tune", ["--algo", "sac", "--env", "GridWorld-v0", "-f", str(tmp), "-n", "64"], "sac cannot learn"),
         ("tune", ["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp), "--n-trials", "0"],
          "--n-trials must be >= 1, got 0"),
+        ("dashboard.__main__", ["-f", str(tmp / "none")], f"-f/--log-folder {tmp / 'none'}: no such folder"),
+        ("dashboard.__main__", ["-f", str(logs), "--host", "0.0.0.0"], "--host 0.0.0.0 is reachable from other"),
+        ("dashboard.__main__", ["-f", str(logs), "--host", "0.0.0.0", "--token", "short"],
+         "--token must be at least 8 characters"),
+        ("dashboard.__main__", ["-f", str(logs), "--port", "70000"], "--port must be 0-65535, got 70000"),
+        ("dashboard.__main__", ["-f", str(logs), "--port", "x"], "argument --port: invalid int value"),
     ]
 
 
@@ -161,7 +167,7 @@ def test_bad_input_to_every_other_cli(logs: Path, tmp_path: Path, capsys: pytest
     before = sorted(p.relative_to(logs) for p in logs.rglob("*"))
     cases = _other_cli_cases(logs, tmp_path)
     assert {module for module, _, _ in cases} == {"evaluate", "export", "serve", "record_video", "plot", "tune",
-                                                           "play"}
+                                                  "play", "dashboard.__main__"}
     for module, args, expected in cases:
         code = run_main(module, *args)
         check_error(code, capsys.readouterr().err, expected)

@@ -7,18 +7,25 @@ The env is built exactly as in training (the run's ``config.yml`` through
 the frames (it needs ``moviepy``, whose ``imageio-ffmpeg`` dependency ships an ffmpeg binary, so no system
 ffmpeg is needed). PettingZoo runs step one team copy on which every group's model acts (the shared policy for
 every agent, or one model per group), as in training; the video shows the env's own frames.
+
+Next to every single-agent video a decisions sidecar (same stem, ``.csv``) lists the recorded steps, one row per
+step, so each decision can be shown with the frame it was taken in (see :func:`record_video`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
+from sbagents.callbacks.common import env_attr, find_vec_normalize
+from sbagents.callbacks.safety import step_violation
+from sbagents.callbacks.transparency import _cell, _obs_layout, _quote
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_factory import make_team_vecs, make_vec, normalize_for_eval
 from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
@@ -52,6 +59,65 @@ class _Recorder(VecVideoRecorder):
         self.recording = False
 
 
+class _DecisionLog:
+    """The rows of a video's decisions sidecar: one per recorded step of a single-agent VecEnv with one env.
+
+    Observations are flattened as in the transparency log (:class:`~sbagents.callbacks.TransparencyCSVCallback`:
+    Dict observations key by key, no columns for images or components of more than 512 numbers) and are the
+    ORIGINAL ones under ``VecNormalize`` (``get_original_obs``), as are the rewards (``get_original_reward``).
+    """
+
+    def __init__(self, venv: VecEnv) -> None:
+        self.venv = venv
+        self.norm = find_vec_normalize(venv)
+        self.layout = _obs_layout(venv.observation_space)
+        self.header: list[str] | None = None
+        self.rows: list[str] = []
+        self.episode = self.step = 0
+        self.obs: list[Any] = []
+
+    def observe(self, obs: Any) -> None:
+        """Keep the (original) observation just returned by ``reset``/``step``: the next decision is taken in it."""
+        raw = self.norm.get_original_obs() if self.norm is not None else obs
+        parts = []
+        for key, size in self.layout:
+            if size:
+                arr = np.asarray(raw[key] if key is not None else raw)
+                parts.append(arr.reshape(arr.shape[0], -1)[0])
+        self.obs = np.concatenate(parts).tolist() if parts else []
+
+    def _names(self, attr: str, count: int, stem: str) -> list[str]:
+        """The env's ``attr`` names when it has ``count`` of them, else ``<stem>_<i>``."""
+        found = env_attr(self.venv, attr)
+        names = [str(x) for x in found] if found is not None else []
+        return names if len(names) == count else [f"{stem}_{i}" for i in range(count)]
+
+    def record(self, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray,
+               infos: Sequence[dict[str, Any]]) -> None:
+        """Add the row of the step just taken (``actions`` chosen in the last observed observation)."""
+        action = np.asarray(actions).reshape(len(dones), -1)[0].tolist()
+        if self.header is None:
+            self.header = ["frame", "episode", "step", *self._names("obs_names", len(self.obs), "obs"),
+                           *self._names("action_names", len(action), "action"),
+                           "reward", "terminated", "truncated", "violation", "cost"]
+        reward = float((self.norm.get_original_reward() if self.norm is not None else np.asarray(rewards))[0])
+        done, info = bool(dones[0]), infos[0]
+        truncated = done and bool(info.get("TimeLimit.truncated", False))
+        violation, cost = step_violation(info)
+        cells = [len(self.rows), self.episode, self.step, *self.obs, *action, reward, done and not truncated,
+                 truncated, violation or "", cost]
+        self.rows.append(",".join(_cell(c) for c in cells))
+        self.step += 1
+        if done:
+            self.episode, self.step = self.episode + 1, 0
+
+    def write(self, path: Path) -> None:
+        """Write the header and the rows to ``path``."""
+        assert self.header is not None, "no step was recorded"
+        lines = [",".join(_quote(h) for h in self.header), *self.rows]
+        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
 def _render_fps(venv: VecEnv) -> float:
     """Frames per second for the video: the env's ``metadata['render_fps']`` (30 when it has none)."""
     try:
@@ -71,6 +137,23 @@ def record_video(
     fps: float | None = None,
 ) -> Path:
     """Record ``n_steps`` steps of a finished run's agent to an mp4 and return its path.
+
+    Decisions sidecar: ``<same stem>.csv`` next to the mp4, one row per recorded step, columns ``frame, episode,
+    step, <observation columns>, <action columns>, reward, terminated, truncated, violation, cost``:
+
+    - ``frame``: the video frame showing the state in which the row's action was chosen (the recorder captures
+      frame 0 at reset and one frame after every step, so row ``t`` is frame ``t``; the last frame, ``n_steps``,
+      shows the state after the last recorded step and has no row).
+    - ``episode``: 0-based episode of the recording; ``step``: 0-based step within it. The env resets itself
+      inside the step that ends an episode, so the frame after a terminal (or truncated) step already shows the
+      next episode's reset state (the row of ``step`` 0 of the next episode): the state reached by an episode's
+      last action appears in no frame.
+    - observation columns: the env's ``obs_names`` (else ``obs_0..``), flattened and unnormalized as in the
+      transparency log (Dict observations key by key, none for images); action columns: ``action_names`` (else
+      ``action_0..``); ``reward``: the unnormalized reward of the step; ``violation``/``cost``: from the step's
+      ``info`` (:func:`sbagents.callbacks.step_violation`; empty and 0 without a violation).
+
+    PettingZoo (multi-agent) runs get no sidecar (their team steps have one row per agent, not per frame).
 
     :param run: the run (algo, env, log folder, exp id, best or final model).
     :param n_steps: vec-env steps to record (episodes that end are reset and recording goes on);
@@ -111,14 +194,24 @@ def record_video(
         venvs[first], str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix
     )
     recorder.frames_per_sec = frame_rate  # type: ignore[assignment]  # SB3 annotates it too narrowly
+    log = None if ref.multi_agent else _DecisionLog(recorder)
     try:
-        _play(recorder, venvs, loaded, n_steps, deterministic)
+        _play(recorder, venvs, loaded, n_steps, deterministic, log)
     finally:
         recorder.close()
     path = out / f"{prefix}-step-0-to-step-{n_steps}.mp4"
     if not path.exists():
         raise UsageError(f"no video was written to {path}")
+    if log is not None:
+        log.write(sidecar_path(path))
+    else:  # a sidecar left by an earlier recording to this path would describe a video that is gone
+        sidecar_path(path).unlink(missing_ok=True)
     return path
+
+
+def sidecar_path(video: str | Path) -> Path:
+    """The decisions sidecar of a video written by :func:`record_video`: the same path with ``.csv``."""
+    return Path(video).with_suffix(".csv")
 
 
 def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
@@ -134,16 +227,22 @@ def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
 
 
 def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], loaded: LoadedRun, n_steps: int,
-          deterministic: bool) -> None:
-    """Step ``n_steps`` times: the other groups act first, then the recorded (first) group's step moves the team."""
+          deterministic: bool, log: _DecisionLog | None = None) -> None:
+    """Step ``n_steps`` times: the other groups act first, then the recorded (first) group's step moves the team;
+    ``log`` gets every step of a single-agent run."""
     first, *others = list(venvs)
     obs: dict[str, Any] = {first: recorder.reset()}
     obs.update({g: venvs[g].reset() for g in others})
+    if log is not None:
+        log.observe(obs[first])
     for _ in range(n_steps):
         for g in others:
             venvs[g].step_async(loaded.models[g].predict(obs[g], deterministic=deterministic)[0])
         actions, _ = loaded.models[first].predict(obs[first], deterministic=deterministic)
         with contextlib.redirect_stdout(io.StringIO()):  # SB3 prints "Saving video to ..." at the last step
-            obs[first] = recorder.step(actions)[0]
+            obs[first], rewards, dones, infos = recorder.step(actions)
+        if log is not None:
+            log.record(actions, rewards, dones, infos)
+            log.observe(obs[first])
         for g in others:
             obs[g] = venvs[g].step_wait()[0]

@@ -1,0 +1,102 @@
+"""Listing many runs in the dashboard: ``/api/runs`` over N generated run dirs, cold and warm.
+
+Generates N SmartHome-like run dirs (``summary.json``, ``args.yml``, ``config.yml``, ``command.txt``, a monitor file
+of 1,000 episodes, ``evaluations.npz``), then, through the Flask app's test client in this process: the first
+listing (every run read: the baseline), the next listings (rows cached, each run dir only ``stat``-ed; median of 5),
+and a listing after one run's files changed (that run re-read).
+
+    python -m benchmarks.dashboard_runs [--runs 200] [--output BENCHMARKS.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.speed import machine_info, publish
+
+SECTION = "dashboard-runs"
+
+
+def generate(folder: Path, n_runs: int, episodes: int = 1000) -> None:
+    """``n_runs`` run dirs under ``folder/<algo>/sbagents_SmartHome-v0_<k>/``."""
+    monitor = "\n".join(f"{-100 + i * 0.05:.3f},100,{i * 0.8:.2f}" for i in range(episodes))
+    for i in range(n_runs):
+        algo = ("ddpg", "td3", "sac", "ppo")[i % 4]
+        run_dir = folder / algo / f"sbagents_SmartHome-v0_{i // 4 + 1}"
+        (run_dir / "sbagents_SmartHome-v0").mkdir(parents=True)
+        (run_dir / "sbagents_SmartHome-v0" / "args.yml").write_text(
+            f"algo: {algo}\nenv: sbagents/SmartHome-v0\nseed: {i}\nn_timesteps: 100000\neval_freq: 10000\n")
+        (run_dir / "sbagents_SmartHome-v0" / "config.yml").write_text("policy: MlpPolicy\nlearning_rate: 0.001\n")
+        (run_dir / "command.txt").write_text(f"python -m sbagents.train --algo {algo} --env SmartHome-v0\n")
+        (run_dir / "summary.json").write_text(json.dumps({
+            "algo": algo, "env": "sbagents/SmartHome-v0", "seed": i, "n_timesteps": 100_000, "train_seconds": 800.0,
+            "fps": 125.0, "interrupted": False, "eval": {"mean_return": -20.0, "std_return": 3.0, "success_rate": 1.0},
+        }))
+        (run_dir / "0.monitor.csv").write_text('#{"t_start": 1000.0}\nr,l,t\n' + monitor + "\n")
+        np.savez(run_dir / "evaluations.npz", timesteps=np.arange(1, 11) * 10_000, results=np.zeros((10, 5)))
+
+
+def run(n_runs: int = 200) -> dict[str, Any]:
+    from sbagents.dashboard.app import create_app
+    from sbagents.dashboard.folders import ServedFolders
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "logs"
+        generate(folder, n_runs)
+        client = create_app(ServedFolders.from_paths([folder])).test_client()
+
+        def listing() -> tuple[float, int]:
+            start = time.perf_counter()
+            response = client.get("/api/runs")
+            elapsed = time.perf_counter() - start
+            assert response.status_code == 200
+            return elapsed, len(response.get_json()["runs"])
+
+        cold, listed = listing()
+        warm = statistics.median(listing()[0] for _ in range(5))
+        touched = folder / "ddpg" / "sbagents_SmartHome-v0_1" / "summary.json"
+        touched.write_text(touched.read_text().replace('"fps": 125.0', '"fps": 126.0'))
+        one_changed, _ = listing()
+    return {"machine": machine_info(), "runs": n_runs, "listed": listed, "cold_s": cold, "warm_s": warm,
+            "one_changed_s": one_changed, "cold_over_warm": cold / warm}
+
+
+def markdown(result: dict[str, Any], command: str) -> str:
+    m = result["machine"]
+    return "\n".join([
+        "## Dashboard: listing runs", "",
+        f"Machine: {m.get('cpu', '?')}, {m.get('cores', '?')} cores, Python {m.get('python', '?')}; "
+        f"{m.get('date', '')}. Command: `{command}`.", "",
+        f"{result['runs']} generated SmartHome run dirs (summary, args, config, command, a 1,000-episode monitor file, "
+        "evaluations), listed by `/api/runs` through the app's test client (what the runs page polls every 3 s).", "",
+        "| listing | time |", "|---|---:|",
+        f"| first (every run read; the baseline) | {1000 * result['cold_s']:.1f} ms |",
+        f"| next ones (rows cached, run dirs stat-ed; median of 5) | {1000 * result['warm_s']:.1f} ms "
+        f"({result['cold_over_warm']:.1f}x faster) |",
+        f"| after one run's summary.json changed | {1000 * result['one_changed_s']:.1f} ms |",
+    ])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.dashboard_runs", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=int, default=200, help="run dirs to generate")
+    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
+    parser.add_argument("--json", default="benchmarks/results/dashboard_runs.json", help="raw results ('' = none)")
+    args = parser.parse_args(argv)
+    result = run(args.runs)
+    command = "python -m benchmarks.dashboard_runs" + (f" --runs {args.runs}" if args.runs != 200 else "")
+    publish(markdown(result, command), result, args.output, args.json, SECTION)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,126 @@
+"""EpCost over training: the cost and violations of every finished episode of a transparency log, read
+incrementally (each call reads at most ``byte_budget`` new bytes, so a big log is summed over a few polls and a
+growing one only from where the last call stopped). ``.csv.gz`` logs are decompressed as a stream across calls,
+including the several gzip members an appended log has and a member still being written."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import threading
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+#: Bytes read per call (plain CSV) or compressed bytes (gzip).
+BYTE_BUDGET = 32 << 20
+
+
+@dataclass
+class _Episode:
+    cost: float = 0.0
+    violations: int = 0
+    steps: int = 0
+    ended: bool = False
+
+
+@dataclass
+class EpisodeCosts:
+    """Per-episode cost sums of one log; call :meth:`update` to read what was appended since the last call."""
+
+    path: Path
+    offset: int = 0
+    header: list[str] | None = None
+    carry: bytes = b""
+    episodes: dict[tuple[str, str], _Episode] = field(default_factory=dict)
+    finished: list[tuple[str, str]] = field(default_factory=list)
+    _inflate: Any = None
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def update(self, byte_budget: int = BYTE_BUDGET) -> dict[str, Any]:
+        """Read up to ``byte_budget`` new bytes; return ``episodes`` (index of each finished episode in order of
+        ending), ``ep_cost``, ``violations``, ``lengths``, ``has_cost`` and ``progress`` (share of the file read)."""
+        with self._lock:
+            try:
+                size = self.path.stat().st_size
+                if size < self.offset:  # replaced by a shorter file: start over
+                    self._reset()
+                with self.path.open("rb") as fh:
+                    fh.seek(self.offset)
+                    raw = fh.read(byte_budget)
+            except OSError:
+                raw, size = b"", max(self.offset, 1)
+            self.offset += len(raw)
+            self._consume(self._decompress(raw) if self.path.suffix == ".gz" else raw)
+            return self._result(self.offset / max(size, 1))
+
+    def _reset(self) -> None:
+        self.offset, self.header, self.carry, self._inflate = 0, None, b"", None
+        self.episodes, self.finished = {}, []
+
+    def _decompress(self, raw: bytes) -> bytes:
+        out = []
+        while raw:
+            if self._inflate is None:
+                self._inflate = zlib.decompressobj(wbits=31)
+            out.append(self._inflate.decompress(raw))
+            if not self._inflate.eof:
+                break
+            raw, self._inflate = self._inflate.unused_data, None  # the next gzip member
+        return b"".join(out)
+
+    def _consume(self, data: bytes) -> None:
+        data = self.carry + data
+        cut = data.rfind(b"\n") + 1
+        self.carry = data[cut:]
+        lines = data[:cut].decode("utf-8", errors="replace").splitlines()
+        if not lines:
+            return
+        reader = csv.reader(lines)
+        if self.header is None:
+            self.header = next(reader, None)
+        cols = {name.lower(): i for i, name in enumerate(self.header or [])}
+        ep_i, env_i = cols.get("episode"), cols.get("env")
+        cost_i, viol_i = cols.get("cost"), cols.get("violation")
+        done_i = [cols[c] for c in ("terminated", "truncated", "done") if c in cols]
+        if ep_i is None:
+            return
+        for row in reader:
+            if len(row) != len(self.header or []):
+                continue
+            key = (row[env_i] if env_i is not None else "0", row[ep_i])
+            episode = self.episodes.get(key)
+            if episode is None:
+                episode = self.episodes[key] = _Episode()
+            episode.steps += 1
+            violated = bool(viol_i is not None and row[viol_i])
+            episode.violations += violated
+            with contextlib.suppress(ValueError):
+                episode.cost += float(row[cost_i]) if cost_i is not None and row[cost_i] else float(violated)
+            if not episode.ended and any(row[i] in ("True", "true", "1") for i in done_i):
+                episode.ended = True
+                self.finished.append(key)
+
+    def _result(self, progress: float) -> dict[str, Any]:
+        cols = {name.lower() for name in self.header or []}
+        eps = [self.episodes[k] for k in self.finished]
+        return {
+            "episodes": list(range(len(eps))),
+            "ep_cost": [e.cost for e in eps],
+            "violations": [e.violations for e in eps],
+            "lengths": [e.steps for e in eps],
+            "has_cost": bool({"cost", "violation"} & cols),
+            "progress": min(progress, 1.0),
+        }
+
+
+_CACHE: dict[Path, EpisodeCosts] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def episode_costs(path: Path) -> dict[str, Any]:
+    """The EpCost series of the log at ``path`` (one reader per file and process, continued on every call)."""
+    with _CACHE_LOCK:
+        reader = _CACHE.setdefault(path, EpisodeCosts(path))
+    return reader.update()

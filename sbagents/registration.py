@@ -5,6 +5,7 @@ from __future__ import annotations
 #: Gymnasium ID -> entry point. Multi-agent PettingZoo envs are listed in :data:`PETTINGZOO_ENVS` instead.
 GYM_ENVS: dict[str, str] = {
     "sbagents/GridWorld-v0": "sbagents.envs.gridworld:GridWorldEnv",
+    "sbagents/HazardGridWorld-v0": "sbagents.envs.hazard_gridworld:HazardGridWorldEnv",
     "sbagents/SmartHome-v0": "sbagents.envs.smart_home:SmartHomeEnv",
     "sbagents/PickAndPlace-v0": "sbagents.envs.kuka:PickAndPlaceEnv",
     "sbagents/RobustPickAndPlace-v0": "sbagents.envs.kuka:RobustPickAndPlaceEnv",

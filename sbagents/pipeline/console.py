@@ -141,6 +141,7 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
     else:
         rows = [(k, summary[k]) for k in ("env", "algo", "n_episodes", "mean_return", "std_return", "mean_length",
                                           "success_rate")]
+        rows += [("mean_cost", summary["mean_cost"])] if "mean_cost" in summary else []
     for key, value in summary["metrics"].items():
         items = value.items() if isinstance(value, dict) else [(None, value)]
         rows += [(f"metrics.{key}" + (f".{sub}" if sub is not None else ""), v) for sub, v in items]
@@ -166,8 +167,9 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
     elif ev:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
         metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
+        cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
-                     f"{ev['n_episodes']} episodes{success}{metrics}")
+                     f"{ev['n_episodes']} episodes{success}{cost}{metrics}")
     dp = summary.get("dp")
     if dp:
         stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""

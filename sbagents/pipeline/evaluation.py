@@ -16,6 +16,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.callbacks.safety import step_violation
 from sbagents.errors import UsageError
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
@@ -42,9 +43,12 @@ def summarize(
     lengths: Sequence[int],
     successes: Sequence[bool],
     metrics: dict[str, list[float]],
+    costs: Sequence[float] | None = None,
 ) -> dict[str, Any]:
     """The evaluation summary: ``env``, ``algo``, ``n_episodes``, ``mean_return``, ``std_return``, ``mean_length``,
-    ``success_rate`` (None when the env reports no ``is_success``) and ``metrics`` (per-episode means)."""
+    ``success_rate`` (None when the env reports no ``is_success``), ``metrics`` (per-episode means) and, for envs
+    that report a cost (``info["cost"]`` or ``info["violation"]``), ``mean_cost`` (mean episode cost, EpCost)."""
+    cost = {"mean_cost": float(np.mean(costs))} if costs else {}
     return {
         "env": env_id,
         "algo": algo,
@@ -54,6 +58,7 @@ def summarize(
         "mean_length": float(np.mean(lengths)),
         "success_rate": float(np.mean(successes)) if successes else None,
         "metrics": {k: float(np.mean(v)) for k, v in metrics.items()},
+        **cost,
     }
 
 
@@ -85,11 +90,18 @@ def evaluate_model(
     step_infos: list[dict[str, Any]] = []
     successes: list[bool] = []
     metrics: dict[str, list[float]] = defaultdict(list)
+    costs: list[float] = []  # episode costs, when the env reports costs
+    episode_cost = [0.0, False]  # this episode's cost so far, whether any step had a cost key
 
     def on_step(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
         info = locals_["info"]
         step_infos.append(info)
+        episode_cost[0] += step_violation(info)[1]
+        episode_cost[1] = episode_cost[1] or "cost" in info or "violation" in info
         if locals_["done"]:
+            if episode_cost[1]:
+                costs.append(float(episode_cost[0]))
+            episode_cost[:] = [0.0, False]
             if "is_success" in info:
                 successes.append(bool(info["is_success"]))
             if metrics_fn is not None:
@@ -104,7 +116,8 @@ def evaluate_model(
                                            callback=on_step, warn=False)
     finally:
         venv.close()
-    return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics)  # type: ignore[arg-type]
+    return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics,  # type: ignore[arg-type]
+                     costs)
 
 
 def evaluate_groups(

@@ -57,13 +57,21 @@ def build_parser() -> ArgumentParser:
     trust.add_argument("--transparency-format", choices=["full", "book"], default="full",
                        help="full: every obs/action/info column; book: the book's header (SmartHome)")
     trust.add_argument("--safety", action="store_true", help="count safety violations (safety.json, TensorBoard)")
-    trust.add_argument("--cost-limit", type=float, default=None, help="stop when the mean episode cost passes X")
+    trust.add_argument("--cost-limit", type=float, default=None,
+                       help="stop when the mean episode cost passes X (with --constraint: the limit trained for)")
+    trust.add_argument("--constraint", choices=["lagrangian", "pid"], default=None,
+                       help="train under --cost-limit: PPO-Lagrangian (ppo) with a cost critic and a Lagrange "
+                            "(or PID) multiplier; safety.json records its history")
     trust.add_argument("--max-violations", type=int, default=None, help="stop after N violations")
     trust.add_argument("--adversarial-eval", default=None, metavar="SPEC",
                        help='attacks evaluated during training, e.g. "gaussian:0.05,0.1 fgsm:0.01,0.05"')
     trust.add_argument("--fairness", default=None, metavar="KEYS",
                        help="info keys to bucket episodes by, e.g. object_scale,object_mass")
     trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
+    robust = p.add_argument_group("robust training (sbagents.robust)")
+    robust.add_argument("--robust", default=None, metavar="SPEC",
+                        help="sa:EPS: state-adversarial regularization of the actor (ddpg, td3), eps in the attacks' "
+                             "units, ramped up over the first half of training")
     private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac, ppo, a2c; "
                                    "pip install 'sbagents[private]')")
     private.add_argument("--dp-epsilon", type=float, default=None, metavar="E",
@@ -103,7 +111,7 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
     return {
         "spec": TrainSpec(args.algo, args.env, args.n_timesteps, parse_overrides(args.hyperparams, "-params"),
                           args.conf_file, parse_overrides(args.env_kwargs, "--env-kwargs"),
-                          tuple(args.gym_packages), args.trained_agent),
+                          tuple(args.gym_packages), args.trained_agent, args.robust, args.constraint),
         "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command),
         "evaluation": EvalOptions(args.eval_freq, args.eval_episodes, args.n_eval_envs, args.final_eval_episodes),
         "execution": ExecOptions(args.seed, args.backend, args.vec_env, args.device, args.num_threads, args.progress,

@@ -28,6 +28,13 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 TRAIN_CASES = [
+    (["--algo", "ppo", "--robust", "sa:0.2"], "--robust sa trains ddpg, td3, not ppo"),
+    (["--algo", "ppo", "--constraint", "pid"], "--constraint needs --cost-limit X"),
+    (["--algo", "a2c", "--constraint", "lagrangian", "--cost-limit", "1"], "--constraint trains ppo"),
+    (["--algo", "ppo", "--constraint", "lagrangian", "--cost-limit", "-1"], "--cost-limit must be >= 0"),
+    (["--algo", "ppo", "--constraint", "foo"], "argument --constraint: invalid choice"),
+    (["--algo", "td3", "--env", "Pendulum-v1", "--robust", "fgsm:0.1"], "--robust 'fgsm:0.1': expected sa:EPS"),
+    (["--algo", "td3", "--env", "Pendulum-v1", "--robust", "sa:0"], "EPS must be a finite number > 0"),
     (["--env", "GridWrld-v0"], "unknown env id 'GridWrld-v0'; did you mean sbagents/GridWorld-v0"),
     (["--algo", "foo"], "unknown algo 'foo'; available: a2c, ppo"),
     (["--algo", "sac"],

@@ -170,6 +170,11 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{cost}{metrics}")
+    constraint = summary.get("constraint")
+    if constraint:
+        last = "n/a" if constraint["last_ep_cost"] is None else f"{constraint['last_ep_cost']:.3g}"
+        lines.append(f"constraint ({constraint['method']}): cost limit {constraint['cost_limit']:g}, multiplier "
+                     f"{constraint['multiplier']:.3g}, last rollout's episode cost {last}")
     dp = summary.get("dp")
     if dp:
         stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""

@@ -45,17 +45,31 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
 
 def make_model(
     exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
-    verbose: int = 0, trained_agent: Path | None = None,
+    verbose: int = 0, trained_agent: Path | None = None, robust: str | None = None,
+    constraint: tuple[str, float] | None = None,
 ) -> BaseAlgorithm:
     """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue.
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
+    :param robust: ``--robust`` (:func:`sbagents.robust.options.parse_robust`): the algorithm's robust class.
+    :param constraint: ``(method, cost limit)`` of ``--constraint``: PPO-Lagrangian (:mod:`sbagents.constrained`).
     :raises UsageError: hyperparameters the algorithm rejects.
     """
-    cls = ALGOS[exp.algo].cls
+    cls: Any = ALGOS[exp.algo].cls
+    extra: dict[str, Any] = {}
+    if robust is not None:
+        from sbagents.robust.options import parse_robust
+
+        spec = parse_robust(robust, exp.algo)
+        cls, extra = spec.model_class(exp.algo), spec.model_kwargs()
+    if constraint is not None:
+        from sbagents.constrained import PPOLagrangian
+
+        cls, extra = PPOLagrangian, {"constraint": constraint[0], "cost_limit": constraint[1]}
     if trained_agent is not None:
-        return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose)
-    kwargs = dict(exp.algo_kwargs)
+        return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose,
+                        **extra)
+    kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
     policy: Any = exp.policy

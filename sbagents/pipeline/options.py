@@ -37,6 +37,9 @@ class TrainSpec:
     :param env_kwargs: env constructor arguments merged into the config's (``--env-kwargs``).
     :param gym_packages: packages to import that register the env (``--gym-packages``).
     :param trained_agent: a model ``.zip`` to continue training (``-i``).
+    :param robust: robust training (``--robust sa:EPS``; :mod:`sbagents.robust`), None for plain training.
+    :param constraint: constrained training (``--constraint lagrangian|pid``, with the trust options' ``cost_limit``;
+        :mod:`sbagents.constrained`), None for none.
     """
 
     algo: str = "qlearning"
@@ -47,11 +50,17 @@ class TrainSpec:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     gym_packages: tuple[str, ...] = ()
     trained_agent: str | Path | None = None
+    robust: str | None = None
+    constraint: str | None = None
 
     def validate(self) -> None:
-        """Check the budget (the rest is checked against the config and the env)."""
+        """Check the budget and ``robust`` (the rest is checked against the config and the env)."""
         if self.n_timesteps is not None and self.n_timesteps < 1:
             raise UsageError(f"-n/--n-timesteps must be a positive integer, got {self.n_timesteps}")
+        if self.robust is not None:
+            from sbagents.robust.options import parse_robust
+
+            parse_robust(self.robust, self.algo)
 
 
 @dataclass

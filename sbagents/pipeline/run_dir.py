@@ -261,7 +261,12 @@ def load_run(ref: RunRef) -> LoadedRun:
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
     exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game)
-    cls = ALGOS[ref.algo].cls
+    cls: Any = ALGOS[ref.algo].cls
+    args_file = config_path(run_dir, env.env_id).with_name("args.yml")
+    if args_file.exists() and (yaml.safe_load(args_file.read_text()) or {}).get("constraint"):
+        from sbagents.constrained import PPOLagrangian  # its zip holds a cost critic PPO.load refuses
+
+        cls = PPOLagrangian
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
         from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo

@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import shlex
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +62,10 @@ class TrainResult:
 def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
     """The command line recorded when the caller gave none (the Python API)."""
     args = ["--algo", spec.algo, "--env", spec.env]
+    if spec.robust is not None:
+        args += ["--robust", spec.robust]
+    if spec.constraint is not None:
+        args += ["--constraint", spec.constraint]
     if execution.backend != "sb3":
         args += ["--backend", execution.backend]
     return "python -m sbagents.train " + shlex.join(args)
@@ -149,6 +153,19 @@ def train_sb3(
             "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
             "vec_env": execution.vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
+    if spec.robust is not None:
+        if groups is not None:
+            raise UsageError("--robust trains single-agent ddpg/td3 runs, not PettingZoo envs")
+        args["robust"] = spec.robust
+    constraint = None
+    if spec.constraint is not None:
+        from sbagents.constrained.options import check_constraint
+
+        constraint = (spec.constraint, check_constraint(spec.constraint, spec.algo, trust.cost_limit))
+        if groups is not None:
+            raise UsageError("--constraint trains single-agent ppo runs, not PettingZoo envs")
+        args.update(constraint=spec.constraint, cost_limit=constraint[1])
+        trust = replace(trust, safety=True, cost_limit=None)  # the multiplier holds the limit: count, do not stop
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
     command = output.command or default_command(spec, execution)
@@ -164,7 +181,7 @@ def train_sb3(
 
             train_env = freeze_normalization(train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
-                           max(execution.verbose - 1, 0), agent_path)
+                           max(execution.verbose - 1, 0), agent_path, spec.robust, constraint)
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
@@ -189,6 +206,10 @@ def train_sb3(
         _save(model, ctx)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
+    if constraint is not None:
+        from sbagents.constrained.options import record_constraint
+
+        summary.update(record_constraint(run_dir, model))
     for callback in own:  # e.g. turn-based games: the learner's illegal moves during training
         summary.update(getattr(callback, "summary_items", dict)())
 

@@ -37,6 +37,8 @@ NEEDS_RAY = "--backend rllib needs Ray: pip install 'sbagents[distributed]'"
 UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
     ("spec", "trained_agent"): "-i/--trained-agent",
     ("spec", "gym_packages"): "--gym-packages",
+    ("spec", "robust"): "--robust",
+    ("spec", "constraint"): "--constraint",
     ("output", "tensorboard_log"): "-tb/--tensorboard-log",
     ("evaluation", "n_eval_envs"): "--n-eval-envs",
     ("execution", "vec_env"): "--vec-env",

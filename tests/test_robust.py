@@ -1,0 +1,201 @@
+"""SA regularization (sbagents.robust): PGD inner max, eps schedule, scale units, SATD3 / SADDPG training."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+import sbagents  # noqa: F401  (registers sbagents/SmartHome-v0)
+from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker
+from sbagents.robust import SADDPG, SATD3, SARegularizer, sa_scale
+
+th.set_num_threads(1)
+
+
+def _actor(seed: int = 0) -> th.nn.Module:
+    th.manual_seed(seed)
+    return th.nn.Sequential(th.nn.Linear(4, 32), th.nn.Tanh(), th.nn.Linear(32, 2), th.nn.Tanh())
+
+
+def test_pgd_beats_random_points_and_stays_in_ball() -> None:
+    actor = _actor()
+    obs = th.randn(64, 4)
+    scale = th.tensor([1.0, 2.0, 0.5, 4.0])
+    reg = SARegularizer(eps=0.3, pgd_steps=10, ramp_fraction=0.0, scale=scale, generator=th.Generator().manual_seed(0))
+    xa = reg.perturb(actor, obs, 0.3)
+    radius = 0.3 * scale
+    assert ((xa - obs).abs() <= radius + 1e-6).all()
+    assert ((xa - obs).abs() >= radius - 1e-5).float().mean() > 0.5  # PGD ends mostly on the ball's faces
+    with th.no_grad():
+        ref = actor(obs)
+        pgd = (actor(xa) - ref).pow(2).sum(-1)
+        points = [obs + (th.rand(obs.shape) * 2 - 1) * radius for _ in range(50)]
+        randoms = th.stack([(actor(xr) - ref).pow(2).sum(-1) for xr in points])
+    assert pgd.mean() > randoms.max(dim=0).values.mean()  # beats the best of 50 random points on average
+    assert (pgd > randoms.mean(dim=0)).all()  # and a typical random point on every sample
+
+
+def test_penalty_zero_eps_and_gradient() -> None:
+    actor, obs = _actor(), th.randn(16, 4)
+    assert SARegularizer(eps=0.0)(actor, obs).item() == 0.0
+    reg = SARegularizer(eps=0.5, ramp_fraction=0.5)
+    assert reg(actor, obs, progress_remaining=1.0).item() == 0.0  # start of training: eps ramped to 0
+    penalty = reg(actor, obs, progress_remaining=0.0)
+    assert penalty.item() > 0
+    penalty.backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
+
+
+def test_eps_schedule() -> None:
+    reg = SARegularizer(eps=0.2, ramp_fraction=0.5)
+    assert [reg.eps_at(p) for p in (1.0, 0.9, 0.75, 0.5, 0.2, 0.0)] == pytest.approx([0, 0.04, 0.1, 0.2, 0.2, 0.2])
+    assert SARegularizer(eps=0.2, ramp_fraction=0.0).eps_at(1.0) == pytest.approx(0.2)
+    with pytest.raises(ValueError):
+        SARegularizer(eps=-1.0)
+
+
+@pytest.mark.parametrize("normalize", [False, True])
+def test_scale_matches_attacks(normalize: bool) -> None:
+    venv = DummyVecEnv([lambda: gym.make("sbagents/SmartHome-v0")])
+    if normalize:
+        venv = VecNormalize(venv, norm_reward=False)
+    model = SATD3("MlpPolicy", venv, policy_kwargs={"net_arch": [8]}, sa_eps=0.2)
+    attacker = ObservationAttacker(model.policy, venv, AttackSpec("pgd", 0.2))
+    np.testing.assert_allclose(sa_scale(venv), attacker.scale.cpu().numpy())
+    np.testing.assert_allclose(model.sa_scale, attacker.scale.cpu().numpy())
+    if normalize:
+        np.testing.assert_array_equal(sa_scale(venv), np.ones(5, dtype=np.float32))
+    else:
+        np.testing.assert_allclose(sa_scale(venv), [11.0, 101.0, 23.0, 10.0, 100.0])
+
+
+@pytest.mark.parametrize("cls", [SATD3, SADDPG])
+def test_train_logs_penalty_and_round_trip(cls: type[SATD3], tmp_path) -> None:  # type: ignore[no-untyped-def]
+    venv = VecNormalize(make_vec_env("Pendulum-v1", n_envs=1, seed=0), norm_reward=False)
+    model = cls(
+        "MlpPolicy",
+        venv,
+        learning_starts=50,
+        batch_size=32,
+        train_freq=1,
+        policy_kwargs={"net_arch": [64, 64]},
+        sa_eps=0.2,
+        sa_ramp_fraction=0.5,
+        sa_pgd_steps=3,
+        seed=0,
+    )
+    model.set_logger(configure(str(tmp_path / "log"), ["csv"]))
+    seen: list[dict[str, float]] = []
+    record = model.logger.record
+
+    def spy(key: str, value, exclude=None) -> None:  # type: ignore[no-untyped-def]
+        if key.startswith("robust/"):
+            seen.append({key: float(value)})
+        record(key, value, exclude)
+
+    model.logger.record = spy  # type: ignore[method-assign]
+    before = [p.detach().clone() for p in model.actor.parameters()]
+    model.learn(300)
+    penalties = [d["robust/sa_penalty"] for d in seen if "robust/sa_penalty" in d]
+    eps = [d["robust/eps"] for d in seen if "robust/eps" in d]
+    assert penalties and all(np.isfinite(penalties)) and max(penalties) > 0
+    assert eps[0] < 0.2 and eps[-1] == pytest.approx(0.2)  # ramp reached by half of the budget
+    assert any(not th.equal(a, b) for a, b in zip(before, model.actor.parameters(), strict=True))
+    assert not model.actor._forward_pre_hooks and not model.actor.optimizer._optimizer_step_pre_hooks
+
+    model.save(tmp_path / "model")
+    loaded = cls.load(tmp_path / "model", env=venv)
+    assert type(loaded) is cls and loaded.sa_eps == 0.2 and loaded.sa_pgd_steps == 3
+    np.testing.assert_array_equal(loaded.sa_scale, np.ones(3, dtype=np.float32))
+    obs = venv.normalize_obs(np.stack([venv.observation_space.sample() for _ in range(4)]))
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+    loaded.learn(60, reset_num_timesteps=False)  # continues training with the regularizer rebuilt
+
+
+def test_penalty_changes_actor_update() -> None:
+    """The SA term reaches the actor's gradient: same seed, kappa 0 vs 10 give different actors."""
+    actors = []
+    for kappa in (0.0, 10.0):
+        venv = make_vec_env("Pendulum-v1", n_envs=1, seed=0)
+        model = SATD3(
+            "MlpPolicy",
+            venv,
+            learning_starts=20,
+            batch_size=16,
+            policy_delay=1,
+            seed=0,
+            policy_kwargs={"net_arch": [16]},
+            sa_eps=0.3,
+            sa_kappa=kappa,
+            sa_ramp_fraction=0.0,
+        )
+        model.learn(40)
+        actors.append(th.cat([p.detach().flatten() for p in model.actor.parameters()]))
+    assert not th.allclose(actors[0], actors[1])
+
+
+def test_actor_step_uses_gradient_of_actor_loss_plus_penalty() -> None:
+    """The hooked actor step sees exactly grad(-Q1(s, pi(s)).mean() + penalty(s)) on the actor-loss batch."""
+    import copy
+
+    venv = make_vec_env("Pendulum-v1", n_envs=1, seed=0)
+    model = SATD3(
+        "MlpPolicy", venv, learning_starts=40, batch_size=8, policy_delay=1, seed=0,
+        policy_kwargs={"net_arch": [16]}, sa_eps=0.3, sa_kappa=5.0, sa_ramp_fraction=0.0,
+    )  # fmt: skip
+    model.learn(40)  # fills the buffer, no update yet
+    seen: dict[str, object] = {}
+    actor, opt = model.actor, model.actor.optimizer
+
+    def first_input(_m: th.nn.Module, inputs: tuple[th.Tensor, ...]) -> None:
+        seen.setdefault("obs", inputs[0].detach().clone())
+
+    def before_step(*_: object) -> None:  # registered before SATD3's hook, so it runs first
+        seen["actor"], seen["rng"] = copy.deepcopy(actor), th.get_rng_state()
+
+    def after_step(*_: object) -> None:
+        seen["grads"] = [p.grad.detach().clone() for p in actor.parameters()]  # type: ignore[union-attr]
+
+    handles = [actor.register_forward_pre_hook(first_input), opt.register_step_pre_hook(before_step),
+               opt.register_step_post_hook(after_step)]  # fmt: skip
+    model.train(gradient_steps=1, batch_size=8)
+    for h in handles:
+        h.remove()
+    ref_actor, obs = seen["actor"], seen["obs"]
+    assert isinstance(ref_actor, th.nn.Module) and isinstance(obs, th.Tensor)
+    ref_actor.zero_grad()
+    loss = -model.critic.q1_forward(obs, ref_actor(obs)).mean()
+    th.set_rng_state(seen["rng"])  # type: ignore[arg-type]
+    (loss + model.sa_regularizer(ref_actor, obs, 0.0)).backward()
+    for expected, got in zip((p.grad for p in ref_actor.parameters()), seen["grads"], strict=True):  # type: ignore[call-overload]
+        th.testing.assert_close(got, expected)
+
+
+def test_train_cli_robust_run_is_recorded_and_evaluates(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``train --robust sa:EPS`` trains an SATD3, records the spec in args.yml and the command, and the run loads
+    for ``evaluate --attack`` like any TD3 run."""
+    import json
+
+    import yaml
+
+    from tests.cli_helpers import cli
+
+    args = ["--algo", "td3", "--env", "sbagents/SmartHome-v0", "-n", "700", "-f", str(tmp_path), "--seed", "0",
+            "--eval-freq", "0", "--final-eval-episodes", "2", "-params", "learning_starts:300", "--verbose", "0"]
+    trained = cli("train", *args, "--robust", "sa:0.2")
+    assert trained.returncode == 0, trained.stderr
+    run_dir = tmp_path / "td3" / "sbagents_SmartHome-v0_1"
+    assert yaml.safe_load((run_dir / "sbagents_SmartHome-v0" / "args.yml").read_text())["robust"] == "sa:0.2"
+    assert "--robust sa:0.2" in (run_dir / "command.txt").read_text()
+    model = SATD3.load(run_dir / "sbagents_SmartHome-v0.zip")
+    assert model.sa_eps == 0.2 and model.sa_scale is not None and np.allclose(model.sa_scale, 1.0)
+    evaluated = cli("evaluate", "--algo", "td3", "--env", "sbagents/SmartHome-v0", "-f", str(tmp_path), "-n", "2",
+                    "--attack", "pgd:0.2", "--json")
+    assert evaluated.returncode == 0, evaluated.stderr
+    report = json.loads(evaluated.stdout.strip().splitlines()[-1])["adversarial"]
+    assert [r["attack"] for r in report] == ["none", "pgd"]

@@ -96,6 +96,8 @@ def test_runs_table_lists_runs_and_picks_up_new_ones(client, logs: Path) -> None
     assert ids == {f"0/{RUN}", "0/ppo/sbagents_SmartHome-v0_2"}
     page = client.get("/")
     assert page.status_code == 200 and b'data-page="runs"' in page.data
+    assert "script-src" not in page.headers["Content-Security-Policy"]  # scripts fall back to default-src 'self'
+    assert page.headers["Content-Security-Policy"].startswith("default-src 'self'")
 
 
 def test_run_curves_settings_and_files(client) -> None:  # type: ignore[no-untyped-def]

@@ -35,18 +35,19 @@ MAX_OBS_COLUMNS = 512
 
 
 @functools.lru_cache(maxsize=4096)
-def _quote(text: str) -> str:
+def csv_quote(text: str) -> str:
     """CSV-quote ``text`` if needed (cached: info strings such as event names repeat every step)."""
     if any(c in text for c in ',"\n\r'):
         return '"' + text.replace('"', '""') + '"'
     return text
 
 
-def _cell(value: Any, float_format: str = "%.7g") -> str:
+def csv_cell(value: Any, float_format: str = "%.7g") -> str:
+    """One CSV cell: empty for None, quoted strings, floats with ``float_format``, numpy scalars as Python's."""
     if value is None:
         return ""
     if isinstance(value, str):
-        return _quote(value)
+        return csv_quote(value)
     if isinstance(value, (np.ndarray, np.generic)):
         value = value.item()
     if isinstance(value, float):
@@ -54,14 +55,38 @@ def _cell(value: Any, float_format: str = "%.7g") -> str:
     return str(value)
 
 
-def _obs_layout(space: spaces.Space) -> list[tuple[str | None, int]]:
+def observation_layout(space: spaces.Space) -> list[tuple[str | None, int]]:
     """``(dict key or None, flat size)`` of every dumped observation component; images are skipped."""
     if isinstance(space, spaces.Dict):
-        return [(k, sz) for k, sub in space.spaces.items() for _, sz in _obs_layout(sub) if sz > 0]
+        return [(k, sz) for k, sub in space.spaces.items() for _, sz in observation_layout(sub) if sz > 0]
     if isinstance(space, spaces.Box) and (is_image_space(space, check_channels=False) or space.shape == ()):
         return [(None, 0 if space.shape != () else 1)]
     size = int(np.prod(space.shape)) if space.shape else 1
     return [(None, size if size <= MAX_OBS_COLUMNS else 0)]
+
+
+def flat_observations(obs: Any, layout: list[tuple[str | None, int]], num_envs: int) -> np.ndarray:
+    """The dumped components of a batch of observations (``obs``: array or dict of arrays, first axis the env)
+    flattened into ``(num_envs, columns)``, key by key as :func:`observation_layout` lists them."""
+    parts = []
+    for key, size in layout:
+        if size:
+            arr = np.asarray(obs[key] if key is not None else obs)
+            parts.append(arr.reshape(arr.shape[0], -1))
+    if not parts:
+        return np.zeros((num_envs, 0))
+    return parts[0].copy() if len(parts) == 1 else np.concatenate(parts, axis=1)
+
+
+def column_names(venv: Any, attr: str, count: int, stem: str, given: Sequence[str] | None = None) -> list[str]:
+    """``given`` names, else the env's ``attr`` (``obs_names`` / ``action_names``), when there are ``count`` of them;
+    otherwise ``<stem>_0 .. <stem>_<count-1>``."""
+    if given is None:
+        found = env_attr(venv, attr)
+        given = [str(x) for x in found] if found is not None else None
+    if given is None or len(given) != count:
+        return [f"{stem}_{i}" for i in range(count)]
+    return list(given)
 
 
 class _CsvSink:
@@ -215,34 +240,18 @@ class TransparencyCSVCallback(BaseCallback):
         for k in range(n):
             ids = [str(k // n_agents)] if show_env else []
             if agents is not None:
-                ids.append(_quote(agents[k % n_agents]))
+                ids.append(csv_quote(agents[k % n_agents]))
             self._prefix.append(",".join(ids))
         install_exception_hook(self.model, self, self._sink.close)
 
     def _flat_obs(self, obs: Any) -> np.ndarray:
         if self._layout is None:
-            self._layout = _obs_layout(self.training_env.observation_space)
-        parts = []
-        for key, size in self._layout:
-            if size == 0:
-                continue
-            arr = np.asarray(obs[key] if key is not None else obs)
-            parts.append(arr.reshape(arr.shape[0], -1))
-        if not parts:
-            return np.zeros((self.training_env.num_envs, 0))
-        return parts[0].copy() if len(parts) == 1 else np.concatenate(parts, axis=1)
-
-    def _names(self, attr: str, given: list[str] | None, count: int, stem: str) -> list[str]:
-        if given is None:
-            found = env_attr(self.training_env, attr)
-            given = [str(x) for x in found] if found is not None else None
-        if given is None or len(given) != count:
-            return [f"{stem}_{i}" for i in range(count)]
-        return given
+            self._layout = observation_layout(self.training_env.observation_space)
+        return flat_observations(obs, self._layout, self.training_env.num_envs)
 
     def _build_header(self, actions: np.ndarray, infos: Sequence[dict[str, Any]]) -> list[str]:
-        obs_cols = self._names("obs_names", self._obs_names_arg, self._obs.shape[1], "obs")
-        act_cols = self._names("action_names", self._action_names_arg, actions.shape[1], "action")
+        obs_cols = column_names(self.training_env, "obs_names", self._obs.shape[1], "obs", self._obs_names_arg)
+        act_cols = column_names(self.training_env, "action_names", actions.shape[1], "action", self._action_names_arg)
         if self.book_header:
             ids = [c.capitalize() for c in self._id_cols]
             fixed = [*ids, "Episode", "Step", *obs_cols, *act_cols, "Reward"]
@@ -265,7 +274,7 @@ class TransparencyCSVCallback(BaseCallback):
     def _open(self) -> None:
         """Check an existing file's header (append) and continue its episode numbering."""
         assert self.header is not None
-        header_line = ",".join(_quote(h) for h in self.header)
+        header_line = ",".join(csv_quote(h) for h in self.header)
         if self.path.exists() and self.path.stat().st_size > 0:
             existing, tail = _read_head_tail(self.path)
             if existing != header_line:
@@ -336,7 +345,7 @@ class TransparencyCSVCallback(BaseCallback):
                 trunc = bool(dones[i] and info.get("TimeLimit.truncated", False))
                 line += ",False,True" if trunc else (",True,False" if dones[i] else ",False,False")
             if keys:
-                cells = [ff % v if (v := info.get(k)).__class__ is float else _cell(v, ff) for k in keys]
+                cells = [ff % v if (v := info.get(k)).__class__ is float else csv_cell(v, ff) for k in keys]
                 line += "," + ",".join(cells)
             lines.append(line + "\n")
         self._sink.pending.extend(lines)

@@ -59,6 +59,9 @@ def write_run(folder: Path, rel: str = RUN, episodes: int = 6, steps: int = 10, 
         "violations": {"too_cold": 9}, "total_violations": 9, "total_steps": 60, "violation_rate": 0.15,
         "episodes": 6, "ep_cost": {"mean": 1.5, "std": 0.5, "max": 2.0, "last_window_mean": 1.5, "window": 100},
         "cost_limit": None, "stopped": False, "stop_reason": None,
+        "constraint": {"method": "lagrangian", "cost_limit": 1.0, "multiplier": 0.3, "last_ep_cost": 1.5,
+                       "history": [{"timesteps": 30, "ep_cost": 2.0, "multiplier": 0.1},
+                                   {"timesteps": 60, "ep_cost": 1.5, "multiplier": 0.3}]},
     }))
     (run_dir / "adversarial.csv").write_text(
         "timesteps,attack,eps,mean_return,std_return,success_rate,violations,episodes,mean_length,max_perturbation\n"
@@ -142,6 +145,7 @@ def test_decisions_paging_filters_and_episode(client) -> None:  # type: ignore[n
 def test_trust_views(client) -> None:  # type: ignore[no-untyped-def]
     trust = client.get(f"/api/trust/0/{RUN}").get_json()
     assert trust["safety"][0]["total_violations"] == 9
+    assert [h["multiplier"] for h in trust["safety"][0]["constraint"]["history"]] == [0.1, 0.3]
     costs = trust["ep_cost"]
     assert costs["has_cost"] and costs["progress"] == 1.0
     expected = [sum(1.0 for s in range(10) if (ep * 10 + s) % 7 == 3) for ep in range(6)]
@@ -294,3 +298,48 @@ def test_runs_benchmark_lists_every_run_and_its_section_is_the_saved_result() ->
     text = (root / "BENCHMARKS.md").read_text()
     section = text.split("<!-- dashboard-runs:start -->\n")[1].split("\n<!-- dashboard-runs:end -->")[0]
     assert section.strip() == dashboard_runs.markdown(saved, "python -m benchmarks.dashboard_runs").strip()
+
+
+def test_episode_costs_of_a_growing_multi_member_gzip_log(tmp_path: Path) -> None:
+    """EpCost read in small budgets from a ``.csv.gz`` log appended in two gzip members, then garbage: every episode
+    is summed once, in order, and a broken tail ends the reading instead of raising."""
+    import gzip
+
+    from sbagents.dashboard.episode_costs import EpisodeCosts
+
+    header = "episode,step,reward,terminated,truncated,violation,cost\n"
+    rows = [f"{ep},{s},-1,{s == 9},False,{'hot' if s == ep else ''},{1.0 if s == ep else 0.0}\n"
+            for ep in range(8) for s in range(10)]
+    path = tmp_path / "transparency.csv.gz"
+    for part in (header + "".join(rows[:35]), "".join(rows[35:])):
+        with gzip.open(path, "ab", compresslevel=1) as fh:
+            fh.write(part.encode())
+    reader = EpisodeCosts(path)
+    result = reader.update(byte_budget=64)
+    assert result["progress"] < 1.0
+    while result["progress"] < 1.0:
+        result = reader.update(byte_budget=64)
+    assert result["ep_cost"] == [1.0] * 8 and result["violations"] == [1] * 8 and result["lengths"] == [10] * 8
+    with path.open("ab") as fh:
+        fh.write(b"not gzip at all")
+    assert reader.update(byte_budget=64)["ep_cost"] == [1.0] * 8
+
+
+def test_a_constrained_run_shows_its_multiplier_and_episode_costs(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A real ``train --constraint`` run with a transparency log: the trust view gets the multiplier's history from
+    safety.json and each training episode's cost from the log (the hazard grid's cost column)."""
+    monkeypatch.setenv("SBAGENTS_CACHE_DIR", str(tmp_path / "cache"))
+    trained = cli("train", "--algo", "ppo", "--env", "sbagents/HazardGridWorld-v0", "-n", "1024", "-f",
+                  str(tmp_path / "logs"), "--seed", "0", "--constraint", "lagrangian", "--cost-limit", "0.5",
+                  "--eval-freq", "0", "--final-eval-episodes", "0", "--transparency-log", "-params", "n_envs:4",
+                  "n_steps:64", "batch_size:64")
+    assert trained.returncode == 0, trained.stderr
+    client = create_app(ServedFolders.from_paths([tmp_path / "logs"])).test_client()
+    trust = client.get("/api/trust/0/ppo/sbagents_HazardGridWorld-v0_1").get_json()
+    constraint = trust["safety"][0]["constraint"]
+    assert constraint["method"] == "lagrangian" and constraint["cost_limit"] == 0.5
+    assert len(constraint["history"]) >= 2 and constraint["multiplier"] == constraint["history"][-1]["multiplier"]
+    costs = trust["ep_cost"]
+    assert costs["has_cost"] and len(costs["ep_cost"]) > 0 and costs["progress"] == 1.0
+    assert sum(costs["ep_cost"]) == sum(costs["violations"])  # one cost per hazard step

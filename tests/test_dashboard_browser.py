@@ -104,6 +104,37 @@ def test_decisions_violations_only_and_an_episode_timeline(page: Page, served: t
     page.wait_for_function("document.querySelectorAll('#timeline .scatterlayer .trace').length >= 4")
 
 
+def test_a_filtered_page_is_filled_from_where_the_scan_stopped(page: Page, served: tuple[str, Path]) -> None:
+    """The server's time-boxed scan may return fewer matches than a page holds (rare violations in a big log): the
+    page asks again from the returned cursor until it is full or the log ends. Here the first answer is cut to 3
+    rows, as a scan that ran out of time would be."""
+    import json
+    from urllib.parse import parse_qs, urlparse
+
+    base, _ = served
+    requests: list[dict[str, list[str]]] = []
+
+    def cut_first_filtered(route) -> None:  # type: ignore[no-untyped-def]
+        query = parse_qs(urlparse(route.request.url).query)
+        requests.append(query)
+        if "violations" not in query or query.get("cursor") != ["0"]:
+            route.continue_()
+            return
+        response = route.fetch(url=route.request.url.replace("count=50", "count=3"))
+        route.fulfill(response=response, body=json.dumps(response.json()))
+
+    page.route("**/api/decisions/**", cut_first_filtered)
+    page.goto(f"{base}/decisions/0/{RUN}")
+    expect(page.locator("#position")).to_contain_text("rows 1–50 of 60")
+    page.locator("#violations").check()
+    expect(page.locator("#position")).to_contain_text("9 matching rows")
+    expect(page.locator("#position")).to_contain_text("end of log")
+    expect(page.locator("#decisions tbody tr")).to_have_count(9)
+    numbers = page.locator("#decisions tbody tr td:first-child").all_text_contents()
+    assert [int(n) for n in numbers] == [i for i in range(60) if i % 7 == 3]
+    assert any(q.get("count") == ["47"] for q in requests)  # the follow-up asked for the rest of the page
+
+
 def test_trust_and_compare_pages_draw(page: Page, served: tuple[str, Path]) -> None:
     base, logs = served
     page.goto(f"{base}/trust/0/{RUN}")
@@ -111,6 +142,8 @@ def test_trust_and_compare_pages_draw(page: Page, served: tuple[str, Path]) -> N
     page.wait_for_function("document.querySelectorAll('#adversarial .scatterlayer .trace').length == 1")
     page.wait_for_function("document.querySelectorAll('#fairness .barlayer .point').length == 2")
     page.wait_for_function("document.querySelectorAll('#epcost .scatterlayer path.point').length == 6")
+    expect(page.locator("#safety")).to_contain_text("lagrangian, limit 1, multiplier 0.3")
+    page.wait_for_function("document.querySelectorAll('#constraint .scatterlayer .trace').length == 3")
     write_run(logs, "ddpg/sbagents_SmartHome-v0_2", seed=3)
     page.goto(f"{base}/")
     page.locator(f'#runs input[data-id="0/{RUN}"]').check()

@@ -1,17 +1,19 @@
 """EpCost over training: the cost and violations of every finished episode of a transparency log, read
 incrementally (each call reads at most ``byte_budget`` new bytes, so a big log is summed over a few polls and a
 growing one only from where the last call stopped). ``.csv.gz`` logs are decompressed as a stream across calls,
-including the several gzip members an appended log has and a member still being written."""
+including the several gzip members an appended log has and a member still being written (the paging's
+:class:`~sbagents.dashboard.logsources.GzCursor`)."""
 
 from __future__ import annotations
 
 import contextlib
 import csv
 import threading
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
+
+from sbagents.dashboard.logsources import GzCheckpoint, GzCursor
 
 #: Bytes read per call (plain CSV) or compressed bytes (gzip).
 BYTE_BUDGET = 32 << 20
@@ -35,7 +37,7 @@ class EpisodeCosts:
     carry: bytes = b""
     episodes: dict[tuple[str, str], _Episode] = field(default_factory=dict)
     finished: list[tuple[str, str]] = field(default_factory=list)
-    _inflate: Any = None
+    _gz: GzCursor | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def update(self, byte_budget: int = BYTE_BUDGET) -> dict[str, Any]:
@@ -47,27 +49,30 @@ class EpisodeCosts:
                 if size < self.offset:  # replaced by a shorter file: start over
                     self._reset()
                 with self.path.open("rb") as fh:
-                    fh.seek(self.offset)
-                    raw = fh.read(byte_budget)
+                    data = self._read_gz(fh, byte_budget) if self.path.suffix == ".gz" else self._read(fh, byte_budget)
             except OSError:
-                raw, size = b"", max(self.offset, 1)
-            self.offset += len(raw)
-            self._consume(self._decompress(raw) if self.path.suffix == ".gz" else raw)
+                data, size = b"", max(self.offset, 1)
+            self._consume(data)
             return self._result(self.offset / max(size, 1))
 
     def _reset(self) -> None:
-        self.offset, self.header, self.carry, self._inflate = 0, None, b"", None
+        self.offset, self.header, self.carry, self._gz = 0, None, b"", None
         self.episodes, self.finished = {}, []
 
-    def _decompress(self, raw: bytes) -> bytes:
-        out = []
-        while raw:
-            if self._inflate is None:
-                self._inflate = zlib.decompressobj(wbits=31)
-            out.append(self._inflate.decompress(raw))
-            if not self._inflate.eof:
-                break
-            raw, self._inflate = self._inflate.unused_data, None  # the next gzip member
+    def _read(self, fh: IO[bytes], byte_budget: int) -> bytes:
+        fh.seek(self.offset)
+        raw = fh.read(byte_budget)
+        self.offset += len(raw)
+        return raw
+
+    def _read_gz(self, fh: IO[bytes], byte_budget: int) -> bytes:
+        """Decompressed bytes of about ``byte_budget`` more compressed bytes (stops at an unfinished member)."""
+        if self._gz is None:
+            self._gz = GzCursor(GzCheckpoint(0, None, 0))
+        out: list[bytes] = []
+        while self._gz.comp - self.offset < byte_budget and (chunk := self._gz.step(fh)) is not None:
+            out.append(chunk)
+        self.offset = self._gz.comp
         return b"".join(out)
 
     def _consume(self, data: bytes) -> None:

@@ -41,8 +41,8 @@ from sbagents.dashboard.logfilter import (
     _Summary,
 )
 from sbagents.dashboard.logsources import (
+    GzCheckpoint,
     _cache_file,
-    _Checkpoint,
     _GzScanner,
     _load_index_cache,
     _RangeReader,
@@ -115,7 +115,7 @@ class LogIndex:
         self._summaries: dict[int, _Summary] = {}
         self._gz: _GzScanner | None = _GzScanner() if self.gzip else None
         #: where a ``.gz`` log can be decompressed from (the scanner's list: it appends to it)
-        self._checkpoints: list[_Checkpoint] = self._gz.checkpoints if self._gz is not None else []
+        self._checkpoints: list[GzCheckpoint] = self._gz.checkpoints if self._gz is not None else []
 
     def _known_size(self) -> int:
         """Bytes of the file already examined (compressed bytes for ``.gz``)."""

@@ -7,7 +7,7 @@
   it when the file is the same or only grew (then only the tail is scanned).
 - **CSV.gz**: the callback writes gzip in append mode with sync flushes, so a file is one or more gzip members
   and, while training runs, the last member is unfinished. The file is decompressed with
-  ``zlib.decompressobj(wbits=31)`` fed chunk by chunk (:class:`_GzCursor`); a finished member's ``unused_data``
+  ``zlib.decompressobj(wbits=31)`` fed chunk by chunk (:class:`GzCursor`); a finished member's ``unused_data``
   starts the next member; an unfinished or truncated tail yields what decompressed so far (rows end at newlines,
   so a row cut off by the truncation is not returned) and bytes that are not gzip stop the scan without an
   error. Offsets are offsets in the uncompressed stream; random access uses *checkpoints*
@@ -46,7 +46,7 @@ HASH_BYTES = 4096
 
 
 @dataclass
-class _Checkpoint:
+class GzCheckpoint:
     """A point from which a ``.gz`` log can be decompressed: compressed offset, decompressor state, output offset.
 
     ``state`` is None at the start of a gzip member (a fresh decompressor is made there).
@@ -57,18 +57,18 @@ class _Checkpoint:
     upos: int
 
 
-class _GzCursor:
+class GzCursor:
     """Decompresses a (multi-member, possibly unfinished) gzip file from a checkpoint onwards, step by step."""
 
-    def __init__(self, ck: _Checkpoint) -> None:
+    def __init__(self, ck: GzCheckpoint) -> None:
         self.comp = ck.comp  # compressed offset of inp[0] (everything before it has been fed)
         self.inp = b""
         self.d: Any = ck.state.copy() if ck.state is not None else None
         self.upos = ck.upos  # uncompressed offset of the next output byte
         self.broken = False
 
-    def checkpoint(self) -> _Checkpoint:
-        return _Checkpoint(self.comp, self.d.copy() if self.d is not None else None, self.upos)
+    def checkpoint(self) -> GzCheckpoint:
+        return GzCheckpoint(self.comp, self.d.copy() if self.d is not None else None, self.upos)
 
     def at_member_start(self) -> bool:
         return self.d is None
@@ -109,8 +109,8 @@ class _GzScanner:
     member start and every :data:`CHECKPOINT_BYTES` of output)."""
 
     def __init__(self) -> None:
-        self.cursor = _GzCursor(_Checkpoint(0, None, 0))
-        self.checkpoints: list[_Checkpoint] = [_Checkpoint(0, None, 0)]
+        self.cursor = GzCursor(GzCheckpoint(0, None, 0))
+        self.checkpoints: list[GzCheckpoint] = [GzCheckpoint(0, None, 0)]
 
     def known_size(self) -> int:
         """Compressed bytes of the file examined so far."""
@@ -145,10 +145,10 @@ class _GzScanner:
 class _RangeReader:
     """Reads uncompressed byte ranges of a log; sequential reads of a ``.gz`` log continue one decompressor."""
 
-    def __init__(self, path: Path, checkpoints: list[_Checkpoint] | None) -> None:
+    def __init__(self, path: Path, checkpoints: list[GzCheckpoint] | None) -> None:
         self.fh: IO[bytes] = open(path, "rb")  # noqa: SIM115  (closed by close())
         self.checkpoints = checkpoints  # None: plain file
-        self.cursor: _GzCursor | None = None
+        self.cursor: GzCursor | None = None
         self.buf = b""
         self.buf_start = 0
 
@@ -165,7 +165,7 @@ class _RangeReader:
         buf_end = self.buf_start + len(self.buf)
         ck = self._checkpoint_before(start)
         if self.cursor is None or start < self.buf_start or ck.upos > buf_end:
-            self.cursor = _GzCursor(ck)
+            self.cursor = GzCursor(ck)
             self.buf, self.buf_start = b"", ck.upos
         parts = []
         while True:
@@ -182,7 +182,7 @@ class _RangeReader:
             self.buf, self.buf_start = out, buf_end
         return b"".join(parts)
 
-    def _checkpoint_before(self, upos: int) -> _Checkpoint:
+    def _checkpoint_before(self, upos: int) -> GzCheckpoint:
         assert self.checkpoints is not None
         cks = self.checkpoints
         lo, hi = 0, len(cks) - 1

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from sbagents.dashboard.runs import config_dir, read_json, read_yaml
+from sbagents.pipeline.monitor_files import read_monitor_files
 
 #: Files offered for download on the run page, by suffix.
 MODEL_SUFFIXES = (".zip", ".pkl", ".onnx", ".json", ".csv", ".gz", ".png", ".npz", ".yml", ".txt")
@@ -33,41 +34,13 @@ def _finite(value: float) -> float | None:
 def read_monitor_episodes(run_dir: Path, notes: list[str]) -> dict[str, list[float]]:
     """Training episodes of every monitor file, ordered by end time: ``timesteps`` (cumulative monitor steps times
     ``timesteps_per_env_step`` from ``args.yml``), ``returns``, ``lengths``, ``time`` (seconds since the run began)."""
-    rows: list[tuple[float, float, float]] = []
-    t0: float | None = None
-    for path in sorted(run_dir.glob("*monitor.csv")):
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            notes.append(f"{path.name} could not be read ({exc.strerror})")
-            continue
-        lines = text.splitlines(keepends=True)
-        if lines and not lines[-1].endswith("\n"):
-            lines.pop()  # a row being written
-        t_start = 0.0
-        if lines and lines[0].startswith("#"):
-            try:
-                t_start = float(json.loads(lines[0][1:]).get("t_start", 0.0))
-            except ValueError:
-                notes.append(f"{path.name}: malformed first line")
-            lines = lines[1:]
-        t0 = t_start if t0 is None else min(t0, t_start)
-        bad = 0
-        for row in csv.DictReader(io.StringIO("".join(lines))):
-            try:
-                rows.append((t_start + float(row["t"]), float(row["r"]), float(row["l"])))
-            except (KeyError, TypeError, ValueError):
-                bad += 1
-        if bad:
-            notes.append(f"{path.name}: {bad} malformed row(s) skipped")
-    rows.sort()
-    scale = _timesteps_per_env_step(run_dir)
-    steps = np.cumsum([r[2] for r in rows]) * scale if rows else np.zeros(0)
+    episodes = read_monitor_files(run_dir, notes)
+    steps = np.cumsum(episodes.lengths) * _timesteps_per_env_step(run_dir)
     return {
         "timesteps": steps.tolist(),
-        "returns": [r[1] for r in rows],
-        "lengths": [r[2] for r in rows],
-        "time": [r[0] - (t0 or 0.0) for r in rows],
+        "returns": episodes.returns.tolist(),
+        "lengths": episodes.lengths.tolist(),
+        "time": (episodes.end_times - (episodes.t_start or 0.0)).tolist(),
     }
 
 

@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from sbagents.dashboard.folders import ServedFolders
+from sbagents.pipeline.monitor_files import read_monitor_files
 
 _RUN_DIR = re.compile(r"^(?P<stem>.+)_(?P<k>\d+)$")
 #: Files whose presence marks a run dir.
@@ -122,25 +123,9 @@ def _signature(run_dir: Path) -> tuple[Any, ...]:
 
 def monitor_totals(run_dir: Path) -> tuple[int, float | None]:
     """Steps and latest end time (seconds since the epoch) over the run's monitor files."""
-    steps, latest = 0, None
-    for path in run_dir.glob("*monitor.csv"):
-        try:
-            with path.open() as fh:
-                first = fh.readline()
-                t_start = float(json.loads(first[1:]).get("t_start", 0.0)) if first.startswith("#") else 0.0
-                fh.readline()
-                for line in fh:
-                    cells = line.rstrip("\n").split(",")
-                    if len(cells) < 3 or not line.endswith("\n"):
-                        continue
-                    try:
-                        steps += int(float(cells[1]))
-                        latest = max(latest or 0.0, t_start + float(cells[2]))
-                    except ValueError:
-                        continue
-        except (OSError, ValueError):
-            continue
-    return steps, latest
+    episodes = read_monitor_files(run_dir)
+    latest = float(episodes.end_times.max()) if len(episodes.end_times) else None
+    return int(episodes.lengths.sum()), latest
 
 
 def config_dir(run_dir: Path) -> Path | None:

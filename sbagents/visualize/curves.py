@@ -12,8 +12,6 @@ and counts frames; parameter-shared PettingZoo envs: one team step is one timest
 
 from __future__ import annotations
 
-import csv
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from sbagents.errors import UsageError
+from sbagents.pipeline.monitor_files import read_monitor_files
 from sbagents.pipeline.run_dir import RunRef, env_stem
 from sbagents.pipeline.zoo_config import load_yaml
 
@@ -47,19 +46,8 @@ class RunCurve:
 
 def read_monitor(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     """Episode returns and lengths from every ``*monitor.csv`` of ``run_dir``, ordered by end time."""
-    rows: list[tuple[float, float, float]] = []
-    for path in sorted(run_dir.glob("*monitor.csv")):
-        with path.open() as fh:
-            first = fh.readline()
-            t_start = float(json.loads(first[1:]).get("t_start", 0.0)) if first.startswith("#") else 0.0
-            for row in csv.DictReader(fh):
-                try:
-                    rows.append((t_start + float(row["t"]), float(row["r"]), float(row["l"])))
-                except (KeyError, TypeError, ValueError):
-                    continue  # a partial last line of a running job
-    rows.sort()
-    data = np.asarray(rows, dtype=np.float64).reshape(-1, 3)
-    return data[:, 1], data[:, 2]
+    episodes = read_monitor_files(run_dir)
+    return episodes.returns, episodes.lengths
 
 
 def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:

@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
-from sbagents.callbacks.common import env_attr, find_vec_normalize
+from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
-from sbagents.callbacks.transparency import _cell, _obs_layout, _quote
+from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_factory import make_team_vecs, make_vec, normalize_for_eval
 from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
@@ -70,7 +70,7 @@ class _DecisionLog:
     def __init__(self, venv: VecEnv) -> None:
         self.venv = venv
         self.norm = find_vec_normalize(venv)
-        self.layout = _obs_layout(venv.observation_space)
+        self.layout = observation_layout(venv.observation_space)
         self.header: list[str] | None = None
         self.rows: list[str] = []
         self.episode = self.step = 0
@@ -79,26 +79,15 @@ class _DecisionLog:
     def observe(self, obs: Any) -> None:
         """Keep the (original) observation just returned by ``reset``/``step``: the next decision is taken in it."""
         raw = self.norm.get_original_obs() if self.norm is not None else obs
-        parts = []
-        for key, size in self.layout:
-            if size:
-                arr = np.asarray(raw[key] if key is not None else raw)
-                parts.append(arr.reshape(arr.shape[0], -1)[0])
-        self.obs = np.concatenate(parts).tolist() if parts else []
-
-    def _names(self, attr: str, count: int, stem: str) -> list[str]:
-        """The env's ``attr`` names when it has ``count`` of them, else ``<stem>_<i>``."""
-        found = env_attr(self.venv, attr)
-        names = [str(x) for x in found] if found is not None else []
-        return names if len(names) == count else [f"{stem}_{i}" for i in range(count)]
+        self.obs = flat_observations(raw, self.layout, 1)[0].tolist()
 
     def record(self, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray,
                infos: Sequence[dict[str, Any]]) -> None:
         """Add the row of the step just taken (``actions`` chosen in the last observed observation)."""
         action = np.asarray(actions).reshape(len(dones), -1)[0].tolist()
         if self.header is None:
-            self.header = ["frame", "episode", "step", *self._names("obs_names", len(self.obs), "obs"),
-                           *self._names("action_names", len(action), "action"),
+            self.header = ["frame", "episode", "step", *column_names(self.venv, "obs_names", len(self.obs), "obs"),
+                           *column_names(self.venv, "action_names", len(action), "action"),
                            "reward", "terminated", "truncated", "violation", "cost"]
         reward = float((self.norm.get_original_reward() if self.norm is not None else np.asarray(rewards))[0])
         done, info = bool(dones[0]), infos[0]
@@ -106,7 +95,7 @@ class _DecisionLog:
         violation, cost = step_violation(info)
         cells = [len(self.rows), self.episode, self.step, *self.obs, *action, reward, done and not truncated,
                  truncated, violation or "", cost]
-        self.rows.append(",".join(_cell(c) for c in cells))
+        self.rows.append(",".join(csv_cell(c) for c in cells))
         self.step += 1
         if done:
             self.episode, self.step = self.episode + 1, 0
@@ -114,7 +103,7 @@ class _DecisionLog:
     def write(self, path: Path) -> None:
         """Write the header and the rows to ``path``."""
         assert self.header is not None, "no step was recorded"
-        lines = [",".join(_quote(h) for h in self.header), *self.rows]
+        lines = [",".join(csv_quote(h) for h in self.header), *self.rows]
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 

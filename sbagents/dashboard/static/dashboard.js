@@ -194,7 +194,7 @@ function runPage() {
 function decisionsPage() {
   const params = new URLSearchParams(location.search);
   const form = $("#filters");
-  const state = { start: 0, cursors: [0], count: 50, columns: [], actionCount: null, last: null };
+  const state = { start: 0, cursors: [0], count: 50, columns: [], actionCount: null, last: null, loadId: 0 };
   const query = () => {
     const q = new URLSearchParams();
     for (const [k, v] of new FormData(form).entries()) if (v !== "") q.set(k, v);
@@ -205,7 +205,7 @@ function decisionsPage() {
     const v = cols.indexOf("violation"), c = cols.indexOf("cost");
     return (v >= 0 && row[v] !== "") || (c >= 0 && parseFloat(row[c]) > 0);
   };
-  const render = (page) => {
+  const render = (page, scanning = false) => {
     state.last = page;
     state.columns = page.columns;
     $("#decisions thead").replaceChildren(el("tr", {}, el("th", {}, "row"), ...page.columns.map((c) => el("th", {}, c))));
@@ -227,8 +227,8 @@ function decisionsPage() {
     const indexing = page.complete ? "" : " (indexing…)";
     if (filtered()) {
       $("#position").textContent = `${page.rows.length} matching rows · scanned ${fmt(page.scanned_to)} of ${fmt(page.total_rows)} rows${indexing}`
-        + (page.next_cursor === null ? " · end of log" : "");
-      $("#next").disabled = page.next_cursor === null;
+        + (scanning ? " · scanning…" : page.next_cursor === null ? " · end of log" : "");
+      $("#next").disabled = scanning || page.next_cursor === null;
       $("#prev").disabled = state.cursors.length <= 1;
     } else {
       const first = page.row_numbers.length ? page.row_numbers[0] + 1 : 0;
@@ -238,13 +238,24 @@ function decisionsPage() {
       $("#next").disabled = page.complete && last >= page.total_rows;
     }
   };
+  // A filtered page is filled by further requests from where the server's time-boxed scan stopped (rare matches
+  // in a big log), shown as it grows; a newer load (a click, a new filter) ends the older one.
   const load = async (tail = false) => {
+    const id = ++state.loadId;
     const q = query();
     q.set("count", state.count);
     if (filtered()) q.set("cursor", state.cursors[state.cursors.length - 1]);
     else if (tail) q.set("tail", "1");
     else q.set("start", state.start);
-    const page = await getJSON(`/api/decisions/${RUN}?${q}`);
+    let page = await getJSON(`/api/decisions/${RUN}?${q}`);
+    while (filtered() && page.rows.length < state.count && page.next_cursor !== null && id === state.loadId) {
+      render(page, true);
+      q.set("cursor", page.next_cursor);
+      q.set("count", state.count - page.rows.length);
+      const more = await getJSON(`/api/decisions/${RUN}?${q}`);
+      page = { ...more, rows: [...page.rows, ...more.rows], row_numbers: [...page.row_numbers, ...more.row_numbers] };
+    }
+    if (id !== state.loadId) return;
     if (tail && page.row_numbers.length) state.start = page.row_numbers[0];
     render(page);
   };
@@ -352,9 +363,11 @@ function trustPage() {
             ["by rule", types], ["episodes", fmt(s.episodes)],
             ["EpCost", `mean ${fmt(ep.mean)}, std ${fmt(ep.std)}, max ${fmt(ep.max)}, last ${fmt(ep.window)} episodes ${fmt(ep.last_window_mean)}`],
             ["cost limit", s.cost_limit === null ? "none" : fmt(s.cost_limit)],
-            ["stopped", s.stopped ? `yes: ${s.stop_reason}` : "no"]].map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, v))));
+            ["stopped", s.stopped ? `yes: ${s.stop_reason}` : "no"],
+            ...(s.constraint ? [["constraint", `${s.constraint.method}, limit ${fmt(s.constraint.cost_limit)}, multiplier ${fmt(s.constraint.multiplier)}, last episode cost ${fmt(s.constraint.last_ep_cost)}`]] : [])].map(([k, v]) => el("tr", {}, el("td", {}, k), el("td", {}, v))));
       }));
     }
+    drawConstraint(data.safety.find((s) => s.constraint && Array.isArray(s.constraint.history)));
     const costs = data.ep_cost;
     if (costs && costs.has_cost && costs.episodes.length) {
       const w = Math.max(1, Math.floor(costs.episodes.length / 20));
@@ -381,6 +394,21 @@ function trustPage() {
     }
     drawFairness(data.fairness);
   });
+}
+
+// A constrained run's (--constraint) multiplier and measured episode cost per update, against its cost limit.
+function drawConstraint(safety) {
+  const box = $("#constraint");
+  box.hidden = !safety;
+  if (!safety) return;
+  const c = safety.constraint, t = c.history.map((h) => h.timesteps);
+  Plotly.react("constraint", [
+    { x: t, y: c.history.map((h) => h.ep_cost), mode: "lines+markers", marker: { size: 3 }, line: { color: "#cf222e" }, name: "EpCost" },
+    { x: [t[0], t[t.length - 1]], y: [c.cost_limit, c.cost_limit], mode: "lines", line: { color: "#cf222e", dash: "dash" }, name: "cost limit" },
+    { x: t, y: c.history.map((h) => h.multiplier), mode: "lines", line: { color: "#0969da" }, name: "multiplier", yaxis: "y2" },
+  ], { ...PLOT_LAYOUT, margin: { ...PLOT_LAYOUT.margin, r: 60 }, title: { text: `${c.method} constraint: episode cost and multiplier per update (final multiplier ${fmt(c.multiplier)})`, font: { size: 13 } },
+    xaxis: { title: { text: "timesteps" } }, yaxis: { title: { text: "episode cost" }, rangemode: "tozero" },
+    yaxis2: { title: { text: "multiplier" }, overlaying: "y", side: "right", rangemode: "tozero" } }, PLOT_CONFIG);
 }
 
 function drawAdversarial(adv, step) {

@@ -135,6 +135,25 @@ def _encode(obs: np.ndarray, space: spaces.Space) -> th.Tensor:
     raise ValueError(f"observation attacks support Box and discrete observations, not {type(space).__name__}")
 
 
+def observation_scale(space: spaces.Space, env: VecEnv | None = None) -> np.ndarray:
+    """Per-component scale of a Box policy input, the unit of every attack's ``eps`` (module docstring).
+
+    :param space: the (Box) observation space.
+    :param env: the VecEnv the policy acts in; its ``VecNormalize`` (with ``norm_obs``), if any, makes the scale 1.
+    :return: ``obs_shape`` float32 array: ones under ``VecNormalize(norm_obs=True)``, else ``high - low`` where both
+        bounds are finite and 1 elsewhere.
+    :raises ValueError: for a non-Box ``space``.
+    """
+    if not isinstance(space, spaces.Box):
+        raise ValueError(f"observation_scale needs a Box observation space, not {type(space).__name__}")
+    vn = find_vec_normalize(env) if env is not None else None
+    if vn is not None and vn.norm_obs:
+        return np.ones(space.shape, dtype=np.float32)
+    finite = np.isfinite(space.low) & np.isfinite(space.high)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.where(finite, space.high - space.low, 1.0).astype(np.float32)
+
+
 @contextlib.contextmanager
 def relaxed_observation_space(policy: BasePolicy, dim: int) -> Iterator[None]:
     """Swap the observation space of every sub-model of ``policy`` for ``Box(0, 1, (dim,))`` while active,
@@ -183,15 +202,12 @@ class ObservationAttacker:
         vn = find_vec_normalize(env)
         dim_shape = _encode(space.sample()[None], space).shape[1:]
         if isinstance(space, spaces.Box):
-            low = th.as_tensor(space.low, dtype=th.float32)
-            high = th.as_tensor(space.high, dtype=th.float32)
+            self.scale = th.as_tensor(observation_scale(space, env))
             if vn is not None and vn.norm_obs:
-                self.scale = th.ones(dim_shape)
                 self.low, self.high = th.full(dim_shape, -vn.clip_obs), th.full(dim_shape, vn.clip_obs)
             else:
-                finite = th.isfinite(low) & th.isfinite(high)
-                self.scale = th.where(finite, high - low, th.ones_like(low))
-                self.low, self.high = low, high
+                self.low = th.as_tensor(space.low, dtype=th.float32)
+                self.high = th.as_tensor(space.high, dtype=th.float32)
         else:
             self.scale, self.low, self.high = th.ones(dim_shape), th.zeros(dim_shape), th.ones(dim_shape)
         self.dim = int(np.prod(dim_shape))

@@ -60,8 +60,9 @@ def build_parser() -> ArgumentParser:
     trust.add_argument("--cost-limit", type=float, default=None,
                        help="stop when the mean episode cost passes X (with --constraint: the limit trained for)")
     trust.add_argument("--constraint", choices=["lagrangian", "pid"], default=None,
-                       help="train under --cost-limit: PPO-Lagrangian (ppo) with a cost critic and a Lagrange "
-                            "(or PID) multiplier; safety.json records its history")
+                       help="train under --cost-limit: PPO-Lagrangian (ppo) or SAC-Lagrangian (sac) with a cost "
+                            "critic and a Lagrange (or PID) multiplier, settings from the entry's constraint_kwargs; "
+                            "safety.json records its history")
     trust.add_argument("--max-violations", type=int, default=None, help="stop after N violations")
     trust.add_argument("--adversarial-eval", default=None, metavar="SPEC",
                        help='attacks evaluated during training, e.g. "gaussian:0.05,0.1 fgsm:0.01,0.05"')
@@ -70,8 +71,9 @@ def build_parser() -> ArgumentParser:
     trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
     robust = p.add_argument_group("robust training (sbagents.robust)")
     robust.add_argument("--robust", default=None, metavar="SPEC",
-                        help="sa:EPS: state-adversarial regularization of the actor (ddpg, td3), eps in the attacks' "
-                             "units, ramped up over the first half of training")
+                        help="METHOD:EPS[,KEY=VALUE...]: sa (state-adversarial regularizer; ddpg, td3; keys kappa, "
+                             "steps, qdrop, ramp), adv (adversarial rollouts; ddpg, td3, sac; keys attack, share, "
+                             "ramp) or sa+adv; eps in the attacks' units, ramped up over the first half of training")
     private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac, ppo, a2c; "
                                    "pip install 'sbagents[private]')")
     private.add_argument("--dp-epsilon", type=float, default=None, metavar="E",

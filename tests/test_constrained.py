@@ -21,6 +21,11 @@ from sbagents.constrained import (
     PIDLagrangeMultiplier,
     PPOLagrangian,
 )
+from sbagents.constrained.lagrangian import MULTIPLIERS
+from sbagents.constrained.options import CONSTRAINED_CLASSES, constrained_class, constraint_spec, own_keywords
+from sbagents.errors import UsageError
+from sbagents.pipeline.run_dir import RunRef, config_path, load_run
+from tests.cli_helpers import check_error, run_main, summary
 
 torch.set_num_threads(1)
 
@@ -230,44 +235,24 @@ def _greedy_episode(model: PPO) -> tuple[float, float]:
     return ret, cost
 
 
-HAZARD_PPO = {"n_steps": 64, "batch_size": 128, "n_epochs": 4, "ent_coef": 0.05, "learning_rate": 1e-3}
+HAZARD_PPO: dict[str, Any] = {"n_steps": 64, "batch_size": 128, "n_epochs": 4, "ent_coef": 0.05, "learning_rate": 1e-3}
 
 
 def _hazard_env() -> Any:
     return make_vec_env("sbagents/HazardGridWorld-v0", n_envs=8, seed=0)
 
 
-def test_ppo_takes_the_hazard_path() -> None:
-    """The baseline: reward-only PPO takes the short path through a hazard (return 95, cost 1)."""
-    ppo = PPO("MlpPolicy", _hazard_env(), seed=0, device="cpu", **HAZARD_PPO)
-    ppo.learn(20_000)
-    assert _greedy_episode(ppo) == (95.0, 1.0)
+PID_GAINS = {"kp": 0.1, "ki": 0.1, "kd": 0.0}  # the shipped entry's (zoo_configs/ppo.yml)
 
 
-@pytest.mark.parametrize(
-    ("constraint", "multiplier_kwargs"),
-    [
-        ("lagrangian", {"lr": 0.1}),
-        ("pid", {"kp": 0.5, "ki": 0.1, "kd": 0.1, "d_delay": 5, "p_ema_alpha": 0.9, "d_ema_alpha": 0.9}),
-    ],
-)
-def test_constrained_ppo_learns_the_safe_path(constraint: str, multiplier_kwargs: dict[str, float]) -> None:
+def test_pid_lagrangian_learns_the_safe_path() -> None:
     """HazardGridWorld: the short path (return 95) crosses a hazard (cost 1), the safe one returns 87.
 
-    Measured with these hyperparameters (8 envs, greedy return / cost): PPO 20k: 95 / 1 on seeds 0-3.
-    PPO-Lagrangian 50k: the safe path (87 / 0) on seeds 0-5. PID-Lagrangian 50k: 87 / 0 on seeds 0, 1, 3; seed 2 still
-    stuck left of the hazards (-50 / 0) (with ent_coef 0.03 PID seeds 2 and 3 reached 87 / 0 by 90k). Seed 0 is pinned.
+    Measured with these hyperparameters and gains through the CLI (greedy return / cost at 50k): 87 / 0 on seeds
+    0-4; with kp 0.5, ki 0.1, kd 0.1, d_delay 5 seed 2 stayed left of the hazards (-50 / 0). Seed 0 is pinned.
     """
-    model = PPOLagrangian(
-        "MlpPolicy",
-        _hazard_env(),
-        cost_limit=0.1,
-        constraint=constraint,  # type: ignore[arg-type]
-        multiplier_kwargs=multiplier_kwargs,
-        seed=0,
-        device="cpu",
-        **HAZARD_PPO,
-    )
+    model = PPOLagrangian("MlpPolicy", _hazard_env(), cost_limit=0.1, constraint="pid", multiplier_kwargs=PID_GAINS,
+                          seed=0, device="cpu", **HAZARD_PPO)
     model.learn(50_000)
     ret, cost = _greedy_episode(model)
     assert cost <= 0.1 and ret >= 0.9 * 87
@@ -299,3 +284,142 @@ def test_train_cli_constraint_records_history_and_evaluates(tmp_path) -> None:  
                     "2", "--json")
     assert evaluated.returncode == 0, evaluated.stderr
     assert "mean_cost" in json.loads(evaluated.stdout.strip().splitlines()[-1])
+
+
+# -- the CLI: constraint_kwargs, misuse, the algorithm -> constrained class table --------------------------------
+HAZARD = "sbagents/HazardGridWorld-v0"
+
+
+def _train(folder: Path, *args: str) -> int:
+    """``python -m sbagents.train --algo ppo --env HazardGridWorld ... args`` in this process (no evaluations)."""
+    return run_main("train", "--algo", "ppo", "--env", HAZARD, "-f", str(folder), "--seed", "0", "--verbose", "0",
+                    "--eval-freq", "0", "--final-eval-episodes", "0", *args)
+
+
+@pytest.mark.parametrize(
+    ("method", "params", "expected"),
+    [
+        ("lagrangian", [], {"lr": 0.1}),  # the shipped entry's multiplier_kwargs for each method
+        ("pid", [], {"kp": 0.1, "ki": 0.1, "kd": 0.0}),
+        ("lagrangian", ["-params", "constraint_kwargs:{multiplier_kwargs: {lr: 0.3}, cost_vf_learning_rate: 0.002}"],
+         {"lr": 0.3}),
+    ],
+)
+def test_constraint_kwargs_reach_the_multiplier_and_the_run_record(
+    tmp_path: Path, method: str, params: list[str], expected: dict[str, float]
+) -> None:
+    import yaml
+
+    assert _train(tmp_path, "-n", "512", "--constraint", method, "--cost-limit", "0.1", *params) == 0
+    loaded = load_run(RunRef("ppo", HAZARD, tmp_path))
+    model = loaded.model
+    assert isinstance(model, PPOLagrangian) and type(model.multiplier) is MULTIPLIERS[method]
+    assert {k: getattr(model.multiplier, k) for k in expected} == expected
+    args = yaml.safe_load(config_path(loaded.run_dir, HAZARD).with_name("args.yml").read_text())
+    assert (args["constraint"], args["cost_limit"]) == (method, 0.1)
+    assert args["constraint_kwargs"]["multiplier_kwargs"] == expected  # this method's settings: the run repeats
+    if params:
+        assert model.cost_vf_learning_rate == 0.002
+        assert model.cost_critic_optimizer.param_groups[0]["lr"] == 0.002
+
+
+def test_plain_run_leaves_the_entrys_constraint_kwargs_unused(tmp_path: Path) -> None:
+    assert _train(tmp_path, "-n", "512") == 0
+    assert type(load_run(RunRef("ppo", HAZARD, tmp_path)).model) is PPO
+
+
+LAG, PID = ["--constraint", "lagrangian", "--cost-limit", "0.1"], ["--constraint", "pid", "--cost-limit", "0.1"]
+CONSTRAINT_MISUSE = [
+    (["-params", "constraint_kwargs:{multiplier_kwargs: {lr: 0.2}}"],
+     "-params constraint_kwargs configures --constraint runs; add --constraint lagrangian|pid --cost-limit X"),
+    ([*LAG, "-params", "constraint_kwargs:{multiplier_kwargs: {kp: 1}}"],
+     "constraint_kwargs: multiplier_kwargs kp do not apply to --constraint lagrangian"),
+    ([*PID, "-params", "constraint_kwargs:{multiplier_kwargs: {pid: {lr: 1}}}"],
+     "multiplier_kwargs lr do not apply to --constraint pid"),
+    ([*LAG, "-params", "constraint_kwargs:{cost_gama: 0.9}"],
+     "unknown constraint_kwargs key(s) cost_gama for PPOLagrangian"),
+    ([*LAG, "-params", "constraint_kwargs:{multiplier_kwargs: {lr: -1}}"],
+     "multiplier_kwargs of --constraint lagrangian: lr must be a finite number >= 0.0, got -1.0"),
+    ([*LAG, "-params", "constraint_kwargs:[1]"],
+     "constraint_kwargs must be a mapping"),
+]
+
+
+@pytest.mark.parametrize(("args", "expected"), CONSTRAINT_MISUSE, ids=[" ".join(a[-2:]) for a, _ in CONSTRAINT_MISUSE])
+def test_constraint_kwargs_misuse_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], expected: str
+) -> None:
+    check_error(_train(tmp_path / "logs", *args), capsys.readouterr().err, expected)
+    assert not (tmp_path / "logs").exists()
+
+
+def test_constraint_kwargs_of_an_algo_without_a_constrained_class_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    conf = tmp_path / "dqn.yml"
+    conf.write_text("sbagents/GridWorld-v0: {n_timesteps: 100, constraint_kwargs: {multiplier_kwargs: {lr: 0.1}}}\n")
+    code = run_main("train", "--algo", "dqn", "-conf", str(conf), "-f", str(tmp_path / "logs"), "--verbose", "0")
+    check_error(code, capsys.readouterr().err, "constraint_kwargs applies to ppo, sac (with --constraint), not dqn")
+
+
+def test_constrained_classes_are_a_table_resolved_lazily(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sbagents.constrained as package
+
+    assert CONSTRAINED_CLASSES == {"ppo": "PPOLagrangian", "sac": "SACLagrangian"}
+    assert constrained_class("ppo") is PPOLagrangian
+    assert own_keywords(PPOLagrangian, PPO) == ["cost_gae_lambda", "cost_gamma", "cost_vf_learning_rate",
+                                                "multiplier_kwargs"]
+    with pytest.raises(UsageError, match="--constraint trains ppo, sac, not a2c"):
+        constrained_class("a2c")
+    monkeypatch.delattr(package, "SACLagrangian", raising=False)  # the table names it whether or not it exists
+    with pytest.raises(UsageError, match="needs sbagents.constrained.SACLagrangian, which this install lacks"):
+        constrained_class("sac")
+    monkeypatch.setitem(CONSTRAINED_CLASSES, "a2c", "PPOLagrangian")  # a new algorithm is one entry
+    assert constrained_class("a2c") is PPOLagrangian
+    spec = constraint_spec("pid", "ppo", 0.5, {"multiplier_kwargs": {"lagrangian": {"lr": 0.1}}, "cost_gamma": 0.9})
+    assert spec.model_kwargs() == {"constraint": "pid", "cost_limit": 0.5, "multiplier_kwargs": {}, "cost_gamma": 0.9}
+
+
+def _multiplier(folder: Path) -> LagrangeMultiplier:
+    """The multiplier of the latest run in ``folder``, loaded as ``evaluate`` loads it."""
+    model = load_run(RunRef("ppo", HAZARD, folder)).model
+    assert isinstance(model, PPOLagrangian)
+    return model.multiplier
+
+
+def test_trained_agent_continues_its_multiplier_under_the_new_cost_limit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``-i`` with ``--constraint``: the saved multiplier (and its history) goes on under the new ``--cost-limit``;
+    another method, or a model trained without a constraint, is refused in one line."""
+    assert _train(tmp_path / "lag", "-n", "512", *LAG) == 0
+    assert _train(tmp_path / "plain", "-n", "512") == 0
+    zips = {k: next((tmp_path / k).glob("ppo/*_1/*.zip")) for k in ("lag", "plain")}
+    first = _multiplier(tmp_path / "lag")
+    assert _train(tmp_path / "lag", "-n", "512", "--constraint", "lagrangian", "--cost-limit", "2", "-i",
+                  str(zips["lag"])) == 0
+    multiplier = _multiplier(tmp_path / "lag")
+    assert multiplier.cost_limit == 2.0 and multiplier.history[0] == first.history[0]
+    step = multiplier.history[1]
+    assert step["multiplier"] == pytest.approx(max(0.0, first.value + 0.1 * (step["ep_cost"] - 2.0)))
+    capsys.readouterr()
+    check_error(_train(tmp_path / "x", *PID, "-i", str(zips["lag"])), capsys.readouterr().err,
+                "-i/--trained-agent was trained with --constraint lagrangian: continue it with the same method")
+    check_error(_train(tmp_path / "x", *PID, "-i", str(zips["plain"])), capsys.readouterr().err,
+                "holds no PPOLagrangian model: --constraint continues a --constraint run's model")
+    assert not list((tmp_path / "x").glob("ppo/*"))
+
+
+def test_train_cli_plain_ppo_takes_the_hazard_path_lagrangian_the_safe_one(tmp_path: Path) -> None:
+    """The shipped entry through ``train``: reward-only PPO takes the short path through a hazard (return 95, cost
+    1; 20k steps), ``--constraint lagrangian --cost-limit 0.1`` the safe one (return 87, cost 0; the entry's 50k).
+
+    Measured through the CLI at the entry's 50k: plain 95 / 1 and lagrangian 87 / 0 on seeds 0-4; plain PPO is on
+    the hazard path by 20k (seeds 0-3 through the API). Seed 0 is pinned.
+    """
+    runs = {"plain": ["-n", "20000"], "lagrangian": LAG}
+    for name, args in runs.items():
+        assert _train(tmp_path / name, "--final-eval-episodes", "1", *args) == 0  # greedy, deterministic env
+    plain, lagrangian = (summary(next((tmp_path / k).glob("ppo/*_1")))["eval"] for k in runs)
+    assert (plain["mean_return"], plain["mean_cost"]) == (95.0, 1.0)
+    assert lagrangian["mean_cost"] <= 0.1 and lagrangian["mean_return"] >= 0.9 * 87

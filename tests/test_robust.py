@@ -1,4 +1,5 @@
-"""SA regularization (sbagents.robust): PGD inner max, eps schedule, scale units, SATD3 / SADDPG training."""
+"""Robust training (sbagents.robust): SA regularizer (PGD inner max, eps schedule, scale units, SATD3 / SADDPG),
+adversarial rollouts (AdvTD3 & co.), the ``--robust`` grammar and the CLI round trip."""
 
 from __future__ import annotations
 
@@ -11,8 +12,10 @@ from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sbagents  # noqa: F401  (registers sbagents/SmartHome-v0)
-from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker
-from sbagents.robust import SADDPG, SATD3, SARegularizer, sa_scale
+from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker, observation_scale
+from sbagents.errors import UsageError
+from sbagents.robust import SADDPG, SATD3, AdvSAC, AdvTD3, SAAdvDDPG, SARegularizer, ramped_eps
+from sbagents.robust.options import parse_robust
 
 th.set_num_threads(1)
 
@@ -51,12 +54,33 @@ def test_penalty_zero_eps_and_gradient() -> None:
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
 
 
+def test_critic_term_is_the_worst_q_drop() -> None:
+    """The critic-aware term is ``weight * mean(Q(s, pi(s)) - Q(s, pi(s~)))`` with s~ a PGD minimizer of the critic:
+    positive, larger than at random points of the ball, differentiable w.r.t. the actor only through pi(s~)."""
+    actor, obs = _actor(), th.randn(32, 4)
+
+    def critic(x: th.Tensor, a: th.Tensor) -> th.Tensor:  # best action: tanh of the first two inputs
+        return -(a - th.tanh(x[:, :2])).pow(2).sum(dim=-1, keepdim=True)
+
+    reg = SARegularizer(eps=0.3, kappa=0.0, ramp_fraction=0.0, critic_weight=2.0,
+                        generator=th.Generator().manual_seed(0))  # fmt: skip
+    assert reg(actor, obs).item() == 0.0  # no critic given: no term
+    penalty = reg(actor, obs, critic=critic)
+    with th.no_grad():
+        clean = critic(obs, actor(obs))
+        randoms = [(clean - critic(obs, actor(obs + (th.rand(obs.shape) * 2 - 1) * 0.3))).mean() for _ in range(20)]
+    assert penalty.item() > 2.0 * max(r.item() for r in randoms) > 0
+    penalty.backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
+
+
 def test_eps_schedule() -> None:
     reg = SARegularizer(eps=0.2, ramp_fraction=0.5)
     assert [reg.eps_at(p) for p in (1.0, 0.9, 0.75, 0.5, 0.2, 0.0)] == pytest.approx([0, 0.04, 0.1, 0.2, 0.2, 0.2])
     assert SARegularizer(eps=0.2, ramp_fraction=0.0).eps_at(1.0) == pytest.approx(0.2)
     with pytest.raises(ValueError):
         SARegularizer(eps=-1.0)
+    assert ramped_eps(0.2, 0.25, 0.9) == pytest.approx(0.08) and ramped_eps(0.2, 0.0, 1.0) == 0.2
 
 
 @pytest.mark.parametrize("normalize", [False, True])
@@ -66,12 +90,16 @@ def test_scale_matches_attacks(normalize: bool) -> None:
         venv = VecNormalize(venv, norm_reward=False)
     model = SATD3("MlpPolicy", venv, policy_kwargs={"net_arch": [8]}, sa_eps=0.2)
     attacker = ObservationAttacker(model.policy, venv, AttackSpec("pgd", 0.2))
-    np.testing.assert_allclose(sa_scale(venv), attacker.scale.cpu().numpy())
+    scale = observation_scale(venv.observation_space, venv)
+    np.testing.assert_allclose(scale, attacker.scale.cpu().numpy())
     np.testing.assert_allclose(model.sa_scale, attacker.scale.cpu().numpy())
     if normalize:
-        np.testing.assert_array_equal(sa_scale(venv), np.ones(5, dtype=np.float32))
+        np.testing.assert_array_equal(scale, np.ones(5, dtype=np.float32))
     else:
-        np.testing.assert_allclose(sa_scale(venv), [11.0, 101.0, 23.0, 10.0, 100.0])
+        np.testing.assert_allclose(scale, [11.0, 101.0, 23.0, 10.0, 100.0])
+    np.testing.assert_allclose(observation_scale(venv.observation_space), [11.0, 101.0, 23.0, 10.0, 100.0])
+    with pytest.raises(ValueError, match="Box"):
+        observation_scale(gym.spaces.Discrete(3))
 
 
 @pytest.mark.parametrize("cls", [SATD3, SADDPG])
@@ -177,25 +205,161 @@ def test_actor_step_uses_gradient_of_actor_loss_plus_penalty() -> None:
 
 
 def test_train_cli_robust_run_is_recorded_and_evaluates(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """``train --robust sa:EPS`` trains an SATD3, records the spec in args.yml and the command, and the run loads
-    for ``evaluate --attack`` like any TD3 run."""
+    """``train --robust sa+adv:...`` trains an SAAdvTD3, records the spec in args.yml and the command, and the run
+    loads for ``evaluate --attack`` like any TD3 run."""
     import json
 
     import yaml
 
+    from sbagents.robust import SAAdvTD3
     from tests.cli_helpers import cli
 
+    spec = "sa+adv:0.2,kappa=2,attack=critic,share=0.5"
     args = ["--algo", "td3", "--env", "sbagents/SmartHome-v0", "-n", "700", "-f", str(tmp_path), "--seed", "0",
             "--eval-freq", "0", "--final-eval-episodes", "2", "-params", "learning_starts:300", "--verbose", "0"]
-    trained = cli("train", *args, "--robust", "sa:0.2")
+    trained = cli("train", *args, "--robust", spec)
     assert trained.returncode == 0, trained.stderr
     run_dir = tmp_path / "td3" / "sbagents_SmartHome-v0_1"
-    assert yaml.safe_load((run_dir / "sbagents_SmartHome-v0" / "args.yml").read_text())["robust"] == "sa:0.2"
-    assert "--robust sa:0.2" in (run_dir / "command.txt").read_text()
-    model = SATD3.load(run_dir / "sbagents_SmartHome-v0.zip")
-    assert model.sa_eps == 0.2 and model.sa_scale is not None and np.allclose(model.sa_scale, 1.0)
+    assert yaml.safe_load((run_dir / "sbagents_SmartHome-v0" / "args.yml").read_text())["robust"] == spec
+    assert f"--robust {spec}" in (run_dir / "command.txt").read_text()
+    model = SAAdvTD3.load(run_dir / "sbagents_SmartHome-v0.zip")
+    assert (model.sa_eps, model.sa_kappa, model.adv_eps, model.adv_attack) == (0.2, 2.0, 0.2, "critic")
+    assert model.sa_scale is not None and np.allclose(model.sa_scale, 1.0)
     evaluated = cli("evaluate", "--algo", "td3", "--env", "sbagents/SmartHome-v0", "-f", str(tmp_path), "-n", "2",
                     "--attack", "pgd:0.2", "--json")
     assert evaluated.returncode == 0, evaluated.stderr
     report = json.loads(evaluated.stdout.strip().splitlines()[-1])["adversarial"]
     assert [r["attack"] for r in report] == ["none", "pgd"]
+
+
+# ---------------------------------------------------------------------------------------------- --robust grammar
+@pytest.mark.parametrize(
+    ("text", "algo", "cls", "kwargs"),
+    [
+        ("sa:0.2", "td3", SATD3, {"sa_eps": 0.2}),
+        ("sa:0.3,kappa=2,steps=7,ramp=0", "ddpg", SADDPG,
+         {"sa_eps": 0.3, "sa_kappa": 2.0, "sa_pgd_steps": 7, "sa_ramp_fraction": 0.0}),
+        ("sa:0.2,qdrop=1.5", "td3", SATD3, {"sa_eps": 0.2, "sa_critic_weight": 1.5}),
+        ("adv:0.2", "td3", AdvTD3, {"adv_eps": 0.2}),
+        ("adv:0.1,attack=critic,share=0.3", "sac", AdvSAC, {"adv_eps": 0.1, "adv_attack": "critic", "adv_share": 0.3}),
+        ("sa+adv:0.3,kappa=0.5,attack=fgsm,ramp=0.25", "ddpg", SAAdvDDPG,
+         {"sa_eps": 0.3, "sa_kappa": 0.5, "sa_ramp_fraction": 0.25, "adv_eps": 0.3, "adv_attack": "fgsm",
+          "adv_ramp_fraction": 0.25}),
+    ],
+)
+def test_robust_grammar(text: str, algo: str, cls: type, kwargs: dict[str, object]) -> None:
+    spec = parse_robust(text, algo)
+    assert spec.model_class(algo) is cls and spec.model_kwargs() == kwargs
+
+
+@pytest.mark.parametrize(
+    ("text", "algo", "message"),
+    [
+        ("pgd:0.2", None, "expected METHOD:EPS"),
+        ("sa", None, "expected METHOD:EPS"),
+        ("sa:-1", None, "EPS must be a finite number > 0"),
+        ("adv:nan", None, "EPS must be a finite number > 0"),
+        ("sa:0.2,share=0.5", None, "unknown setting 'share=0.5'; sa takes kappa=..., qdrop=..., ramp=..., steps=..."),
+        ("adv:0.2,kappa=1", None, "unknown setting 'kappa=1'"),
+        ("adv:0.2,share", None, "unknown setting 'share'"),
+        ("adv:0.2,share=1.5", None, "share must be a number in [0, 1], got '1.5'"),
+        ("adv:0.2,attack=foo", None, "attack must be one of pgd"),
+        ("sa:0.2,steps=2.5", None, "steps must be an integer"),
+        ("sa:0.2,kappa=-1", None, "kappa must be a number >= 0"),
+        ("sa:0.2", "sac", "--robust sa trains ddpg, td3, not sac"),
+        ("adv:0.2", "ppo", "--robust adv trains ddpg, td3, sac, not ppo"),
+    ],
+)
+def test_robust_grammar_errors(text: str, algo: str | None, message: str) -> None:
+    with pytest.raises(UsageError) as err:
+        parse_robust(text, algo)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_train_cli_bad_robust_is_one_line() -> None:
+    from tests.cli_helpers import cli
+
+    done = cli("train", "--algo", "td3", "--env", "sbagents/SmartHome-v0", "--robust", "adv:0.2,share=2", "-n", "10")
+    assert done.returncode == 2 and "share must be a number in [0, 1]" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+
+
+# ---------------------------------------------------------------------------------------------- adversarial rollouts
+class _Recorder(DummyVecEnv):
+    """A DummyVecEnv that remembers every observation it returns (the true ones)."""
+
+    def __init__(self, fns) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(fns)
+        self.seen: list[np.ndarray] = []
+
+    def reset(self):  # type: ignore[no-untyped-def]
+        obs = super().reset()
+        self.seen.append(obs.copy())
+        return obs
+
+    def step_wait(self):  # type: ignore[no-untyped-def]
+        obs, rewards, dones, infos = super().step_wait()
+        self.seen.append(obs.copy())
+        return obs, rewards, dones, infos
+
+
+def test_adv_rollouts_act_on_attacked_observations_and_store_true_ones() -> None:
+    """Every step after learning_starts (share 1) acts on an attacked observation inside the ramped ball; the replay
+    buffer keeps the env's true observation and the action the policy took on the attacked one."""
+    venv = _Recorder([lambda: gym.make("sbagents/SmartHome-v0")])
+    steps, start, eps = 240, 40, 0.2
+    model = AdvTD3("MlpPolicy", venv, learning_starts=start, train_freq=20, batch_size=16, seed=0,
+                   policy_kwargs={"net_arch": [16]}, adv_eps=eps, adv_attack="pgd", adv_share=1.0,
+                   adv_ramp_fraction=0.5)  # fmt: skip
+    acted: list[tuple[np.ndarray, np.ndarray, float]] = []  # (policy input, action, scheduled eps)
+    predict = model.predict
+
+    def spy(obs, state=None, episode_start=None, deterministic=False):  # type: ignore[no-untyped-def]
+        action, state = predict(obs, state, episode_start, deterministic)
+        acted.append((obs.copy(), action.copy(), model.adv_eps_now()))
+        return action, state
+
+    model.predict = spy  # type: ignore[method-assign]
+    model.learn(steps)
+    assert len(acted) == steps - start
+    scale = observation_scale(venv.observation_space)
+    buffer = model.replay_buffer
+    for k, (obs, action, eps_now) in enumerate(acted):
+        t = start + k
+        true = venv.seen[t]
+        np.testing.assert_array_equal(buffer.observations[t], true)  # the buffer has the env's observation
+        np.testing.assert_allclose(buffer.actions[t], model.policy.scale_action(action), atol=1e-6)
+        rel = np.abs(obs - true) / scale
+        assert rel.max() <= eps_now + 1e-5 and eps_now <= eps + 1e-9
+        assert rel.max() > 0  # every step acted on a perturbed observation
+    ramp = [e for _, _, e in acted]
+    assert ramp == sorted(ramp) and ramp[-1] == pytest.approx(eps)
+    assert ramp[0] == pytest.approx(eps * (start / steps) / 0.5)  # linear ramp over the first half
+    assert model._adv_counts == [steps - start, steps - start]  # share 1: every step after learning_starts
+
+
+def test_adv_share_and_plain_steps() -> None:
+    """With share 0.5 about half the steps are attacked; the others act on the true observation."""
+    model = AdvTD3("MlpPolicy", "Pendulum-v1", learning_starts=10, train_freq=50, batch_size=8, seed=1,
+                   policy_kwargs={"net_arch": [8]}, adv_eps=0.1, adv_share=0.5, adv_ramp_fraction=0.0)  # fmt: skip
+    model.learn(410)
+    attacked, total = model._adv_counts
+    assert total == model.num_timesteps - 10 and 0.4 < attacked / total < 0.6
+    obs, mask = model.attacked_observations(np.zeros((64, 3), dtype=np.float32))
+    assert obs.shape == (64, 3) and mask.shape == (64,)
+    assert np.all(obs[~mask] == 0) and np.all(np.abs(obs[mask]).max(axis=1) > 0)
+
+
+def test_adv_round_trip_and_bad_arguments(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    model = AdvTD3("MlpPolicy", "Pendulum-v1", learning_starts=10, batch_size=8, seed=0, adv_eps=0.3,
+                   adv_attack="critic", adv_share=0.25, policy_kwargs={"net_arch": [8]})  # fmt: skip
+    model.learn(30)
+    model.save(tmp_path / "adv")
+    loaded = AdvTD3.load(tmp_path / "adv", env=model.get_env())
+    assert (loaded.adv_eps, loaded.adv_attack, loaded.adv_share) == (0.3, "critic", 0.25)
+    loaded.learn(20, reset_num_timesteps=False)  # the attacker is rebuilt for the loaded policy
+    assert loaded._adv_attacker is not None and loaded._adv_attacker.policy is loaded.policy
+    with pytest.raises(ValueError, match="adv_attack"):
+        AdvTD3("MlpPolicy", "Pendulum-v1", adv_attack="none")
+    with pytest.raises(ValueError, match="adv_share"):
+        AdvTD3("MlpPolicy", "Pendulum-v1", adv_share=2.0)

@@ -24,6 +24,13 @@ Deviations (book defects), all documented in the README table:
 - The default safety zone does not contain the target (the book's zone does; ``safety_zone="book"``).
   A step whose commanded pose, or any physics substep of it, puts the end effector in the zone is
   undone (state restored): reward -50, ``info["violation"] = "safety_zone"``, ``info["cost"] = 1``.
+- Cost-only zone (``zone_mode="cost"``, Safety-Gym style, not in the book): the step is applied, the
+  reward is the task's plus ``zone_penalty`` (default 0), and every step in which the end effector is in
+  the zone at any physics substep reports ``info["cost"] = 1`` and ``info["violation"] = "safety_zone"``.
+  ``safety_zone="path"`` lies under the ready pose of ``benchmarks/configs/kuka.yml``, across the arm's
+  direct way down to the block: a straight move from there to the push start enters it, a detour
+  (``ScriptedPusher(via=PATH_DETOUR)``: back over the robot's side first) does not, and with
+  ``zone_mode="cost"`` the shorter path (reward) and the zone (cost) conflict.
 - Options: ``reward_type="dense"`` (see :meth:`PushTask.dense_reward`) and ``control="ee"``:
   Box(-1, 1, (3,)) Cartesian end-effector deltas of up to ``ee_step`` m per step through inverse
   kinematics with the tool pointing down (as panda-gym and PyBullet's KukaGymEnv).
@@ -41,6 +48,9 @@ from gymnasium import spaces
 from sbagents.envs.kuka.robot import N_CONTROLLED, KukaIiwa
 from sbagents.envs.kuka.sim import BulletSim
 from sbagents.envs.kuka.tasks import VIOLATION_REWARD, PushTask, SafetyZone, make_safety_zone
+
+#: What a step into the safety zone does: ``"block"`` undoes it (book), ``"cost"`` applies it and reports a cost.
+ZONE_MODES = ("block", "cost")
 
 #: Bound of every observed position coordinate (m); observations are clipped to it.
 POS_BOUND = 5.0
@@ -61,8 +71,13 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
     :param noise_level: std (m) of Gaussian noise on the observed block position.
     :param scale_range: per-episode uniform block scale range, ``None`` for 1.
     :param mass_range: per-episode uniform block mass range (kg), ``None`` for the URDF's 0.02 kg.
-    :param safety_zone: ``None``, ``"default"``, ``"book"`` or ``(low, high)`` corners of a box the end
-        effector must not enter.
+    :param safety_zone: ``None``, ``"default"``, ``"book"``, ``"path"`` or ``(low, high)`` corners of a box
+        the end effector must not enter.
+    :param zone_mode: ``"block"`` (a step into the zone is undone and rewarded ``zone_penalty`` instead of
+        the task reward) or ``"cost"`` (the step is applied and rewarded the task reward plus
+        ``zone_penalty``); both report ``info["cost"] = 1`` and ``info["violation"] = "safety_zone"``.
+    :param zone_penalty: reward of a zone step (block mode) or added to it (cost mode); ``None``: -50
+        (block, the book's) or 0 (cost: the zone is a constraint only).
     :param object_range: half width (m) of a uniform random offset of the block's start.
     :param target_box: ``((x_lo, y_lo), (x_hi, y_hi))`` to draw a random target per episode.
     :param ee_step: metres per unit action in ``"ee"`` control.
@@ -85,6 +100,8 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         scale_range: Sequence[float] | None = None,
         mass_range: Sequence[float] | None = None,
         safety_zone: ZoneSpec = None,
+        zone_mode: str = "block",
+        zone_penalty: float | None = None,
         object_range: float = 0.0,
         target_box: Sequence[Sequence[float]] | None = None,
         ee_step: float = 0.05,
@@ -97,6 +114,8 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
             raise ValueError(f"control must be 'joints' or 'ee', got {control!r}")
         if reward_type not in self._reward_types():
             raise ValueError(f"reward_type must be one of {self._reward_types()}, got {reward_type!r}")
+        if zone_mode not in ZONE_MODES:
+            raise ValueError(f"zone_mode must be one of {ZONE_MODES}, got {zone_mode!r}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -110,6 +129,9 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         self.max_steps = max_steps
         self.render_mode = render_mode
         self.safety_zone = make_safety_zone(safety_zone)
+        self.zone_mode = zone_mode
+        default_penalty = VIOLATION_REWARD if zone_mode == "block" else 0.0
+        self.zone_penalty = default_penalty if zone_penalty is None else float(zone_penalty)
         self.ee_step = float(ee_step)
         self.ee_low = np.asarray(ee_low, dtype=np.float64)
         self.ee_high = np.asarray(ee_high, dtype=np.float64)
@@ -161,11 +183,12 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         return obs.astype(np.float32)
 
     def _reward(self, success: bool, dropped: bool, obj: np.ndarray, violation: str | None) -> float:
-        if violation:
-            return VIOLATION_REWARD
+        if violation and self.zone_mode == "block":
+            return self.zone_penalty
+        penalty = self.zone_penalty if violation else 0.0
         if self.reward_type == "dense":
-            return self.task.dense_reward(success, dropped, self.robot.ee_position(), obj)
-        return self.task.book_reward(success, dropped)
+            return self.task.dense_reward(success, dropped, self.robot.ee_position(), obj) + penalty
+        return self.task.book_reward(success, dropped) + penalty
 
     def _terminates_on(self, success: bool, dropped: bool) -> bool:
         return success or dropped
@@ -182,7 +205,7 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         return self._get_obs(), self._info(violation=None, success=False)
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict[str, Any]]:
-        """Apply one action for ``n_substeps`` physics steps (or reject it if it enters the safety zone)."""
+        """Apply one action for ``n_substeps`` physics steps (block mode: undone if it enters the safety zone)."""
         space = self.action_space
         assert isinstance(space, spaces.Box)
         action = np.clip(np.asarray(action, dtype=np.float64), space.low, space.high)
@@ -191,7 +214,7 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         else:
             ee_target = np.clip(self.robot.ee_position() + action * self.ee_step, self.ee_low, self.ee_high)
             targets = self.robot.inverse_kinematics(ee_target)
-        violation = None if self._apply(targets) else "safety_zone"
+        violation = "safety_zone" if self._apply(targets) else None
         self.steps += 1
         obj = self.task.object_position()
         success = bool(self.task.is_success(obj, self.task.target))
@@ -204,14 +227,22 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
         return self._get_obs(), float(reward), terminated, truncated, self._info(violation, success)
 
     def _apply(self, targets: np.ndarray) -> bool:
-        """Command ``targets`` ``(7,)`` and simulate; False (state unchanged) if the zone is entered."""
+        """Command ``targets`` ``(7,)`` and simulate; True if the end effector entered the zone (block mode:
+        the state is then restored, cost mode: the step is kept)."""
         zone = self.safety_zone
         if zone is None:
             self.robot.set_joint_targets(targets)
             self.sim.step()
-            return True
-        if zone.contains(self.robot.forward_kinematics(targets)):
             return False
+        if self.zone_mode == "cost":
+            self.robot.set_joint_targets(targets)
+            entered = False
+            for _ in range(self.sim.n_substeps):
+                self.sim.step(1)
+                entered = entered or zone.contains(self.robot.ee_position())
+            return entered
+        if zone.contains(self.robot.forward_kinematics(targets)):
+            return True
         previous_targets = self.robot.joint_targets
         joints = self.robot.joint_state()
         block = self.sim.get_base_state(self.task.block)
@@ -222,8 +253,8 @@ class KukaPushEnv(gym.Env[Any, np.ndarray]):
                 self.robot.set_joint_state(*joints)
                 self.robot.set_joint_targets(previous_targets)
                 self.sim.set_base_state(self.task.block, block)
-                return False
-        return True
+                return True
+        return False
 
     def _info(self, violation: str | None, success: bool) -> dict[str, Any]:
         return {

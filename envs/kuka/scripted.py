@@ -9,10 +9,14 @@ Plan: while the block rests, average its noisy observed position; move the tool 
 behind the block on the block->target line, lower it to pushing height, then push along the line and
 stop where the block, in contact with the tool, sits on the target. The stopping point depends on the
 target (exact) and not on the block estimate, so the noise only shifts the contact point sideways.
+
+With ``via`` the tool first visits these end-effector waypoints (a detour), then plans as above:
+``PATH_DETOUR`` keeps a push from the ready pose out of ``safety_zone="path"``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -20,6 +24,10 @@ import numpy as np
 
 from sbagents.envs.kuka.envs import KukaPushEnv
 from sbagents.envs.kuka.robot import N_CONTROLLED, PUSHER_RADIUS
+
+#: End-effector waypoint that takes the tool from the ready pose around ``safety_zone="path"`` (back over the
+#: robot's side of the block at the ready height, then down behind the block).
+PATH_DETOUR: tuple[tuple[float, float, float], ...] = ((0.45, -0.08, 0.31),)
 
 
 class ScriptedPusher:
@@ -36,6 +44,7 @@ class ScriptedPusher:
         behind the block until it has them). Default: 55 when the env's ``noise_level`` is positive
         (0.05 / sqrt(55) = 7 mm), else 1.
     :param overshoot: how far past the planned end point the tool may push (success ends the episode).
+    :param via: end-effector waypoints ``(x, y, z)`` to visit, in order, before the approach (default: none).
     """
 
     def __init__(
@@ -48,6 +57,7 @@ class ScriptedPusher:
         standoff: float = 0.05,
         min_samples: int | None = None,
         overshoot: float = 0.03,
+        via: Sequence[Sequence[float]] = (),
     ) -> None:
         base = env.unwrapped
         if not isinstance(base, KukaPushEnv):
@@ -62,11 +72,13 @@ class ScriptedPusher:
             min_samples = 55 if base.task.noise_level > 0 else 1
         self.min_samples = min_samples
         self.overshoot = overshoot
+        self.via = [np.asarray(p, dtype=np.float64) for p in via]
         self.reset()
 
     def reset(self) -> None:
         """Forget the episode (call after every ``env.reset``)."""
-        self.phase = "approach"
+        self.phase = "via" if self.via else "approach"
+        self._waypoint = 0
         self._sum = np.zeros(3)
         self._count = 0
         self._line: tuple[np.ndarray, np.ndarray] | None = None
@@ -109,6 +121,11 @@ class ScriptedPusher:
         assert self._line is not None
         start, end = self._line
         above = start + np.array([0.0, 0.0, self.approach_height - self.push_height])
+        if self.phase == "via":
+            goal = self.via[self._waypoint]
+            if np.linalg.norm(ee - goal) < 0.03:
+                self._waypoint += 1
+                self.phase = "via" if self._waypoint < len(self.via) else "approach"
         if self.phase == "approach":
             goal = above
             if np.linalg.norm(ee - above) < 0.03:

@@ -44,10 +44,13 @@ class SafetyZone:
 #: Named zones. ``"book"`` is the book's zone (x 0.2-0.8, y 0.2-0.8, z 0-0.5): it contains the block's
 #: path and the target, so the task cannot be done safely. ``"default"`` is a box between the robot and
 #: the target's side (think of an operator's workstation) that a direct push never crosses but a
-#: careless sweep of the arm does.
+#: careless sweep of the arm does. ``"path"`` (x 0.55-0.75, y -0.12-0.1, z 0.03-0.28) lies under the ready pose's
+#: tool (0.61, 0, 0.31), across its direct way down to the push start behind the block: a straight move crosses
+#: it, a detour over the robot's side (``scripted.PATH_DETOUR``) does not; pushing (z < 0.03) never does.
 SAFETY_ZONES: dict[str, SafetyZone] = {
     "book": SafetyZone((0.2, 0.2, 0.0), (0.8, 0.8, 0.5)),
     "default": SafetyZone((0.05, 0.25, 0.0), (0.35, 0.75, 0.5)),
+    "path": SafetyZone((0.55, -0.12, 0.03), (0.75, 0.1, 0.28)),
 }
 
 

@@ -125,3 +125,7 @@ class PIDLagrangeMultiplier(LagrangeMultiplier):
         self.cost_emas.append(self.cost_ema)
         self._record(ep_cost, timesteps)
         return self.value
+
+
+#: ``--constraint`` methods and their multiplier classes (constrained algorithms build ``MULTIPLIERS[method]``).
+MULTIPLIERS: dict[str, type[LagrangeMultiplier]] = {"lagrangian": LagrangeMultiplier, "pid": PIDLagrangeMultiplier}

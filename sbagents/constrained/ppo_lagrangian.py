@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any, ClassVar, Literal, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 import torch as th
@@ -37,7 +37,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sbagents.constrained.buffers import CostRolloutBuffer
-from sbagents.constrained.lagrangian import LagrangeMultiplier, PIDLagrangeMultiplier
+from sbagents.constrained.episode_costs import EPISODE_STATE, EpisodeCostConstraint
 
 Constraint = Literal["lagrangian", "pid"]
 
@@ -58,7 +58,7 @@ class _CostRecordingEnv:
         return getattr(self._venv, name)
 
 
-class PPOLagrangian(PPO):
+class PPOLagrangian(EpisodeCostConstraint, PPO):
     """PPO with a Lagrangian episode-cost constraint ``E[sum_t cost_t] <= cost_limit``.
 
     :param cost_limit: the episode-cost budget ``d`` (undiscounted sum of ``info["cost"]`` per episode).
@@ -73,13 +73,8 @@ class PPOLagrangian(PPO):
     """
 
     rollout_buffer: CostRolloutBuffer
-    multiplier: LagrangeMultiplier
     cost_critic: nn.Module
     cost_critic_optimizer: th.optim.Optimizer
-    CONSTRAINTS: ClassVar[dict[str, type[LagrangeMultiplier]]] = {
-        "lagrangian": LagrangeMultiplier,
-        "pid": PIDLagrangeMultiplier,
-    }
 
     def __init__(
         self,
@@ -94,23 +89,15 @@ class PPOLagrangian(PPO):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ) -> None:
-        if constraint not in self.CONSTRAINTS:
-            raise ValueError(f"constraint must be one of {sorted(self.CONSTRAINTS)}, got {constraint!r}")
+        self._init_constraint(cost_limit, constraint, multiplier_kwargs)
         if kwargs.get("rollout_buffer_class") not in (None, CostRolloutBuffer):
             raise ValueError("PPOLagrangian uses its own CostRolloutBuffer; do not pass rollout_buffer_class")
         kwargs["rollout_buffer_class"] = CostRolloutBuffer
         super().__init__(policy, env, _init_setup_model=False, **kwargs)
-        self.cost_limit = float(cost_limit)
-        self.constraint = constraint
-        self.multiplier_kwargs = dict(multiplier_kwargs or {})
         self.cost_gamma = self.gamma if cost_gamma is None else float(cost_gamma)
         self.cost_gae_lambda = self.gae_lambda if cost_gae_lambda is None else float(cost_gae_lambda)
         self.cost_vf_learning_rate = cost_vf_learning_rate
-        self.multiplier = self.CONSTRAINTS[constraint](self.cost_limit, **self.multiplier_kwargs)
-        self.ep_cost_buffer: deque[float] = deque(maxlen=100)
-        self._running_ep_cost: np.ndarray | None = None
         self._rollout_costs: list[np.ndarray] = []
-        self._rollout_ep_costs: list[float] = []
         self._rollout_truncations: list[tuple[int, int, Any]] = []
         if _init_setup_model:
             self._setup_model()
@@ -145,7 +132,7 @@ class PPOLagrangian(PPO):
         return [*state_dicts, "cost_critic", "cost_critic_optimizer"], variables
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rollout_costs", "_rollout_truncations", "_running_ep_cost"]
+        return [*super()._excluded_save_params(), "_rollout_costs", "_rollout_truncations", *EPISODE_STATE]
 
     def predict_cost_values(self, obs: th.Tensor) -> th.Tensor:
         """``V_c(obs)``, shape ``(batch,)``, for a batch of observations already on the device (unprocessed, as
@@ -157,11 +144,6 @@ class PPOLagrangian(PPO):
         """``V_c`` of a numpy batch ``(n, *obs_shape)`` -> ``(n,)``."""
         with th.no_grad():
             return self.predict_cost_values(obs_as_tensor(obs, self.device)).cpu().numpy()  # type: ignore[arg-type]
-
-    @property
-    def lagrange_multiplier(self) -> float:
-        """The current multiplier ``lambda``."""
-        return self.multiplier.value
 
     def _setup_learn(
         self,
@@ -181,22 +163,12 @@ class PPOLagrangian(PPO):
 
     # -- rollouts --------------------------------------------------------------------------------------------
     def _record_step(self, dones: np.ndarray, infos: list[dict[str, Any]]) -> None:
-        costs = np.array([float(info.get("cost", 0.0)) for info in infos], dtype=np.float32)
-        if self._running_ep_cost is None or len(self._running_ep_cost) != len(costs):
-            self._running_ep_cost = np.zeros(len(costs), dtype=np.float64)
-        self._running_ep_cost += costs
         step = len(self._rollout_costs)
-        for idx, done in enumerate(dones):
-            if not done:
-                continue
-            ep_cost = float(self._running_ep_cost[idx])
-            self._rollout_ep_costs.append(ep_cost)
-            self.ep_cost_buffer.append(ep_cost)
-            self._running_ep_cost[idx] = 0.0
+        self._rollout_costs.append(self._add_step_costs(dones, infos))
+        for idx in np.flatnonzero(dones):
             terminal_obs = infos[idx].get("terminal_observation")
             if terminal_obs is not None and infos[idx].get("TimeLimit.truncated", False):
-                self._rollout_truncations.append((step, idx, terminal_obs))
-        self._rollout_costs.append(costs)
+                self._rollout_truncations.append((step, int(idx), terminal_obs))
 
     def collect_rollouts(
         self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer, n_rollout_steps: int
@@ -204,7 +176,7 @@ class PPOLagrangian(PPO):
         """SB3's rollout (with the costs recorded from the infos), then cost values, cost GAE and one multiplier
         update."""
         assert isinstance(rollout_buffer, CostRolloutBuffer), "PPOLagrangian needs a CostRolloutBuffer"
-        self._rollout_costs, self._rollout_ep_costs, self._rollout_truncations = [], [], []
+        self._rollout_costs, self._rollout_truncations = [], []
         recorder = cast(VecEnv, _CostRecordingEnv(env, self._record_step))
         if not super().collect_rollouts(recorder, callback, rollout_buffer, n_rollout_steps):
             return False
@@ -223,15 +195,6 @@ class PPOLagrangian(PPO):
         buf.compute_cost_returns_and_advantage(self._cost_values_of(last_obs), np.asarray(self._last_episode_starts))
         self._update_multiplier()
         return True
-
-    def _update_multiplier(self) -> None:
-        if self._rollout_ep_costs:
-            ep_cost = float(np.mean(self._rollout_ep_costs))
-            self.multiplier.update(ep_cost, timesteps=self.num_timesteps)
-            self.logger.record("constraint/ep_cost", ep_cost)
-        self.logger.record("constraint/multiplier", self.multiplier.value)
-        if self.ep_cost_buffer:
-            self.logger.record("rollout/ep_cost_mean", float(np.mean(self.ep_cost_buffer)))
 
     # -- update ----------------------------------------------------------------------------------------------
     def train(self) -> None:

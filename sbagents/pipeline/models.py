@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -19,6 +19,9 @@ from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuf
 from sbagents.pipeline.env_factory import make_vec
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
+
+if TYPE_CHECKING:
+    from sbagents.constrained.options import ConstraintSpec
 
 
 def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Space]:
@@ -46,13 +49,14 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
 def make_model(
     exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
     verbose: int = 0, trained_agent: Path | None = None, robust: str | None = None,
-    constraint: tuple[str, float] | None = None,
+    constraint: ConstraintSpec | None = None,
 ) -> BaseAlgorithm:
     """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue.
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
     :param robust: ``--robust`` (:func:`sbagents.robust.options.parse_robust`): the algorithm's robust class.
-    :param constraint: ``(method, cost limit)`` of ``--constraint``: PPO-Lagrangian (:mod:`sbagents.constrained`).
+    :param constraint: ``--constraint`` (:func:`sbagents.constrained.options.constraint_spec`): the algorithm's
+        constrained class (PPO-Lagrangian, ...) and its keyword arguments.
     :raises UsageError: hyperparameters the algorithm rejects.
     """
     cls: Any = ALGOS[exp.algo].cls
@@ -63,10 +67,11 @@ def make_model(
         spec = parse_robust(robust, exp.algo)
         cls, extra = spec.model_class(exp.algo), spec.model_kwargs()
     if constraint is not None:
-        from sbagents.constrained import PPOLagrangian
-
-        cls, extra = PPOLagrangian, {"constraint": constraint[0], "cost_limit": constraint[1]}
+        cls, extra = constraint.model_class(exp.algo), constraint.model_kwargs()
     if trained_agent is not None:
+        if constraint is not None:  # the saved multiplier and its state continue (under the new cost limit)
+            return constraint.load_model(cls, trained_agent, env=env, device=device, tensorboard_log=tensorboard_log,
+                                         verbose=verbose)
         return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose,
                         **extra)
     kwargs = {**exp.algo_kwargs, **extra}

@@ -37,9 +37,10 @@ class TrainSpec:
     :param env_kwargs: env constructor arguments merged into the config's (``--env-kwargs``).
     :param gym_packages: packages to import that register the env (``--gym-packages``).
     :param trained_agent: a model ``.zip`` to continue training (``-i``).
-    :param robust: robust training (``--robust sa:EPS``; :mod:`sbagents.robust`), None for plain training.
-    :param constraint: constrained training (``--constraint lagrangian|pid``, with the trust options' ``cost_limit``;
-        :mod:`sbagents.constrained`), None for none.
+    :param robust: robust training (``--robust METHOD:EPS[,KEY=VALUE...]``; :mod:`sbagents.robust`), None for
+        plain training.
+    :param constraint: constrained training (``--constraint lagrangian|pid``, with the trust options' ``cost_limit``
+        and the entry's ``constraint_kwargs``; :mod:`sbagents.constrained`), None for none.
     """
 
     algo: str = "qlearning"

@@ -264,9 +264,9 @@ def load_run(ref: RunRef) -> LoadedRun:
     cls: Any = ALGOS[ref.algo].cls
     args_file = config_path(run_dir, env.env_id).with_name("args.yml")
     if args_file.exists() and (yaml.safe_load(args_file.read_text()) or {}).get("constraint"):
-        from sbagents.constrained import PPOLagrangian  # its zip holds a cost critic PPO.load refuses
+        from sbagents.constrained.options import constrained_class  # its zip holds a cost critic PPO.load refuses
 
-        cls = PPOLagrangian
+        cls = constrained_class(ref.algo)
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
         from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo

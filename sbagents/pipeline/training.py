@@ -12,7 +12,7 @@ import shlex
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -35,6 +35,9 @@ from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions,
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, VECNORMALIZE_FILE, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
 from sbagents.private.options import PrivacyOptions
+
+if TYPE_CHECKING:
+    from sbagents.constrained.options import ConstraintSpec
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
 EVAL_SEED_OFFSET = 10_000
@@ -155,16 +158,11 @@ def train_sb3(
             "trained_agent": str(agent_path) if agent_path else None}
     if spec.robust is not None:
         if groups is not None:
-            raise UsageError("--robust trains single-agent ddpg/td3 runs, not PettingZoo envs")
+            raise UsageError("--robust trains single-agent ddpg/td3/sac runs, not PettingZoo envs")
         args["robust"] = spec.robust
-    constraint = None
-    if spec.constraint is not None:
-        from sbagents.constrained.options import check_constraint
-
-        constraint = (spec.constraint, check_constraint(spec.constraint, spec.algo, trust.cost_limit))
-        if groups is not None:
-            raise UsageError("--constraint trains single-agent ppo runs, not PettingZoo envs")
-        args.update(constraint=spec.constraint, cost_limit=constraint[1])
+    constraint = _constraint(spec, exp, trust, groups is not None)
+    if constraint is not None:
+        args.update(constraint.record())
         trust = replace(trust, safety=True, cost_limit=None)  # the multiplier holds the limit: count, do not stop
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
@@ -219,6 +217,22 @@ def train_sb3(
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+
+
+def _constraint(spec: TrainSpec, exp: Experiment, trust: TrustOptions, team: bool) -> ConstraintSpec | None:
+    """``--constraint`` checked with the entry's ``constraint_kwargs`` (:mod:`sbagents.constrained.options`); None
+    for a run without one."""
+    from sbagents.constrained.options import CONFIG_KEY, check_unconstrained, constraint_spec
+
+    if spec.constraint is None:
+        check_unconstrained(spec.algo, exp.hyperparams, spec.hyperparams)
+        return None
+    if team:
+        raise UsageError("--constraint trains single-agent runs, not PettingZoo envs")
+    if spec.robust is not None:
+        raise UsageError("--constraint and --robust cannot be combined yet (one or the other)")
+    return constraint_spec(spec.constraint, spec.algo, trust.cost_limit, exp.hyperparams.get(CONFIG_KEY),
+                           f"entry for {exp.env_id}")
 
 
 def _private(privacy: PrivacyOptions, exp: Experiment, resuming: bool) -> Experiment:

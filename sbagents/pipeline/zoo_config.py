@@ -39,6 +39,7 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "critic",
         "deterministic_eval",
         "self_play",
+        "constraint_kwargs",
     }
 )
 #: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.

@@ -16,13 +16,14 @@ runs, and a rerun with more ``--seeds`` only trains the missing (method, seed) p
 section from that file, and ``--evaluate-checkpoints`` adds the missing pairs from their newest checkpoint under
 ``--logs`` (marked partial, with the steps they reached).
 
-    python -m benchmarks.constrained_kuka [-n 60000] [--seeds 0 1] [--cost-limit 1] [--methods ...]
+    python -m benchmarks.constrained_kuka [-n 120000] [--seeds 0 1 2] [--cost-limit 1] [--methods ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -46,6 +47,8 @@ ENV = "sbagents/RobustPickAndPlace-v0"
 SECTION = "constrained-kuka"
 PENALTY = -50.0
 METHODS = ("sac-lagrangian", "sac", "sac -50 penalty")
+#: Arguments that must match for stored runs to be kept (the config entry must match too).
+SETTINGS = ("n_timesteps", "cost_limit", "multiplier_lr", "episodes")
 
 
 class EpisodeStats(BaseCallback):
@@ -96,15 +99,23 @@ def method_env(method: str) -> tuple[str, dict[str, Any], float, dict[str, Any]]
     return policy, {**entry.pop("env_kwargs"), "zone_penalty": penalty}, penalty, entry
 
 
-def run(method: str, seed: int, n_timesteps: int, cost_limit: float, multiplier_lr: float, episodes: int,
-        logs: Path) -> dict[str, Any]:
+def run(
+    method: str, seed: int, n_timesteps: int, cost_limit: float, multiplier_lr: float, episodes: int, logs: Path
+) -> dict[str, Any]:
     """Train one method on one seed (checkpoints every 10k steps under ``logs``), then evaluate it greedily."""
     policy, env_kwargs, penalty, entry = method_env(method)
     env = Monitor(gym.make(ENV, **env_kwargs))
     folder = logs / f"{method.replace(' ', '_')}_{seed}"
     if method == "sac-lagrangian":
-        model: SAC = SACLagrangian(policy, env, cost_limit=cost_limit, multiplier_kwargs={"lr": multiplier_lr},
-                                   seed=seed, device="cpu", **entry)
+        model: SAC = SACLagrangian(
+            policy,
+            env,
+            cost_limit=cost_limit,
+            multiplier_kwargs={"lr": multiplier_lr},
+            seed=seed,
+            device="cpu",
+            **entry,
+        )
     else:
         model = SAC(policy, env, seed=seed, device="cpu", **entry)
     stats = EpisodeStats()
@@ -114,11 +125,17 @@ def run(method: str, seed: int, n_timesteps: int, cost_limit: float, multiplier_
     model.save(folder / "final")
     result = evaluate(model, gym.make(ENV, **env_kwargs), episodes, penalty)
     multiplier = getattr(model, "multiplier", None)
-    return {"method": method, "seed": seed, "n_timesteps": n_timesteps, "train_s": train_s, **result,
-            "train_cost_last100": float(np.mean(stats.costs[-100:])),
-            "train_success_last100": float(np.mean(stats.successes[-100:])),
-            "multiplier": None if multiplier is None else multiplier.value,
-            "history": [] if multiplier is None else multiplier.history[:: max(1, len(multiplier.history) // 200)]}
+    return {
+        "method": method,
+        "seed": seed,
+        "n_timesteps": n_timesteps,
+        "train_s": train_s,
+        **result,
+        "train_cost_last100": float(np.mean(stats.costs[-100:])),
+        "train_success_last100": float(np.mean(stats.successes[-100:])),
+        "multiplier": None if multiplier is None else multiplier.value,
+        "history": [] if multiplier is None else multiplier.history[:: max(1, len(multiplier.history) // 200)],
+    }
 
 
 def evaluate_checkpoint(method: str, seed: int, episodes: int, logs: Path) -> dict[str, Any]:
@@ -131,10 +148,18 @@ def evaluate_checkpoint(method: str, seed: int, episodes: int, logs: Path) -> di
     cls = SACLagrangian if method == "sac-lagrangian" else SAC
     model = cls.load(checkpoints[-1], device="cpu")
     multiplier = getattr(model, "multiplier", None)
-    return {"method": method, "seed": seed, "n_timesteps": int(checkpoints[-1].stem.split("_")[1]), "partial": True,
-            "train_s": None, **evaluate(model, gym.make(ENV, **env_kwargs), episodes, penalty),
-            "train_cost_last100": None, "train_success_last100": None,
-            "multiplier": None if multiplier is None else multiplier.value, "history": []}
+    return {
+        "method": method,
+        "seed": seed,
+        "n_timesteps": int(checkpoints[-1].stem.split("_")[1]),
+        "partial": True,
+        "train_s": None,
+        **evaluate(model, gym.make(ENV, **env_kwargs), episodes, penalty),
+        "train_cost_last100": None,
+        "train_success_last100": None,
+        "multiplier": None if multiplier is None else multiplier.value,
+        "history": [],
+    }
 
 
 def _cell(value: float | None, fmt: str) -> str:
@@ -143,9 +168,11 @@ def _cell(value: float | None, fmt: str) -> str:
 
 def _row(label: str, steps: str, r: dict[str, Any]) -> str:
     minutes = None if r.get("train_s") is None else r["train_s"] / 60
-    return (f"| {label} | {steps} | {r['success']:.2f} | {r['cost']:.2f} | {r['return']:.1f} | "
-            f"{_cell(r.get('train_cost_last100'), '.2f')} | {_cell(r.get('train_success_last100'), '.2f')} | "
-            f"{_cell(r.get('multiplier'), '.2f')} | {_cell(minutes, '.0f')} |")
+    return (
+        f"| {label} | {steps} | {r['success']:.2f} | {r['cost']:.2f} | {r['return']:.1f} | "
+        f"{_cell(r.get('train_cost_last100'), '.2f')} | {_cell(r.get('train_success_last100'), '.2f')} | "
+        f"{_cell(r.get('multiplier'), '.2f')} | {_cell(minutes, '.0f')} |"
+    )
 
 
 def findings(result: dict[str, Any]) -> list[str]:
@@ -161,10 +188,20 @@ def findings(result: dict[str, Any]) -> list[str]:
             per_seed = ", ".join(format(r["cost"], ".2f") for r in runs)
             out.append(f"- {method}: mean greedy EpCost {cost:.2f}, {side} the limit {limit:g} (per seed: {per_seed}).")
     if result["runs"] and all(r["success"] == 0 for r in result["runs"]):
-        out.append("- No run pushed the block onto the target at this budget (SAC needs ~120k steps on the easier "
-                   "PickAndPlace, section kuka-learning), so the success-rate side of the comparison is not "
-                   "measured here: only the cost side and the task return (reaching the block) are.")
+        out.append(
+            "- No run pushed the block onto the target at this budget (SAC needs ~120k steps on the easier "
+            "PickAndPlace, section kuka-learning), so the success-rate side of the comparison is not "
+            "measured here: only the cost side and the task return (reaching the block) are."
+        )
     return out
+
+
+def _kwargs(config: dict[str, Any]) -> str:
+    return ", ".join(f"`{key}: {value}`" for key, value in config["env_kwargs"].items())
+
+
+def _train_minutes(result: dict[str, Any]) -> float:
+    return sum(r["train_s"] or 0.0 for r in result["runs"]) / 60
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -173,16 +210,18 @@ def markdown(result: dict[str, Any]) -> str:
     lines = [
         "## Constrained SAC on RobustPickAndPlace (cost-only path zone)",
         "",
-        f"`{result['command']}` — {ENV} with `benchmarks/configs/kuka_constrained.yml` (ee control, dense reward, "
-        "ready pose, `safety_zone: path`, `zone_mode: cost`: a zone step is applied and costs 1), "
-        f"{a['n_timesteps']} steps per method, seeds {', '.join(map(str, a['seeds']))} ({len(a['seeds'])} per "
-        f"method: 3 did not fit this session), cost limit {a['cost_limit']:g} zone steps per episode, multiplier "
-        f"lr {a['multiplier_lr']:g}, greedy evaluation on {a['episodes']} fresh episodes. Machine: 2 cores shared "
-        f"with other jobs, torch 1 thread. Wall time {result['wall_s'] / 60:.0f} min.",
+        f"{' and '.join(f'`{c}`' for c in result['commands'])} — {ENV} with `benchmarks/configs/kuka_constrained.yml` "
+        f"(ee control, dense reward, ready pose, `safety_zone: path`, `zone_mode: cost`: a zone step is applied and "
+        f"costs 1; env kwargs {_kwargs(result['config'])}), {a['n_timesteps']} steps per method, seeds "
+        f"{', '.join(map(str, a['seeds']))}, cost limit {a['cost_limit']:g} zone steps per episode, multiplier "
+        f"lr {a['multiplier_lr']:g}, greedy evaluation on {a['episodes']} fresh episodes. Machine: 2 cores, two runs "
+        f"at a time, torch 1 thread; training time summed over the runs {_train_minutes(result):.0f} min.",
         "",
         "The `-50 penalty` row adds -50 to the reward of every zone step (the step is still applied, so all rows "
-        "share the dynamics); task return = reward without that penalty. Train columns: last 100 training "
-        "episodes; a partial row was stopped at the session's deadline and evaluated from its last checkpoint.",
+        "share the dynamics); task return = reward without that penalty. success, EpCost and task return: greedy "
+        "(deterministic) actions, SB3's evaluation convention. Train columns: the last 100 training episodes, with "
+        "SAC's stochastic actions; a partial row was stopped at the session's deadline and evaluated from its last "
+        "checkpoint.",
         "",
         "| method (seed) | steps | success | EpCost | task return | train EpCost | train success | final lambda | "
         "minutes |",
@@ -204,9 +243,42 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def recorded_command(argv: list[str]) -> str:
+    """The command as published: ``--logs`` (a folder of this machine, not a setting) left out."""
+    kept = [arg for i, arg in enumerate(argv) if arg != "--logs" and (i == 0 or argv[i - 1] != "--logs")]
+    return "python -m benchmarks.constrained_kuka " + shlex.join(kept)
+
+
+def stored_runs(path: Path, args: argparse.Namespace, config: dict[str, Any]) -> list[dict[str, Any]]:
+    """The runs ``path`` holds for this config and these settings (budget, limit, multiplier lr, episodes)."""
+    if not path.exists():
+        return []
+    old = json.loads(path.read_text())
+    same = old.get("config") == config and all(old["args"].get(k) == getattr(args, k) for k in SETTINGS)
+    return list(old["runs"]) if same else []
+
+
+def merged(
+    path: Path, args: argparse.Namespace, config: dict[str, Any], command: str, outcome: dict[str, Any]
+) -> dict[str, Any]:
+    """The results file with ``outcome`` added, re-read just before writing, so that processes sharing one
+    ``--json`` (say, one per method) keep each other's runs; ``commands`` lists every command that added runs."""
+    old = json.loads(path.read_text()) if path.exists() else {}
+    runs = stored_runs(path, args, config)
+    commands = old.get("commands", []) if runs else []
+    seeds = sorted({*(old["args"]["seeds"] if runs else []), *args.seeds})
+    methods = [m for m in METHODS if m in {*(old["args"]["methods"] if runs else []), *args.methods}]
+    return {
+        "commands": [*commands, command] if command not in commands else commands,
+        "args": {**{k: v for k, v in vars(args).items() if k != "logs"}, "seeds": seeds, "methods": methods},
+        "config": config,
+        "runs": [*runs, outcome],
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.constrained_kuka", description=__doc__)
-    parser.add_argument("-n", "--n-timesteps", type=int, default=60_000)
+    parser.add_argument("-n", "--n-timesteps", type=int, default=120_000)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--cost-limit", type=float, default=1.0)
     parser.add_argument("--multiplier-lr", type=float, default=0.05)
@@ -214,11 +286,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--logs", default="logs/constrained_kuka", help="checkpoints and final models")
     parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default="benchmarks/results/constrained_kuka.json",
-                        help="raw results; runs it already holds (same budget and settings) are kept, not redone")
+    parser.add_argument(
+        "--json",
+        default="benchmarks/results/constrained_kuka.json",
+        help="raw results; runs it already holds (same budget and settings) are kept, not redone",
+    )
     parser.add_argument("--publish-only", action="store_true", help="rebuild the section from --json")
-    parser.add_argument("--evaluate-checkpoints", action="store_true",
-                        help="add the (method, seed) runs missing from --json from their newest checkpoint")
+    parser.add_argument(
+        "--evaluate-checkpoints",
+        action="store_true",
+        help="add the (method, seed) runs missing from --json from their newest checkpoint",
+    )
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)
     path = Path(args.json)
@@ -227,24 +305,19 @@ def main(argv: list[str] | None = None) -> int:
         publish(markdown(result), result, args.output, None, SECTION)
         return 0
     th.set_num_threads(1)
-    result = {"command": " ".join(["python -m benchmarks.constrained_kuka", *argv]), "args": vars(args),
-              "runs": [], "wall_s": 0.0}
-    settings = ("n_timesteps", "cost_limit", "multiplier_lr", "episodes")
-    if path.exists():
-        old = json.loads(path.read_text())
-        if all(old["args"].get(k) == result["args"][k] for k in settings):
-            result["runs"], result["wall_s"] = old["runs"], old["wall_s"]
-    start, wall = time.perf_counter(), result["wall_s"]
+    command = recorded_command(argv)
+    config = yaml.safe_load(CONFIG.read_text())[ENV]
     for seed in args.seeds:
         for method in args.methods:
-            if (method, seed) in {(r["method"], r["seed"]) for r in result["runs"]}:
+            if (method, seed) in {(r["method"], r["seed"]) for r in stored_runs(path, args, config)}:
                 continue
             if args.evaluate_checkpoints:
-                result["runs"].append(evaluate_checkpoint(method, seed, args.episodes, Path(args.logs)))
+                outcome = evaluate_checkpoint(method, seed, args.episodes, Path(args.logs))
             else:
-                result["runs"].append(run(method, seed, args.n_timesteps, args.cost_limit, args.multiplier_lr,
-                                          args.episodes, Path(args.logs)))
-            result["wall_s"] = wall + time.perf_counter() - start
+                outcome = run(
+                    method, seed, args.n_timesteps, args.cost_limit, args.multiplier_lr, args.episodes, Path(args.logs)
+                )
+            result = merged(path, args, config, command, outcome)
             publish(markdown(result), result, args.output, args.json, SECTION)
     return 0
 

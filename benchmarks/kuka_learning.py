@@ -14,6 +14,21 @@ panda-gym lives in a venv that sees the system packages (sbagents included)::
         --run panda=OUT/sac/PandaPushDense-v3_1
 
 ``run`` calls ``report`` itself when both trainings end. Timings depend on the machine's load.
+
+``run``'s default config (``configs/kuka.yml``) is *not* like for like: ours fixes the target at (0.5, 0.5) and
+jitters the book's stick by +-2 cm, panda-gym draws cube and goal in 0.3 m squares (published section
+``kuka-learning``, "fixed target"). ``like`` is: with ``configs/kuka_random.yml`` (our goal env in panda-gym's
+randomized workspace with a 4 cm cube, 50 steps, threshold 0.05) it trains two pairs with the same algorithm,
+hyperparameters, budget, seed and evaluation schedule, sparse reward + HER (``sbagents/PickAndPlaceGoal-v0`` vs
+``PandaPush-v3``) and dense reward (the goal env with ``reward_type: dense`` vs ``PandaPushDense-v3``), and
+writes one plot with the four learning curves and one Markdown section::
+
+    python benchmarks/kuka_learning.py like -n 300000 -f OUT --panda-python PANDA_VENV/bin/python
+
+Each pair gets a config of its own in ``OUT/<pair>/config.yml`` (the two entries of ``kuka_random.yml`` under
+the env ids trained; the dense Kuka entry is stored under ``sbagents/PickAndPlaceGoal-v0-dense``, as one YAML
+file cannot hold two entries for one id), and its runs in ``OUT/<pair>/``; the two runs of a pair train
+concurrently, the pairs one after the other.
 """
 
 from __future__ import annotations
@@ -31,11 +46,39 @@ from typing import Any
 import numpy as np
 import yaml
 
+from sbagents.pipeline.zoo_config import load_yaml
+
 ROOT = Path(__file__).resolve().parent
 DEFAULT_CONF = ROOT / "configs" / "kuka.yml"
 DEFAULT_OUT = ROOT / "results" / "kuka_learning"
 OURS_ENV = "sbagents/PickAndPlace-v0"
 PANDA_ENV = "PandaPushDense-v3"
+LIKE_CONF = ROOT / "configs" / "kuka_random.yml"
+LIKE_OUT = ROOT / "results" / "kuka_learning_random"
+GOAL_ENV = "sbagents/PickAndPlaceGoal-v0"
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One like-for-like comparison: our env and panda-gym's, each trained from an entry of the config.
+
+    :param name: short name (run subfolder, legend suffix).
+    :param ours_env: our env id.
+    :param ours_entry: the config entry our run uses (stored under ``ours_env`` in the pair's config).
+    :param panda_env: panda-gym's env id (its entry has the same name).
+    """
+
+    name: str
+    ours_env: str
+    ours_entry: str
+    panda_env: str
+
+
+#: The pairs of ``like``: sparse reward + HER, and dense reward without HER.
+LIKE_PAIRS: dict[str, Pair] = {
+    "her": Pair("sparse+HER", GOAL_ENV, GOAL_ENV, "PandaPush-v3"),
+    "dense": Pair("dense", GOAL_ENV, GOAL_ENV + "-dense", "PandaPushDense-v3"),
+}
 
 
 @dataclass
@@ -146,19 +189,28 @@ def markdown_table(curves: list[Curve]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def report(runs: list[tuple[str, str]], out: Path, title: str) -> str:
-    """Write ``<out>.png`` and ``<out>.md`` for ``(label, run_dir)`` pairs; return the Markdown."""
+def report(runs: list[tuple[str, str]], out: Path, title: str, note: str = "") -> str:
+    """Write ``<out>.png`` and ``<out>.md`` for ``(label, run_dir)`` pairs; return the Markdown (``note``: a
+    paragraph after the title)."""
     curves = [load_curve(label, run_dir) for label, run_dir in runs]
     plot_curves(curves, out.with_suffix(".png"), title)
-    text = f"# {title}\n\n" + markdown_table(curves)
+    text = f"# {title}\n\n" + (f"{note}\n" if note else "") + markdown_table(curves)
     out.with_suffix(".md").write_text(text)
     return text
 
 
-def _train_cmd(python: str, algo: str, env: str, args: argparse.Namespace, extra: list[str]) -> list[str]:
+def _train_cmd(
+    python: str,
+    algo: str,
+    env: str,
+    args: argparse.Namespace,
+    extra: list[str],
+    conf: Path | None = None,
+    log_folder: Path | None = None,
+) -> list[str]:
     return [
-        python, "-m", "sbagents.train", "--algo", algo, "--env", env, "-conf", str(args.conf),
-        "-f", str(args.log_folder), "--seed", str(args.seed), "-n", str(args.n_timesteps),
+        python, "-m", "sbagents.train", "--algo", algo, "--env", env, "-conf", str(conf or args.conf),
+        "-f", str(log_folder or args.log_folder), "--seed", str(args.seed), "-n", str(args.n_timesteps),
         "--eval-freq", str(args.eval_freq), "--eval-episodes", str(args.eval_episodes),
         "--final-eval-episodes", str(args.final_eval_episodes), "--log-interval", "50", *extra,
     ]
@@ -172,51 +224,112 @@ def _newest_run(log_folder: Path, algo: str, env_id: str) -> Path:
     return runs[-1]
 
 
-def run(args: argparse.Namespace) -> None:
-    """Train ours and panda-gym's env concurrently, then write the report."""
-    args.log_folder.mkdir(parents=True, exist_ok=True)
+def _train_both(
+    args: argparse.Namespace, ours_env: str, panda_env: str, conf: Path, log_folder: Path, suffix: str = ""
+) -> list[tuple[str, str]]:
+    """Train ours and panda-gym's env concurrently; ``(label, run_dir)`` of both (labels end in ``suffix``)."""
+    log_folder.mkdir(parents=True, exist_ok=True)
     jobs = {
-        "ours": _train_cmd(sys.executable, args.algo, args.ours_env, args, []),
-        "panda-gym": _train_cmd(args.panda_python, args.algo, args.panda_env, args,
-                                ["--gym-packages", "panda_gym"]),
+        "ours": (ours_env, _train_cmd(sys.executable, args.algo, ours_env, args, [], conf, log_folder)),
+        "panda-gym": (
+            panda_env,
+            _train_cmd(
+                args.panda_python, args.algo, panda_env, args, ["--gym-packages", "panda_gym"], conf, log_folder
+            ),
+        ),
     }
     procs = {}
-    for label, cmd in jobs.items():
-        log = (args.log_folder / f"{label}.log").open("w")
-        print(f"[{label}] {shlex.join(cmd)}  (log: {log.name})", flush=True)
+    for label, (_, cmd) in jobs.items():
+        log = (log_folder / f"{label}.log").open("w")
+        print(f"[{label}{suffix}] {shlex.join(cmd)}  (log: {log.name})", flush=True)
         procs[label] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT.parent)
+        if getattr(args, "sequential", False):
+            procs[label].wait()
         time.sleep(2)  # distinct run dirs are guaranteed anyway; this keeps the start order readable
     codes = {label: p.wait() for label, p in procs.items()}
-    print(f"exit codes: {codes}", flush=True)
-    runs = [("ours", str(_newest_run(args.log_folder, args.algo, args.ours_env))),
-            ("panda-gym", str(_newest_run(args.log_folder, args.algo, args.panda_env)))]
+    print(f"exit codes{suffix}: {codes}", flush=True)
+    return [(label + suffix, str(_newest_run(log_folder, args.algo, env))) for label, (env, _) in jobs.items()]
+
+
+def run(args: argparse.Namespace) -> None:
+    """Train ours and panda-gym's env concurrently, then write the report."""
+    runs = _train_both(args, args.ours_env, args.panda_env, args.conf, args.log_folder)
     print(report(runs, args.out, args.title or _title(args)))
 
 
+def pair_config(conf: Path, pair: Pair, path: Path) -> dict[str, Any]:
+    """Write the two entries of ``pair`` from the zoo file ``conf`` to ``path``, under the env ids trained."""
+    data = load_yaml(conf) or {}
+    missing = [key for key in (pair.ours_entry, pair.panda_env) if key not in data]
+    if missing:
+        raise SystemExit(f"{conf} has no entry {missing[0]!r}")
+    entries = {pair.ours_env: data[pair.ours_entry], pair.panda_env: data[pair.panda_env]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(
+        f"# {pair.name} pair of {conf.name} (ours: entry {pair.ours_entry})\n"
+        + yaml.safe_dump(entries, sort_keys=False)
+    )
+    return entries
+
+
+def like(args: argparse.Namespace) -> None:
+    """Like for like: train every pair of :data:`LIKE_PAIRS` asked for, then report all curves together."""
+    runs: list[tuple[str, str]] = []
+    for key in args.pairs:
+        pair = LIKE_PAIRS[key]
+        conf = args.log_folder / key / "config.yml"
+        pair_config(args.conf, pair, conf)
+        runs += _train_both(args, pair.ours_env, pair.panda_env, conf, args.log_folder / key, f" {pair.name}")
+    print(report(runs, args.out, args.title or _like_title(args), LIKE_NOTE))
+
+
+#: Markdown paragraph of the like-for-like report (what is matched, what is not).
+LIKE_NOTE = (
+    "Like for like (`benchmarks/configs/kuka_random.yml`): object start and goal uniform in 0.3 m squares around "
+    "a point 0.6 m in front of each robot's base, a 4 cm cube, 50-step episodes, success within 0.05 m; the same "
+    "algorithm, hyperparameters, budget, seed and evaluation schedule within each pair. Still different: the "
+    "robot (Kuka iiwa with a pusher rod vs Panda), the control rate (24 vs 25 Hz), the cube's mass (0.02 vs "
+    "1 kg) and the observation. The fixed-target comparison (section kuka-learning) is not like for like.\n"
+)
+
+
+def _like_title(args: argparse.Namespace) -> str:
+    return (
+        f"{args.algo.upper()}, {args.n_timesteps} steps, seed {args.seed}: Kuka push vs panda-gym push, "
+        "like for like (randomized workspace)"
+    )
+
+
 def _title(args: argparse.Namespace) -> str:
-    return f"{args.algo.upper()}, {args.n_timesteps} steps, seed {args.seed}: Kuka push vs panda-gym push"
+    fixed = " (fixed target)" if Path(args.conf).name == DEFAULT_CONF.name else ""
+    return f"{args.algo.upper()}, {args.n_timesteps} steps, seed {args.seed}: Kuka push{fixed} vs panda-gym push"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """``run`` (train both, then report) and ``report`` (from existing run dirs)."""
+    """``run`` (train both, then report), ``like`` (like-for-like pairs) and ``report`` (from existing run dirs)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run", help="train ours and panda-gym's env, then report")
-    r.add_argument("--algo", default="sac")
+    r = sub.add_parser("run", help="train ours and panda-gym's env, then report (fixed-target config by default)")
     r.add_argument("--ours-env", default=OURS_ENV)
     r.add_argument("--panda-env", default=PANDA_ENV)
-    r.add_argument("--panda-python", required=True, help="a Python that can import panda_gym (e.g. a venv's)")
     r.add_argument("-conf", "--conf", type=Path, default=DEFAULT_CONF)
-    r.add_argument("-n", "--n-timesteps", type=int, default=300_000)
-    r.add_argument("-f", "--log-folder", type=Path, required=True, help="where both runs go")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--eval-freq", type=int, default=10_000)
-    r.add_argument("--eval-episodes", type=int, default=20)
-    r.add_argument("--final-eval-episodes", type=int, default=50)
+    lk = sub.add_parser("like", help="like for like: sparse+HER and dense pairs in panda-gym's randomized workspace")
+    lk.add_argument("-conf", "--conf", type=Path, default=LIKE_CONF)
+    lk.add_argument("--pairs", nargs="+", choices=sorted(LIKE_PAIRS), default=list(LIKE_PAIRS))
+    for q in (r, lk):
+        q.add_argument("--algo", default="sac")
+        q.add_argument("--panda-python", required=True, help="a Python that can import panda_gym (e.g. a venv's)")
+        q.add_argument("-n", "--n-timesteps", type=int, default=300_000)
+        q.add_argument("-f", "--log-folder", type=Path, required=True, help="where the runs go")
+        q.add_argument("--seed", type=int, default=0)
+        q.add_argument("--eval-freq", type=int, default=10_000)
+        q.add_argument("--eval-episodes", type=int, default=20)
+        q.add_argument("--final-eval-episodes", type=int, default=50)
+        q.add_argument("--sequential", action="store_true", help="train the two runs one after the other")
     rep = sub.add_parser("report", help="plot and tabulate existing run dirs")
     rep.add_argument("--run", action="append", required=True, metavar="LABEL=RUN_DIR")
-    for q in (r, rep):
-        q.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output path without suffix")
+    for q, out in ((r, DEFAULT_OUT), (lk, LIKE_OUT), (rep, DEFAULT_OUT)):
+        q.add_argument("--out", type=Path, default=out, help="output path without suffix")
         q.add_argument("--title", default="")
     return p
 
@@ -226,6 +339,9 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     if args.cmd == "run":
         run(args)
+        return
+    if args.cmd == "like":
+        like(args)
         return
     runs = []
     for item in args.run:

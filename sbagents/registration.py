@@ -10,6 +10,8 @@ GYM_ENVS: dict[str, str] = {
     "sbagents/PickAndPlace-v0": "sbagents.envs.kuka:PickAndPlaceEnv",
     "sbagents/RobustPickAndPlace-v0": "sbagents.envs.kuka:RobustPickAndPlaceEnv",
     "sbagents/PickAndPlaceGoal-v0": "sbagents.envs.kuka:PickAndPlaceGoalEnv",
+    "sbagents/KukaPickAndPlace-v0": "sbagents.envs.kuka:KukaPickAndPlaceEnv",
+    "sbagents/RobustKukaPickAndPlace-v0": "sbagents.envs.kuka:RobustKukaPickAndPlaceEnv",
 }
 
 

@@ -30,9 +30,11 @@ class PickAndPlaceGoalEnv(KukaPushEnv):
     :param control: ``"ee"`` (default, as panda-gym) or ``"joints"``.
     :param reward_type: ``"sparse"`` (default) or ``"dense"``.
     :param max_steps: steps before truncation (panda-gym: 50).
-    :param object_range: half width (m) of the random offset of the block's start around (0.5, 0).
+    :param object_range: half width (m) of the random offset of the block's start around ``object_xy``
+        (default (0.5, 0), a :class:`~sbagents.envs.kuka.envs.KukaPushEnv` parameter like ``object``).
     :param target_box: ``((x_lo, y_lo), (x_hi, y_hi))`` the target is drawn from each episode (it
-        contains the book's target (0.5, 0.5)).
+        contains the book's target (0.5, 0.5)). panda-gym's randomisation: ``object_range=0.15`` and a
+        0.3 m square around the same centre (``benchmarks/configs/kuka_random.yml``).
     :param initial_joints: joint angles at reset: the tool points down 0.46 m above (0.6, 0), as
         panda-gym starts near the table (the book's all-zero pose costs ~25 of the 50 steps).
     :param kwargs: the remaining :class:`~sbagents.envs.kuka.envs.KukaPushEnv` parameters.

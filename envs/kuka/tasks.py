@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pybullet
 
 from sbagents.envs.kuka.sim import BulletSim
 
@@ -18,6 +19,10 @@ from sbagents.envs.kuka.sim import BulletSim
 BLOCK_HALF_HEIGHT = 0.009
 #: Mass of ``block.urdf`` in kg.
 BLOCK_MASS = 0.02
+#: Edge of the ``object="cube"`` option (m), panda-gym's push cube; it weighs :data:`BLOCK_MASS` too.
+CUBE_SIZE = 0.04
+#: Objects a :class:`PushTask` can push: the book's stick (``block.urdf``) or panda-gym's 4 cm cube.
+OBJECTS = ("block", "cube")
 #: Rewards of the book (chapters 5 and 6).
 STEP_REWARD = -1.0
 SUCCESS_REWARD = 100.0
@@ -75,10 +80,22 @@ def goal_distance(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.nda
     return np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
 
 
+def sparse_goal_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray, threshold: float) -> np.ndarray:
+    """panda-gym's sparse reward ``-(d > threshold)`` as float32: ``(..., 3), (..., 3) -> (...)``."""
+    return -(goal_distance(achieved_goal, desired_goal) > threshold).astype(np.float32)
+
+
+def dense_goal_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
+    """panda-gym's dense reward ``-d`` as float32: ``(..., 3), (..., 3) -> (...)``."""
+    return -goal_distance(achieved_goal, desired_goal).astype(np.float32)
+
+
 class PushTask:
-    """A ``block.urdf`` to push onto a target on the plane, with optional domain randomisation.
+    """A ``block.urdf`` (or a cube) to push onto a target on the plane, with optional domain randomisation.
 
     :param sim: the owning simulation.
+    :param object: ``"block"`` (the book's ``block.urdf``, a 10 x 1.8 x 1.8 cm stick) or ``"cube"`` (a 4 cm
+        cube as panda-gym's push, built with ``createCollisionShape``; same mass and friction as the block).
     :param object_xy: nominal start of the block (book: (0.5, 0)).
     :param object_range: half width of the uniform box around ``object_xy`` the start is drawn from.
     :param target_xy: target on the plane (book: (0.5, 0.5)); its height is the block's resting height.
@@ -96,6 +113,7 @@ class PushTask:
     def __init__(
         self,
         sim: BulletSim,
+        object: str = "block",
         object_xy: Sequence[float] = (0.5, 0.0),
         object_range: float = 0.0,
         target_xy: Sequence[float] = (0.5, 0.5),
@@ -107,8 +125,11 @@ class PushTask:
         workspace_radius: float = 1.0,
         drop_height: float = -0.05,
     ) -> None:
+        if object not in OBJECTS:
+            raise ValueError(f"object must be one of {OBJECTS}, got {object!r}")
         self.sim = sim
         self.client = sim.client
+        self.object = object
         self.object_xy = np.asarray(object_xy, dtype=np.float64)
         self.object_range = float(object_range)
         self.target_xy = np.asarray(target_xy, dtype=np.float64)
@@ -123,9 +144,34 @@ class PushTask:
         self.drop_height = float(drop_height)
         self.scale = 1.0
         self.mass = BLOCK_MASS
-        self.block = sim.load_urdf("block.urdf", (*self.object_xy, BLOCK_HALF_HEIGHT))
-        self.target = np.array([*self.target_xy, BLOCK_HALF_HEIGHT])
+        self.block = self._create_object(self.scale)
+        self.target = np.array([*self.target_xy, self.half_height])
         self.marker = sim.create_sphere_marker(0.025, (0.9, 0.2, 0.2, 0.6))
+
+    @property
+    def half_height(self) -> float:
+        """Height (m) of the object's centre when it rests on the plane at this episode's scale."""
+        base = CUBE_SIZE / 2 if self.object == "cube" else BLOCK_HALF_HEIGHT
+        return base * self.scale
+
+    def _create_object(self, scale: float) -> int:
+        """Load or build the object at ``scale`` on the plane at :attr:`object_xy`; return its body id."""
+        if self.object == "block":
+            return self.sim.load_urdf("block.urdf", (*self.object_xy, BLOCK_HALF_HEIGHT * scale), scaling=scale)
+        half = [CUBE_SIZE * scale / 2] * 3
+        collision = self.client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
+        visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.1, 0.7, 0.1, 1.0])
+        body = int(
+            self.client.createMultiBody(
+                baseMass=BLOCK_MASS,
+                baseCollisionShapeIndex=collision,
+                baseVisualShapeIndex=visual,
+                basePosition=[*self.object_xy, half[0]],
+            )
+        )
+        # block.urdf's contact parameters, so that only the shape differs
+        self.client.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.001)
+        return body
 
     def reset(self, rng: np.random.Generator) -> None:
         """Draw this episode's block scale, mass, start and target from ``rng`` and place the block.
@@ -139,11 +185,11 @@ class PushTask:
             self.object_range > 0
         )
         target_xy = self.target_xy if self.target_box is None else rng.uniform(self.target_box[0], self.target_box[1])
-        rest_z = BLOCK_HALF_HEIGHT * scale
         if scale != self.scale:
             self.client.removeBody(self.block)
-            self.block = self.sim.load_urdf("block.urdf", (*start, rest_z), scaling=scale)
+            self.block = self._create_object(scale)
             self.scale = scale
+        rest_z = self.half_height
         self.sim.set_base_pose(self.block, (*start, rest_z))
         if mass != self.mass or self.mass_range is not None:
             self.client.changeDynamics(self.block, -1, mass=mass)
@@ -202,8 +248,8 @@ class PushTask:
 
     def sparse_goal_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
         """panda-gym's sparse reward ``-(d > threshold)`` as float32, vectorised over leading axes."""
-        return -(goal_distance(achieved_goal, desired_goal) > self.distance_threshold).astype(np.float32)
+        return sparse_goal_reward(achieved_goal, desired_goal, self.distance_threshold)
 
     def dense_goal_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
         """panda-gym's dense reward ``-d`` as float32, vectorised over leading axes."""
-        return -goal_distance(achieved_goal, desired_goal).astype(np.float32)
+        return dense_goal_reward(achieved_goal, desired_goal)

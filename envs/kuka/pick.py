@@ -13,7 +13,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import pybullet
 from gymnasium import spaces
 
 from sbagents.envs.kuka.envs import POS_BOUND, XYZ, ZONE_MODES, ZoneSpec, ZoneStepper
@@ -85,19 +84,16 @@ class PickTask:
         self.marker = sim.create_sphere_marker(0.02, (0.2, 0.8, 0.2, 0.5))
 
     def _create_block(self, scale: float, mass: float) -> int:
-        half = [BLOCK_SIZE * scale / 2] * 3
-        collision = self.client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
-        visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.1, 0.4, 0.9, 1.0])
-        body = int(
-            self.client.createMultiBody(
-                baseMass=mass,
-                baseCollisionShapeIndex=collision,
-                baseVisualShapeIndex=visual,
-                basePosition=[*self.object_xy, half[0]],
-            )
+        size = BLOCK_SIZE * scale
+        return self.sim.create_box(
+            size,
+            mass,
+            (*self.object_xy, size / 2),
+            (0.1, 0.4, 0.9, 1.0),
+            lateralFriction=1.0,
+            spinningFriction=0.001,
+            rollingFriction=0.0,
         )
-        self.client.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.001, rollingFriction=0.0)
-        return body
 
     @property
     def half_size(self) -> float:

@@ -21,7 +21,7 @@ With ``via`` the tool first visits these end-effector waypoints (a detour), then
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -197,9 +197,7 @@ class ScriptedPusher:
             line = end - start
             length = max(float(np.linalg.norm(line)), 1e-6)
             progress = float(np.dot(ee - start, line) / length**2)
-            goal = start + line * min(
-                1.0 + self.overshoot / length, max(progress, 0.0) + self.push_speed / length
-            )
+            goal = start + line * min(1.0 + self.overshoot / length, max(progress, 0.0) + self.push_speed / length)
         return self._command(ee, goal, q)
 
     def _stalled(self, ee: np.ndarray) -> bool:
@@ -235,9 +233,15 @@ class ScriptedPusher:
         return self.act(obs), None
 
 
-def run_episode(
-    env: gym.Env[Any, Any], controller: ScriptedPusher, seed: int | None = None
-) -> dict[str, Any]:
+class ScriptedController(Protocol):
+    """What :func:`run_episode` needs of a controller (:class:`ScriptedPusher`, ``scripted_pick.ScriptedPicker``)."""
+
+    def reset(self) -> None: ...
+
+    def act(self, obs: Any) -> np.ndarray: ...
+
+
+def run_episode(env: gym.Env[Any, Any], controller: ScriptedController, seed: int | None = None) -> dict[str, Any]:
     """Run one episode with ``controller``; return ``return``, ``length``, ``is_success``, ``cost``."""
     obs, _ = env.reset(seed=seed)
     controller.reset()

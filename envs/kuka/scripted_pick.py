@@ -14,6 +14,9 @@ import gymnasium as gym
 import numpy as np
 
 from sbagents.envs.kuka.pick import KukaPickAndPlaceEnv
+from sbagents.envs.kuka.scripted import run_episode
+
+__all__ = ["ScriptedPicker", "run_episode"]
 
 #: Phases in order; ``predict`` moves to the next when the current waypoint is reached.
 PHASES = ("above", "descend", "close", "lift", "carry")
@@ -113,19 +116,3 @@ class ScriptedPicker:
     ) -> tuple[np.ndarray, None]:
         """SB3-style ``predict`` for a single (non-vectorised) env: ``(action, None)``."""
         return self.act(obs), None
-
-
-def run_episode(env: gym.Env[Any, Any], controller: ScriptedPicker, seed: int | None = None) -> dict[str, Any]:
-    """Run one episode with ``controller``; return ``return``, ``length``, ``is_success`` (last step), ``cost``."""
-    obs, _ = env.reset(seed=seed)
-    controller.reset()
-    total, cost, length = 0.0, 0.0, 0
-    info: dict[str, Any] = {}
-    done = False
-    while not done:
-        obs, reward, terminated, truncated, info = env.step(controller.act(obs))
-        total += float(reward)
-        cost += float(info.get("cost", 0.0))
-        length += 1
-        done = terminated or truncated
-    return {"return": total, "length": length, "is_success": bool(info.get("is_success")), "cost": cost}

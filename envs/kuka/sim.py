@@ -90,6 +90,26 @@ class BulletSim:
             self.client.loadURDF(file_name, basePosition=list(position), useFixedBase=fixed_base, globalScaling=scaling)
         )
 
+    def create_box(
+        self, size: float, mass: float, position: Sequence[float], rgba: Sequence[float], **dynamics: float
+    ) -> int:
+        """Create a cube of edge ``size`` (m) and ``mass`` (kg) at ``position`` ``(3,)``; ``dynamics`` are
+        ``changeDynamics`` keywords (e.g. ``lateralFriction``). Returns its body id."""
+        half = [size / 2] * 3
+        collision = self.client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
+        visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=list(rgba))
+        body = int(
+            self.client.createMultiBody(
+                baseMass=mass,
+                baseCollisionShapeIndex=collision,
+                baseVisualShapeIndex=visual,
+                basePosition=list(position),
+            )
+        )
+        if dynamics:
+            self.client.changeDynamics(body, -1, **dynamics)
+        return body
+
     def create_sphere_marker(self, radius: float, rgba: Sequence[float]) -> int:
         """Create a visual-only (no collision, no mass) sphere, e.g. to show the target, and return its id."""
         visual = self.client.createVisualShape(pybullet.GEOM_SPHERE, radius=radius, rgbaColor=list(rgba))

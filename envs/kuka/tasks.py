@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet
 
 from sbagents.envs.kuka.sim import BulletSim
 
@@ -69,9 +68,7 @@ def make_safety_zone(zone: str | SafetyZone | Sequence[Sequence[float]] | None) 
         return SAFETY_ZONES[zone]
     low, high = (tuple(float(v) for v in corner) for corner in zone)
     if len(low) != 3 or len(high) != 3 or any(lo > hi for lo, hi in zip(low, high, strict=True)):
-        raise ValueError(
-            f"safety zone must be (low, high) with 3 coordinates each and low <= high, got {zone!r}"
-        )
+        raise ValueError(f"safety zone must be (low, high) with 3 coordinates each and low <= high, got {zone!r}")
     return SafetyZone(low, high)  # type: ignore[arg-type]
 
 
@@ -158,20 +155,16 @@ class PushTask:
         """Load or build the object at ``scale`` on the plane at :attr:`object_xy`; return its body id."""
         if self.object == "block":
             return self.sim.load_urdf("block.urdf", (*self.object_xy, BLOCK_HALF_HEIGHT * scale), scaling=scale)
-        half = [CUBE_SIZE * scale / 2] * 3
-        collision = self.client.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
-        visual = self.client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.1, 0.7, 0.1, 1.0])
-        body = int(
-            self.client.createMultiBody(
-                baseMass=BLOCK_MASS,
-                baseCollisionShapeIndex=collision,
-                baseVisualShapeIndex=visual,
-                basePosition=[*self.object_xy, half[0]],
-            )
-        )
+        size = CUBE_SIZE * scale
         # block.urdf's contact parameters, so that only the shape differs
-        self.client.changeDynamics(body, -1, lateralFriction=1.0, spinningFriction=0.001)
-        return body
+        return self.sim.create_box(
+            size,
+            BLOCK_MASS,
+            (*self.object_xy, size / 2),
+            (0.1, 0.7, 0.1, 1.0),
+            lateralFriction=1.0,
+            spinningFriction=0.001,
+        )
 
     def reset(self, rng: np.random.Generator) -> None:
         """Draw this episode's block scale, mass, start and target from ``rng`` and place the block.
@@ -181,9 +174,7 @@ class PushTask:
         """
         scale = 1.0 if self.scale_range is None else float(rng.uniform(*self.scale_range))
         mass = BLOCK_MASS if self.mass_range is None else float(rng.uniform(*self.mass_range))
-        start = self.object_xy + rng.uniform(-self.object_range, self.object_range, 2) * (
-            self.object_range > 0
-        )
+        start = self.object_xy + rng.uniform(-self.object_range, self.object_range, 2) * (self.object_range > 0)
         target_xy = self.target_xy if self.target_box is None else rng.uniform(self.target_box[0], self.target_box[1])
         if scale != self.scale:
             self.client.removeBody(self.block)
@@ -231,9 +222,7 @@ class PushTask:
             return SUCCESS_REWARD
         return DROP_REWARD if dropped else STEP_REWARD
 
-    def dense_reward(
-        self, success: bool, dropped: bool, ee_position: np.ndarray, object_position: np.ndarray
-    ) -> float:
+    def dense_reward(self, success: bool, dropped: bool, ee_position: np.ndarray, object_position: np.ndarray) -> float:
         """Shaped reward: the -1 step cost is replaced by ``-(|ee - block| + |block - target|)``.
 
         Success (+100) and drop (-10) keep the book's values.
@@ -242,9 +231,7 @@ class PushTask:
             return SUCCESS_REWARD
         if dropped:
             return DROP_REWARD
-        return -float(
-            np.linalg.norm(ee_position - object_position) + np.linalg.norm(object_position - self.target)
-        )
+        return -float(np.linalg.norm(ee_position - object_position) + np.linalg.norm(object_position - self.target))
 
     def sparse_goal_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
         """panda-gym's sparse reward ``-(d > threshold)`` as float32, vectorised over leading axes."""

@@ -27,7 +27,7 @@ def cli(module: str, *args: str, cwd: Path | None = None, timeout: float = 600) 
     )
 
 
-def _default_sigint() -> None:
+def default_sigint() -> None:
     """In the child: Ctrl-C's default action. A suite started in the background (``cmd &``) inherits an ignored
     SIGINT, and Python then installs no KeyboardInterrupt handler, so the interrupt tests would wait forever."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -38,7 +38,7 @@ def popen(module: str, *args: str, cwd: Path | None = None) -> subprocess.Popen[
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen(
         [sys.executable, "-m", f"sbagents.{module}", *args],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env, preexec_fn=_default_sigint,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env, preexec_fn=default_sigint,
     )
 
 

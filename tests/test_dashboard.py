@@ -19,7 +19,7 @@ pytest.importorskip("flask")
 
 from sbagents.dashboard.app import TOKEN_COOKIE, create_app  # noqa: E402
 from sbagents.dashboard.folders import ServedFolders  # noqa: E402
-from tests.cli_helpers import cli  # noqa: E402
+from tests.cli_helpers import cli, default_sigint  # noqa: E402
 
 RUN = "ddpg/sbagents_SmartHome-v0_1"
 LOG_HEADER = ["env", "episode", "step", "temp", "light", "action_temp", "reward", "terminated", "truncated",
@@ -249,7 +249,8 @@ def test_cli_serves_and_stops_on_sigint(logs: Path) -> None:
     port = _free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "sbagents.dashboard", "-f", str(logs), "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=default_sigint)
     try:
         line = proc.stdout.readline() if proc.stdout else ""
         assert f"http://127.0.0.1:{port}/" in line

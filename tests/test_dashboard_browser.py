@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.cli_helpers import popen
+from tests.cli_helpers import default_sigint, popen
 from tests.test_dashboard import RUN, write_run
 
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_BROWSER") == "1"
@@ -50,7 +50,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
         port = s.getsockname()[1]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "SBAGENTS_CACHE_DIR": str(logs.parent / "cache")}
     proc = subprocess.Popen([sys.executable, "-m", "sbagents.dashboard", "-f", str(logs), "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=default_sigint)
     assert proc.stdout is not None and "dashboard: http://" in proc.stdout.readline()
     yield f"http://127.0.0.1:{port}", logs
     proc.send_signal(signal.SIGINT)

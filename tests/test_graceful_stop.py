@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+from collections.abc import Iterator
 from pathlib import Path
 
 import gymnasium as gym
@@ -14,6 +15,15 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.pipeline.lifecycle import LearningClock
 from sbagents.pipeline.training import StopOnRequestCallback
+
+
+@pytest.fixture(autouse=True)
+def python_sigint_handler() -> Iterator[None]:
+    """Python's own Ctrl-C handler for each test: a suite started in the background (``cmd &``) inherits an ignored
+    SIGINT, which LearningClock rightly leaves ignored."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

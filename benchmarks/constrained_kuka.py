@@ -220,8 +220,9 @@ def markdown(result: dict[str, Any]) -> str:
         "The `-50 penalty` row adds -50 to the reward of every zone step (the step is still applied, so all rows "
         "share the dynamics); task return = reward without that penalty. success, EpCost and task return: greedy "
         "(deterministic) actions, SB3's evaluation convention. Train columns: the last 100 training episodes, with "
-        "SAC's stochastic actions; a partial row was stopped at the session's deadline and evaluated from its last "
-        "checkpoint.",
+        "SAC's stochastic actions"
+        + ("; a partial row was stopped at the session's deadline and evaluated from its last checkpoint."
+           if any(r.get("partial") for r in result["runs"]) else "."),
         "",
         "| method (seed) | steps | success | EpCost | task return | train EpCost | train success | final lambda | "
         "minutes |",

@@ -25,6 +25,15 @@ writes one plot with the four learning curves and one Markdown section::
 
     python benchmarks/kuka_learning.py like -n 300000 -f OUT --panda-python PANDA_VENV/bin/python
 
+``pick`` does the same for the grasping pick-and-place (``configs/kuka_pick.yml``: ``sbagents/KukaPickAndPlace-v0``
+vs ``PandaPickAndPlace-v3``, HER, 500k steps by default)::
+
+    python benchmarks/kuka_learning.py pick -f OUT --panda-python PANDA_VENV/bin/python
+
+``run``, ``like`` and ``pick`` checkpoint every ``--save-freq`` steps with the replay buffer; an unfinished run
+continues with ``python -m sbagents.train ... -i RUN_DIR/rl_model_<steps>_steps.zip`` (same config, the remaining
+steps as ``-n``).
+
 Each pair gets a config of its own in ``OUT/<pair>/config.yml`` (the two entries of ``kuka_random.yml`` under
 the env ids trained; the dense Kuka entry is stored under ``sbagents/PickAndPlaceGoal-v0-dense``, as one YAML
 file cannot hold two entries for one id), and its runs in ``OUT/<pair>/``; the two runs of a pair train
@@ -79,6 +88,11 @@ LIKE_PAIRS: dict[str, Pair] = {
     "her": Pair("sparse+HER", GOAL_ENV, GOAL_ENV, "PandaPush-v3"),
     "dense": Pair("dense", GOAL_ENV, GOAL_ENV + "-dense", "PandaPushDense-v3"),
 }
+PICK_CONF = ROOT / "configs" / "kuka_pick.yml"
+PICK_OUT = ROOT / "results" / "kuka_pick_learning"
+PICK_ENV = "sbagents/KukaPickAndPlace-v0"
+#: The pair of ``pick``: grasping pick-and-place with HER.
+PICK_PAIRS: dict[str, Pair] = {"pick": Pair("pick-and-place", PICK_ENV, PICK_ENV, "PandaPickAndPlace-v3")}
 
 
 @dataclass
@@ -155,8 +169,9 @@ def plot_curves(curves: list[Curve], path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def markdown_table(curves: list[Curve]) -> str:
-    """Markdown: one summary row per run, then success rate at every evaluation point."""
+def markdown_table(curves: list[Curve], log_folder: Path | None = None) -> str:
+    """Markdown: one summary row per run, then success rate at every evaluation point (``log_folder``, a path of
+    this machine, is written ``<output dir>`` in the commands)."""
     lines = [
         "| run | env | algo | steps | best eval success | last eval success | final eval success "
         "(episodes) | train time (s) | steps/s |",
@@ -185,16 +200,25 @@ def markdown_table(curves: list[Curve]) -> str:
             hit = np.flatnonzero(c.steps == t)
             cells.append(f"{100 * c.success[hit[0]]:.0f}" if hit.size else "")
         lines.append(f"| {t} | " + " | ".join(cells) + " |")
-    lines += ["", "Commands:", ""] + [f"- {c.label}: `{c.command}`" for c in curves if c.command]
+    lines += ["", "Commands:", ""] + [f"- {c.label}: `{_portable(c.command, log_folder)}`" for c in curves if c.command]
     return "\n".join(lines) + "\n"
 
 
-def report(runs: list[tuple[str, str]], out: Path, title: str, note: str = "") -> str:
+def _portable(command: str, log_folder: Path | None) -> str:
+    """``command`` with ``log_folder`` (absolute or as given) written ``<output dir>``."""
+    if log_folder is None:
+        return command
+    for form in sorted({str(log_folder.resolve()), str(log_folder)}, key=len, reverse=True):
+        command = command.replace(form, "<output dir>")
+    return command
+
+
+def report(runs: list[tuple[str, str]], out: Path, title: str, note: str = "", log_folder: Path | None = None) -> str:
     """Write ``<out>.png`` and ``<out>.md`` for ``(label, run_dir)`` pairs; return the Markdown (``note``: a
-    paragraph after the title)."""
+    paragraph after the title; ``log_folder``: written ``<output dir>`` in the commands)."""
     curves = [load_curve(label, run_dir) for label, run_dir in runs]
     plot_curves(curves, out.with_suffix(".png"), title)
-    text = f"# {title}\n\n" + (f"{note}\n" if note else "") + markdown_table(curves)
+    text = f"# {title}\n\n" + (f"{note}\n" if note else "") + markdown_table(curves, log_folder)
     out.with_suffix(".md").write_text(text)
     return text
 
@@ -212,8 +236,15 @@ def _train_cmd(
         python, "-m", "sbagents.train", "--algo", algo, "--env", env, "-conf", str(conf or args.conf),
         "-f", str(log_folder or args.log_folder), "--seed", str(args.seed), "-n", str(args.n_timesteps),
         "--eval-freq", str(args.eval_freq), "--eval-episodes", str(args.eval_episodes),
-        "--final-eval-episodes", str(args.final_eval_episodes), "--log-interval", "50", *extra,
+        "--final-eval-episodes", str(args.final_eval_episodes), "--log-interval", "50", *_checkpointing(args),
+        *extra,
     ]
+
+
+def _checkpointing(args: argparse.Namespace) -> list[str]:
+    """Checkpoints with the replay buffer, so that an unfinished run continues with ``-i`` (``--save-freq``)."""
+    save_freq = getattr(args, "save_freq", 0)
+    return ["--save-freq", str(save_freq), "--save-replay-buffer"] if save_freq > 0 else []
 
 
 def _newest_run(log_folder: Path, algo: str, env_id: str) -> Path:
@@ -254,7 +285,7 @@ def _train_both(
 def run(args: argparse.Namespace) -> None:
     """Train ours and panda-gym's env concurrently, then write the report."""
     runs = _train_both(args, args.ours_env, args.panda_env, args.conf, args.log_folder)
-    print(report(runs, args.out, args.title or _title(args)))
+    print(report(runs, args.out, args.title or _title(args), log_folder=args.log_folder))
 
 
 def pair_config(conf: Path, pair: Pair, path: Path) -> dict[str, Any]:
@@ -273,14 +304,17 @@ def pair_config(conf: Path, pair: Pair, path: Path) -> dict[str, Any]:
 
 
 def like(args: argparse.Namespace) -> None:
-    """Like for like: train every pair of :data:`LIKE_PAIRS` asked for, then report all curves together."""
+    """Like for like: train every pair asked for (:data:`LIKE_PAIRS` for ``like``, :data:`PICK_PAIRS` for
+    ``pick``), then report all curves together."""
+    pairs, note, title = (PICK_PAIRS, PICK_NOTE, _pick_title) if args.cmd == "pick" else (
+        LIKE_PAIRS, LIKE_NOTE, _like_title)
     runs: list[tuple[str, str]] = []
     for key in args.pairs:
-        pair = LIKE_PAIRS[key]
+        pair = pairs[key]
         conf = args.log_folder / key / "config.yml"
         pair_config(args.conf, pair, conf)
         runs += _train_both(args, pair.ours_env, pair.panda_env, conf, args.log_folder / key, f" {pair.name}")
-    print(report(runs, args.out, args.title or _like_title(args), LIKE_NOTE))
+    print(report(runs, args.out, args.title or title(args), note, args.log_folder))
 
 
 #: Markdown paragraph of the like-for-like report (what is matched, what is not).
@@ -291,6 +325,20 @@ LIKE_NOTE = (
     "robot (Kuka iiwa with a pusher rod vs Panda), the control rate (24 vs 25 Hz), the cube's mass (0.02 vs "
     "1 kg) and the observation. The fixed-target comparison (section kuka-learning) is not like for like.\n"
 )
+
+
+#: Markdown paragraph of the pick-and-place report.
+PICK_NOTE = (
+    "Like for like (`benchmarks/configs/kuka_pick.yml`): a 4 cm cube and a 3-D target (height U(0, 0.2) m, 30% on "
+    "the table) in 0.3 m squares 0.6 m in front of each robot's base, 50-step episodes, success within 0.05 m, "
+    "sparse reward with HER; the same algorithm, hyperparameters, budget, seed and evaluation schedule. Still "
+    "different: the robot and its gripper (Kuka iiwa with a generated parallel jaw vs the Panda's hand), the cube's "
+    "mass (0.1 vs 1 kg) and the observation's layout.\n"
+)
+
+
+def _pick_title(args: argparse.Namespace) -> str:
+    return f"{args.algo.upper()} + HER, {args.n_timesteps} steps, seed {args.seed}: Kuka vs panda-gym pick-and-place"
 
 
 def _like_title(args: argparse.Namespace) -> str:
@@ -316,10 +364,16 @@ def build_parser() -> argparse.ArgumentParser:
     lk = sub.add_parser("like", help="like for like: sparse+HER and dense pairs in panda-gym's randomized workspace")
     lk.add_argument("-conf", "--conf", type=Path, default=LIKE_CONF)
     lk.add_argument("--pairs", nargs="+", choices=sorted(LIKE_PAIRS), default=list(LIKE_PAIRS))
-    for q in (r, lk):
+    pk = sub.add_parser("pick", help="grasping pick-and-place: KukaPickAndPlace-v0 vs PandaPickAndPlace-v3, HER")
+    pk.add_argument("-conf", "--conf", type=Path, default=PICK_CONF)
+    pk.add_argument("--pairs", nargs="+", choices=sorted(PICK_PAIRS), default=list(PICK_PAIRS))
+    for q in (r, lk, pk):
         q.add_argument("--algo", default="sac")
         q.add_argument("--panda-python", required=True, help="a Python that can import panda_gym (e.g. a venv's)")
-        q.add_argument("-n", "--n-timesteps", type=int, default=300_000)
+        q.add_argument("-n", "--n-timesteps", type=int, default=500_000 if q is pk else 300_000)
+        q.add_argument("--save-freq", type=int, default=50_000,
+                       help="checkpoint (with the replay buffer) every N steps; an unfinished run continues with "
+                            "sbagents.train -i; <= 0: none")
         q.add_argument("-f", "--log-folder", type=Path, required=True, help="where the runs go")
         q.add_argument("--seed", type=int, default=0)
         q.add_argument("--eval-freq", type=int, default=10_000)
@@ -328,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--sequential", action="store_true", help="train the two runs one after the other")
     rep = sub.add_parser("report", help="plot and tabulate existing run dirs")
     rep.add_argument("--run", action="append", required=True, metavar="LABEL=RUN_DIR")
-    for q, out in ((r, DEFAULT_OUT), (lk, LIKE_OUT), (rep, DEFAULT_OUT)):
+    for q, out in ((r, DEFAULT_OUT), (lk, LIKE_OUT), (pk, PICK_OUT), (rep, DEFAULT_OUT)):
         q.add_argument("--out", type=Path, default=out, help="output path without suffix")
         q.add_argument("--title", default="")
     return p
@@ -340,7 +394,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.cmd == "run":
         run(args)
         return
-    if args.cmd == "like":
+    if args.cmd in ("like", "pick"):
         like(args)
         return
     runs = []

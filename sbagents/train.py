@@ -49,7 +49,11 @@ def build_parser() -> ArgumentParser:
     p.add_argument("-P", "--progress", action="store_true", default=None,
                    help="show the progress bar even when stderr is not a terminal")
     p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
-    p.add_argument("-i", "--trained-agent", default=None, help="continue training this model .zip")
+    p.add_argument("-i", "--trained-agent", default=None,
+                   help="continue training this model .zip (with the replay_buffer.pkl beside it, if any)")
+    p.add_argument("--save-replay-buffer", action="store_true",
+                   help="off-policy: keep the replay buffer in the run dir (replay_buffer.pkl, replaced at each "
+                        "checkpoint and at the end, also after Ctrl-C) so that -i continues with it")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     trust = p.add_argument_group("trust (sbagents.callbacks)")
     trust.add_argument("--transparency-log", nargs="?", const="", default=None, metavar="PATH",
@@ -114,7 +118,8 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
         "spec": TrainSpec(args.algo, args.env, args.n_timesteps, parse_overrides(args.hyperparams, "-params"),
                           args.conf_file, parse_overrides(args.env_kwargs, "--env-kwargs"),
                           tuple(args.gym_packages), args.trained_agent, args.robust, args.constraint),
-        "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command),
+        "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command,
+                                args.save_replay_buffer),
         "evaluation": EvalOptions(args.eval_freq, args.eval_episodes, args.n_eval_envs, args.final_eval_episodes),
         "execution": ExecOptions(args.seed, args.backend, args.vec_env, args.device, args.num_threads, args.progress,
                                  args.verbose, args.log_interval, args.num_env_runners, args.address),

@@ -11,7 +11,7 @@ import torch
 
 from sbagents.envs.kuka import KukaPickAndPlaceEnv, RobustKukaPickAndPlaceEnv
 from sbagents.envs.kuka.gripper import MAX_WIDTH
-from sbagents.envs.kuka.pick import BLOCK_SIZE
+from sbagents.envs.kuka.pick_task import BLOCK_SIZE
 from sbagents.envs.kuka.scripted_pick import ScriptedPicker, run_episode
 
 torch.set_num_threads(1)

@@ -41,84 +41,20 @@ Deviations (book defects), all documented in the README table:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, TypeAlias
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sbagents.envs.kuka.base import POS_BOUND, XYZ, KukaEnvBase, RobustDefaults, ZoneSpec, attribute_ranges
 from sbagents.envs.kuka.robot import N_CONTROLLED, KukaIiwa
 from sbagents.envs.kuka.sim import BulletSim
-from sbagents.envs.kuka.tasks import VIOLATION_REWARD, PushTask, SafetyZone, make_safety_zone
+from sbagents.envs.kuka.tasks import VIOLATION_REWARD, PushTask
 
-#: What a step into the safety zone does: ``"block"`` undoes it (book), ``"cost"`` applies it and reports a cost.
-ZONE_MODES = ("block", "cost")
-
-#: Bound of every observed position coordinate (m); observations are clipped to it.
-POS_BOUND = 5.0
 JOINT_NAMES = tuple(f"joint_{i + 1}" for i in range(N_CONTROLLED))
-XYZ = ("x", "y", "z")
-
-ZoneSpec: TypeAlias = str | SafetyZone | Sequence[Sequence[float]] | None
 
 
-def _inside(zone: SafetyZone, point: np.ndarray) -> bool:
-    """:meth:`SafetyZone.contains` on plain floats (the same comparisons, ~10x faster on a ``(3,)`` point)."""
-    lo, hi = zone.low, zone.high
-    x, y, z = point.tolist()
-    return lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1] and lo[2] <= z <= hi[2]
-
-
-class ZoneStepper:
-    """One control step under an optional safety zone, shared by the Kuka envs.
-
-    Subclasses provide :attr:`sim`, :attr:`robot`, :attr:`safety_zone`, :attr:`zone_mode` and three hooks:
-    ``_command(targets)`` (send the motor targets: the arm's ``(7,)`` joint angles, then any extra actuator
-    values), ``_snapshot()`` and ``_restore(snapshot)`` (the state a rejected step returns to).
-    """
-
-    sim: BulletSim
-    robot: KukaIiwa
-    safety_zone: SafetyZone | None
-    zone_mode: str
-
-    def _command(self, targets: np.ndarray) -> None:
-        raise NotImplementedError
-
-    def _snapshot(self) -> Any:
-        raise NotImplementedError
-
-    def _restore(self, snapshot: Any) -> None:
-        raise NotImplementedError
-
-    def _apply(self, targets: np.ndarray) -> bool:
-        """Command ``targets`` and simulate one step; True if the end effector entered the zone (block mode: the
-        state is then restored, cost mode: the step is kept)."""
-        zone = self.safety_zone
-        if zone is None:
-            self._command(targets)
-            self.sim.step()
-            return False
-        if self.zone_mode == "cost":
-            self._command(targets)
-            entered = False
-            for _ in range(self.sim.n_substeps):
-                self.sim.step(1)
-                entered = entered or _inside(zone, self.robot.ee_position())
-            return entered
-        if zone.contains(self.robot.forward_kinematics(targets[: self.robot.n_joints])):
-            return True
-        snapshot = self._snapshot()
-        self._command(targets)
-        for _ in range(self.sim.n_substeps):
-            self.sim.step(1)
-            if _inside(zone, self.robot.ee_position()):
-                self._restore(snapshot)
-                return True
-        return False
-
-
-class KukaPushEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
+class KukaPushEnv(KukaEnvBase):
     """Base class: a Kuka iiwa pushes ``block.urdf`` onto a target (book observation and rewards).
 
     :param control: ``"joints"`` (book: Box(-0.1, 0.1, (6,)) joint deltas in rad) or ``"ee"``
@@ -148,8 +84,6 @@ class KukaPushEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
     :param render_mode: ``"rgb_array"`` (headless TinyRenderer, ``(240, 320, 3)`` uint8) or ``"human"``.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
-
     def __init__(
         self,
         control: str = "joints",
@@ -176,20 +110,11 @@ class KukaPushEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
             raise ValueError(f"control must be 'joints' or 'ee', got {control!r}")
         if reward_type not in self._reward_types():
             raise ValueError(f"reward_type must be one of {self._reward_types()}, got {reward_type!r}")
-        if zone_mode not in ZONE_MODES:
-            raise ValueError(f"zone_mode must be one of {ZONE_MODES}, got {zone_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if len(initial_joints) != N_CONTROLLED:
             raise ValueError(f"initial_joints needs {N_CONTROLLED} angles, got {len(initial_joints)}")
+        self._init_common(max_steps, safety_zone, zone_mode, render_mode)
         self.control = control
         self.reward_type = reward_type
-        self.max_steps = max_steps
-        self.render_mode = render_mode
-        self.safety_zone = make_safety_zone(safety_zone)
-        self.zone_mode = zone_mode
         default_penalty = VIOLATION_REWARD if zone_mode == "block" else 0.0
         self.zone_penalty = default_penalty if zone_penalty is None else float(zone_penalty)
         self.ee_step = float(ee_step)
@@ -209,12 +134,7 @@ class KukaPushEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
             mass_range=mass_range,
             noise_level=noise_level,
         )
-        #: Declared ranges of the per-episode attributes in ``info`` (fairness buckets use them).
-        self.attribute_ranges: dict[str, tuple[float, float]] = {
-            key: (float(r[0]), float(r[1]))
-            for key, r in (("object_scale", scale_range), ("object_mass", mass_range))
-            if r is not None
-        }
+        self.attribute_ranges = attribute_ranges(scale_range, mass_range)
         if control == "joints":
             self.action_space = spaces.Box(-0.1, 0.1, (N_CONTROLLED,), dtype=np.float32)
             self.action_names: tuple[str, ...] = tuple(f"d_{n}" for n in JOINT_NAMES)
@@ -308,40 +228,14 @@ class KukaPushEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
             "distance": float(np.linalg.norm(obj - self.task.target)),
         }
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
-        """``rgb_array``: an ``(H, W, 3)`` uint8 frame; ``human``: the GUI shows the scene, returns None."""
-        if self.render_mode == "rgb_array":
-            return self.sim.render()
-        return None
-
-    def close(self) -> None:
-        """Disconnect this env's physics client."""
-        self.sim.close()
-
 
 class PickAndPlaceEnv(KukaPushEnv):
     """Chapter 5's task with the book's spaces and rewards (see the module docstring for the fixes)."""
 
 
-class RobustPickAndPlaceEnv(KukaPushEnv):
+class RobustPickAndPlaceEnv(RobustDefaults, KukaPushEnv):
     """Chapter 6: observation noise, random block scale and mass, and a safety zone.
 
     Same parameters as :class:`KukaPushEnv`, with the chapter's defaults: ``noise_level=0.05``,
     ``scale_range=(0.5, 1.5)``, ``mass_range=(0.1, 1.0)``, ``safety_zone="default"``.
     """
-
-    def __init__(
-        self,
-        noise_level: float = 0.05,
-        scale_range: Sequence[float] | None = (0.5, 1.5),
-        mass_range: Sequence[float] | None = (0.1, 1.0),
-        safety_zone: ZoneSpec = "default",
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            noise_level=noise_level,
-            scale_range=scale_range,
-            mass_range=mass_range,
-            safety_zone=safety_zone,
-            **kwargs,
-        )

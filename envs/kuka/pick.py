@@ -11,20 +11,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sbagents.envs.kuka.envs import POS_BOUND, XYZ, ZONE_MODES, ZoneSpec, ZoneStepper
+from sbagents.envs.kuka.base import POS_BOUND, XYZ, KukaEnvBase, RobustDefaults, ZoneSpec, attribute_ranges
 from sbagents.envs.kuka.gripper import MAX_WIDTH, TCP_ABOVE_TIPS, KukaGripper
+from sbagents.envs.kuka.pick_task import PickTask
 from sbagents.envs.kuka.robot import READY_POSE
 from sbagents.envs.kuka.sim import BulletSim
-from sbagents.envs.kuka.tasks import dense_goal_reward, goal_distance, make_safety_zone, sparse_goal_reward
+from sbagents.envs.kuka.tasks import dense_goal_reward, sparse_goal_reward
 
-#: Edge of the cube at scale 1 (m), as panda-gym's 4 cm.
-BLOCK_SIZE = 0.04
-#: Mass of the cube at scale 1 (kg).
-BLOCK_MASS = 0.1
 #: Bound of every observed velocity coordinate (m/s, rad/s); observations are clipped to it.
 VEL_BOUND = 5.0
 #: Bullet's solver stops iterating below this residual (PyBullet's default 1e-7): 24% more env steps/s with random
@@ -34,119 +30,7 @@ SOLVER_RESIDUAL = 1e-4
 CONTROL_PERIOD = 1.0 / 24.0
 
 
-class PickTask:
-    """A cube to lift onto a 3-D target (panda-gym's PickAndPlace), with optional domain randomisation.
-
-    :param sim: the owning simulation.
-    :param object_xy: centre of the square the cube's start and the target's (x, y) are drawn from.
-    :param object_range: half width (m) of the cube's start square (panda-gym: 0.15, a 0.3 m square).
-    :param target_range: half width (m) of the target's (x, y) square.
-    :param target_height: ``(lo, hi)`` of the target's height above the resting cube (panda-gym: (0, 0.2)).
-    :param table_probability: probability that the target lies on the table (height 0; panda-gym: 0.3).
-    :param distance_threshold: success when the cube's centre is within this distance of the target.
-    :param scale_range: ``(lo, hi)`` of a per-episode uniform cube scale, ``None`` for 1 (4 cm).
-    :param mass_range: ``(lo, hi)`` of a per-episode uniform cube mass (kg), ``None`` for 0.1 kg.
-    :param noise_level: std (m) of the Gaussian noise on the *observed* cube position.
-    """
-
-    def __init__(
-        self,
-        sim: BulletSim,
-        object_xy: Sequence[float] = (0.6, 0.0),
-        object_range: float = 0.15,
-        target_range: float = 0.15,
-        target_height: Sequence[float] = (0.0, 0.2),
-        table_probability: float = 0.3,
-        distance_threshold: float = 0.05,
-        scale_range: Sequence[float] | None = None,
-        mass_range: Sequence[float] | None = None,
-        noise_level: float = 0.0,
-    ) -> None:
-        if noise_level < 0:
-            raise ValueError(f"noise_level must be >= 0, got {noise_level}")
-        if not 0.0 <= table_probability <= 1.0:
-            raise ValueError(f"table_probability must be in [0, 1], got {table_probability}")
-        self.sim = sim
-        self.client = sim.client
-        self.object_xy = np.asarray(object_xy, dtype=np.float64)
-        self.object_range = float(object_range)
-        self.target_range = float(target_range)
-        self.target_height = (float(target_height[0]), float(target_height[1]))
-        self.table_probability = float(table_probability)
-        self.distance_threshold = float(distance_threshold)
-        self.scale_range = None if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
-        self.mass_range = None if mass_range is None else (float(mass_range[0]), float(mass_range[1]))
-        self.noise_level = float(noise_level)
-        self.scale = 1.0
-        self.mass = BLOCK_MASS
-        self.block = self._create_block(self.scale, self.mass)
-        self.target = np.array([*self.object_xy, BLOCK_SIZE / 2])
-        self.marker = sim.create_sphere_marker(0.02, (0.2, 0.8, 0.2, 0.5))
-
-    def _create_block(self, scale: float, mass: float) -> int:
-        size = BLOCK_SIZE * scale
-        return self.sim.create_box(
-            size,
-            mass,
-            (*self.object_xy, size / 2),
-            (0.1, 0.4, 0.9, 1.0),
-            lateralFriction=1.0,
-            spinningFriction=0.001,
-            rollingFriction=0.0,
-        )
-
-    @property
-    def half_size(self) -> float:
-        """Half the cube's edge (m) this episode: the height of its centre when it rests on the table."""
-        return BLOCK_SIZE * self.scale / 2
-
-    def reset(self, rng: np.random.Generator) -> None:
-        """Draw the cube's scale, mass and start and the target from ``rng``; place the cube (soft reset).
-
-        The cube is recreated only when its scale changes (~0.1 ms); otherwise everything is teleported.
-        """
-        scale = 1.0 if self.scale_range is None else float(rng.uniform(*self.scale_range))
-        mass = BLOCK_MASS if self.mass_range is None else float(rng.uniform(*self.mass_range))
-        start = self.object_xy + rng.uniform(-self.object_range, self.object_range, 2)
-        target_xy = self.object_xy + rng.uniform(-self.target_range, self.target_range, 2)
-        height = float(rng.uniform(*self.target_height))
-        if rng.random() < self.table_probability:
-            height = 0.0
-        if scale != self.scale:
-            self.client.removeBody(self.block)
-            self.block = self._create_block(scale, mass)
-            self.scale = scale
-        elif mass != self.mass:
-            self.client.changeDynamics(self.block, -1, mass=mass)
-        self.mass = mass
-        self.sim.set_base_pose(self.block, (*start, self.half_size))
-        self.target = np.array([*target_xy, self.half_size + height])
-        self.sim.set_base_pose(self.marker, self.target)
-
-    # ------------------------------------------------------------ observations
-    def object_position(self) -> np.ndarray:
-        """True cube position ``(3,)``."""
-        return self.sim.base_position(self.block)
-
-    def observed_object_position(self, rng: np.random.Generator) -> np.ndarray:
-        """Cube position ``(3,)`` as the sensor reports it (plus N(0, noise_level^2) noise)."""
-        pos = self.object_position()
-        if self.noise_level > 0:
-            pos = pos + rng.normal(0.0, self.noise_level, 3)
-        return pos
-
-    def object_state(self) -> np.ndarray:
-        """True orientation (Euler angles, rad), linear velocity and angular velocity, ``(9,)``."""
-        _, orn, lin, ang = self.sim.get_base_state(self.block)
-        return np.concatenate([self.client.getEulerFromQuaternion(orn), lin, ang])
-
-    # ------------------------------------------------------------------ rules
-    def is_success(self, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> np.ndarray:
-        """Vectorised success test ``(..., 3), (..., 3) -> (...)`` bool."""
-        return goal_distance(achieved_goal, desired_goal) < self.distance_threshold
-
-
-class KukaPickAndPlaceEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
+class KukaPickAndPlaceEnv(KukaEnvBase):
     """The Kuka iiwa with a parallel jaw picks a cube and places it on a 3-D target (Dict obs, for HER).
 
     Observation ``observation`` Box(19): TCP position (3), TCP velocity (3), finger width (1), observed cube
@@ -181,8 +65,6 @@ class KukaPickAndPlaceEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
     :param render_mode: ``"rgb_array"`` (headless TinyRenderer, ``(240, 320, 3)`` uint8) or ``"human"``.
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
-
     def __init__(
         self,
         reward_type: str = "sparse",
@@ -206,17 +88,8 @@ class KukaPickAndPlaceEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
     ) -> None:
         if reward_type not in ("sparse", "dense"):
             raise ValueError(f"reward_type must be 'sparse' or 'dense', got {reward_type!r}")
-        if zone_mode not in ZONE_MODES:
-            raise ValueError(f"zone_mode must be one of {ZONE_MODES}, got {zone_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self._init_common(max_steps, safety_zone, zone_mode, render_mode)
         self.reward_type = reward_type
-        self.max_steps = max_steps
-        self.render_mode = render_mode
-        self.safety_zone = make_safety_zone(safety_zone)
-        self.zone_mode = zone_mode
         self.ee_step = float(ee_step)
         self.finger_step = float(finger_step)
         self.ee_low = np.asarray(ee_low, dtype=np.float64)
@@ -242,12 +115,7 @@ class KukaPickAndPlaceEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
             mass_range=mass_range,
             noise_level=noise_level,
         )
-        #: Declared ranges of the per-episode attributes in ``info`` (fairness buckets use them).
-        self.attribute_ranges: dict[str, tuple[float, float]] = {
-            key: (float(r[0]), float(r[1]))
-            for key, r in (("object_scale", scale_range), ("object_mass", mass_range))
-            if r is not None
-        }
+        self.attribute_ranges = attribute_ranges(scale_range, mass_range)
         self.action_space = spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
         self.action_names: tuple[str, ...] = (*(f"d_ee_{a}" for a in XYZ), "d_finger_width")
         self.obs_names: tuple[str, ...] = (
@@ -378,36 +246,10 @@ class KukaPickAndPlaceEnv(ZoneStepper, gym.Env[Any, np.ndarray]):
             return dense_goal_reward(achieved_goal, desired_goal)
         return sparse_goal_reward(achieved_goal, desired_goal, self.task.distance_threshold)
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
-        """``rgb_array``: an ``(H, W, 3)`` uint8 frame; ``human``: the GUI shows the scene, returns None."""
-        if self.render_mode == "rgb_array":
-            return self.sim.render()
-        return None
 
-    def close(self) -> None:
-        """Disconnect this env's physics client."""
-        self.sim.close()
-
-
-class RobustKukaPickAndPlaceEnv(KukaPickAndPlaceEnv):
+class RobustKukaPickAndPlaceEnv(RobustDefaults, KukaPickAndPlaceEnv):
     """Chapter 6's perturbations on the pick and place: observation noise, cube scale and mass, safety zone.
 
     Same parameters as :class:`KukaPickAndPlaceEnv`, with the chapter's defaults: ``noise_level=0.05``,
     ``scale_range=(0.5, 1.5)``, ``mass_range=(0.1, 1.0)``, ``safety_zone="default"``.
     """
-
-    def __init__(
-        self,
-        noise_level: float = 0.05,
-        scale_range: Sequence[float] | None = (0.5, 1.5),
-        mass_range: Sequence[float] | None = (0.1, 1.0),
-        safety_zone: ZoneSpec = "default",
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            noise_level=noise_level,
-            scale_range=scale_range,
-            mass_range=mass_range,
-            safety_zone=safety_zone,
-            **kwargs,
-        )

@@ -170,6 +170,12 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{cost}{metrics}")
+    buffer = summary.get("replay_buffer")
+    if buffer:
+        loaded = buffer["loaded_transitions"]
+        parts = ([] if loaded is None else [f"continued with the {loaded} transitions saved beside -i's model"]) + (
+            [f"saved in {run_dir}/replay_buffer.pkl"] if buffer["saved"] else [])
+        lines.append("replay buffer: " + "; ".join(parts))
     constraint = summary.get("constraint")
     if constraint:
         last = "n/a" if constraint["last_ep_cost"] is None else f"{constraint['last_ep_cost']:.3g}"

@@ -72,12 +72,15 @@ class OutputOptions:
     :param tensorboard_log: TensorBoard folder (``-tb``; None: none).
     :param save_freq: checkpoint every N env steps (``--save-freq``; <= 0: never).
     :param command: the command line recorded in ``command.txt`` (default: one rebuilt from the spec).
+    :param save_replay_buffer: off-policy runs keep their replay buffer in ``replay_buffer.pkl`` (replaced at each
+        checkpoint and at the end), which ``-i`` loads to continue (``--save-replay-buffer``).
     """
 
     log_folder: str | Path = "logs"
     tensorboard_log: str | None = None
     save_freq: int = -1
     command: str = ""
+    save_replay_buffer: bool = False
 
 
 @dataclass

@@ -21,6 +21,7 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sbagents.algos import ALGOS
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
@@ -32,6 +33,7 @@ from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.pipeline.replay_buffer import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, VECNORMALIZE_FILE, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
 from sbagents.private.options import PrivacyOptions
@@ -147,6 +149,9 @@ def train_sb3(
     groups = team_agents(exp, ref) if exp.team is not None else None
     if groups is not None and len(groups) > 1 and spec.trained_agent is not None:
         raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
+    if output.save_replay_buffer and (not ALGOS[spec.algo].off_policy or (groups is not None and len(groups) > 1)):
+        raise UsageError("--save-replay-buffer keeps the buffer of one off-policy model (dqn, ddpg, td3, sac, tqc, "
+                         f"...); {spec.algo} on {ref.env_id} has none or trains one model per group")
     if groups is None or len(groups) == 1:
         check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
@@ -180,9 +185,12 @@ def train_sb3(
             train_env = freeze_normalization(train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
                            max(execution.verbose - 1, 0), agent_path, spec.robust, constraint)
+        resumed_buffer = load_replay_buffer(model, agent_path) if agent_path is not None else None
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
+        if output.save_replay_buffer and output.save_freq > 0:
+            own.append(ReplayBufferCheckpoint(run_dir, ctx.calls(output.save_freq)))
         if privacy.enabled:
             from sbagents.private.training import make_dp_callback
 
@@ -202,8 +210,12 @@ def train_sb3(
     finally:
         reporter.close()
         _save(model, ctx)
+        if output.save_replay_buffer:
+            save_replay_buffer(model, run_dir)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
+    if resumed_buffer is not None or output.save_replay_buffer:
+        summary["replay_buffer"] = {"loaded_transitions": resumed_buffer, "saved": output.save_replay_buffer}
     if constraint is not None:
         from sbagents.constrained.options import record_constraint
 

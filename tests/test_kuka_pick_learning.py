@@ -1,0 +1,74 @@
+"""Learning the grasping pick-and-place: the HER config pair, the learning-speed benchmark, the ``pick`` command."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+from stable_baselines3 import HerReplayBuffer
+
+from benchmarks import kuka_learning, learning_speed
+from sbagents.pipeline.experiment import resolve
+from sbagents.pipeline.zoo_config import load_yaml
+
+CONF = learning_speed.CONFIG
+OURS, PANDA = learning_speed.OURS, learning_speed.PANDA
+
+
+def test_pick_pair_shares_its_hyperparameters() -> None:
+    data = load_yaml(CONF)
+    assert set(data) == {OURS, PANDA}
+    assert data[OURS] == data[PANDA]  # no env_kwargs: both envs' defaults are panda-gym's workspace
+    exp = resolve("sac", OURS, dict(data[OURS]), "kuka_pick.yml")
+    assert exp.n_timesteps == 500_000 and exp.n_envs == 2 and exp.policy == "MultiInputPolicy"
+    assert exp.algo_kwargs["replay_buffer_class"] is HerReplayBuffer
+    assert exp.algo_kwargs["policy_kwargs"]["net_arch"] == [64, 64]
+
+
+def test_variants_gradient_steps_per_env_step() -> None:
+    entry = load_yaml(CONF)[OURS]
+    utd = {v.name: v.utd(entry) for v in learning_speed.VARIANTS}
+    assert utd["SB3 default nets 256-256, 1 env"] == 1.0 and utd["64-64, 1 env"] == 1.0
+    assert utd["64-64, 2 envs (shipped)"] == 0.5
+    assert utd["64-64, 4 envs, 2 gradient steps"] == 0.5
+    assert utd["64-64, 1 env, train_freq 2"] == 0.5
+
+
+def test_learning_rate_is_measured_after_the_warm_up() -> None:
+    torch.set_num_threads(1)
+    entry = {k: v for k, v in load_yaml(CONF)[OURS].items() if k != "n_timesteps"}
+    variant = learning_speed.Variant("tiny", overrides={"n_envs": 1, "learning_starts": 50, "batch_size": 32})
+    assert learning_speed.learning_steps_per_second(OURS, entry, variant, 40) > 0
+
+
+def test_table_reports_ratios_to_the_first_variant() -> None:
+    names = [v.name for v in learning_speed.VARIANTS]
+    rates = {OURS: {"env": 1000.0, **{name: 50.0 * (i + 1) for i, name in enumerate(names)}}}
+    text = learning_speed.table(rates)
+    rows = {r.split("|")[1].strip(): r for r in text.splitlines()[2:]}
+    assert "| 1000 |" in rows["env alone, random actions"]
+    assert "100 (2.00x)" in rows[names[1]] and "| 0.5 |" in rows["64-64, 2 envs (shipped)"]
+
+
+def test_pick_command_checkpoints_with_the_replay_buffer(tmp_path: Path) -> None:
+    args = kuka_learning.build_parser().parse_args(["pick", "--panda-python", "python", "-f", str(tmp_path)])
+    assert args.n_timesteps == 500_000 and args.conf == kuka_learning.PICK_CONF and args.pairs == ["pick"]
+    cmd = kuka_learning._train_cmd("python", "sac", OURS, args, [])
+    assert cmd[cmd.index("--save-freq") + 1] == "50000" and "--save-replay-buffer" in cmd
+    no_checkpoints = argparse.Namespace(**{**vars(args), "save_freq": 0})
+    assert "--save-freq" not in kuka_learning._train_cmd("python", "sac", OURS, no_checkpoints, [])
+    entries = kuka_learning.pair_config(args.conf, kuka_learning.PICK_PAIRS["pick"], tmp_path / "config.yml")
+    assert set(load_yaml(tmp_path / "config.yml")) == {OURS, PANDA} == set(entries)
+    command = f"python -m sbagents.train -conf {tmp_path}/pick/config.yml -f {tmp_path}/pick"
+    assert kuka_learning._portable(command, tmp_path) == (
+        "python -m sbagents.train -conf <output dir>/pick/config.yml -f <output dir>/pick")
+
+
+def test_section_names_its_command_and_settings() -> None:
+    names = [v.name for v in learning_speed.VARIANTS]
+    rates = {OURS: {"env": 1000.0, **dict.fromkeys(names, 100.0)}, PANDA: {"env": 500.0, **dict.fromkeys(names, 50.0)}}
+    text = learning_speed.markdown(rates, ["--panda", "--steps", "10"], 10, 1)
+    assert "`<panda-gym venv>/bin/python -m benchmarks.learning_speed --panda --steps 10`" in text
+    assert "10 timed learning steps" in text and "median of 1 interleaved rounds" in text
+    assert f"{PANDA} steps/s" in text and "| 50 (1.00x) |" in text

@@ -115,7 +115,8 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
     s = summary(run_dir)
     assert s["backend"] == "rllib" and s["num_env_runners"] == 2 and s["seed"] == 3 and s["policies"] == "shared"
     assert s["interrupted"] is False and s["n_timesteps"] >= 3000 and s["n_agent_steps"] == 3 * s["n_timesteps"]
-    assert s["iterations"] == 3 and s["fps"] == pytest.approx(s["n_timesteps"] / s["train_seconds"], rel=1e-3)
+    fps = s["n_timesteps"] / s["train_seconds"]
+    assert s["iterations"] == 3 and s["fps"] == pytest.approx(fps, rel=1e-3, abs=0.06)  # fps is rounded to 0.1
     assert s["eval"]["n_episodes"] == 10
     assert set(s["eval"]["metrics"]) == {"treasures_collected", "per_agent_return", "episode_length"}
     rows = _progress(run_dir)

@@ -382,6 +382,8 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--sequential", action="store_true", help="train the two runs one after the other")
     rep = sub.add_parser("report", help="plot and tabulate existing run dirs")
     rep.add_argument("--run", action="append", required=True, metavar="LABEL=RUN_DIR")
+    rep.add_argument("--note", choices=["like", "pick"], default=None, help="the like-for-like paragraph to add")
+    rep.add_argument("--log-folder", type=Path, default=None, help="written <output dir> in the commands")
     for q, out in ((r, DEFAULT_OUT), (lk, LIKE_OUT), (pk, PICK_OUT), (rep, DEFAULT_OUT)):
         q.add_argument("--out", type=Path, default=out, help="output path without suffix")
         q.add_argument("--title", default="")
@@ -403,7 +405,8 @@ def main(argv: list[str] | None = None) -> None:
         if not sep:
             raise SystemExit(f"--run expects LABEL=RUN_DIR, got {item!r}")
         runs.append((label, path))
-    print(report(runs, args.out, args.title or "Kuka push vs panda-gym push"))
+    note = {"like": LIKE_NOTE, "pick": PICK_NOTE, None: ""}[args.note]
+    print(report(runs, args.out, args.title or "Kuka push vs panda-gym push", note, args.log_folder))
 
 
 if __name__ == "__main__":

@@ -72,3 +72,21 @@ def test_section_names_its_command_and_settings() -> None:
     assert "`<panda-gym venv>/bin/python -m benchmarks.learning_speed --panda --steps 10`" in text
     assert "10 timed learning steps" in text and "median of 1 interleaved rounds" in text
     assert f"{PANDA} steps/s" in text and "| 50 (1.00x) |" in text
+
+
+def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) -> None:
+    import json
+
+    import numpy as np
+
+    run_dir = tmp_path / "runs" / "ours"
+    run_dir.mkdir(parents=True)
+    np.savez(run_dir / "evaluations.npz", timesteps=np.array([1000]), results=-np.ones((1, 2)),
+             ep_lengths=np.full((1, 2), 50), successes=np.array([[True, False]]))
+    (run_dir / "summary.json").write_text(json.dumps({"algo": "sac", "env": OURS, "n_timesteps": 1000}))
+    (run_dir / "command.txt").write_text(f"python -m sbagents.train -f {tmp_path / 'runs'}")
+    kuka_learning.main(["report", "--run", f"ours={run_dir}", "--note", "pick", "--log-folder", str(tmp_path / "runs"),
+                        "--out", str(tmp_path / "out")])
+    text = (tmp_path / "out.md").read_text()
+    assert kuka_learning.PICK_NOTE in text and "-f <output dir>`" in text and str(tmp_path) not in text
+    assert "| 1000 | 50 |" in text

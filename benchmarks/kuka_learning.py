@@ -323,7 +323,9 @@ LIKE_NOTE = (
     "a point 0.6 m in front of each robot's base, a 4 cm cube, 50-step episodes, success within 0.05 m; the same "
     "algorithm, hyperparameters, budget, seed and evaluation schedule within each pair. Still different: the "
     "robot (Kuka iiwa with a pusher rod vs Panda), the control rate (24 vs 25 Hz), the cube's mass (0.02 vs "
-    "1 kg) and the observation. The fixed-target comparison (section kuka-learning) is not like for like.\n"
+    "1 kg), the observation, and the tool's start: ours 0.1 m above the table under a 0.1 m ceiling, panda-gym's "
+    "0.2 m up without one but sagging to the table under random actions (the config says why). The fixed-target "
+    "comparison (section kuka-learning) is not like for like.\n"
 )
 
 

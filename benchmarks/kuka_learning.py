@@ -314,7 +314,15 @@ def like(args: argparse.Namespace) -> None:
         conf = args.log_folder / key / "config.yml"
         pair_config(args.conf, pair, conf)
         runs += _train_both(args, pair.ours_env, pair.panda_env, conf, args.log_folder / key, f" {pair.name}")
-    print(report(runs, args.out, args.title or title(args), note, args.log_folder))
+    print(report(runs, like_out(args.out, args.pairs, pairs), args.title or title(args), note, args.log_folder))
+
+
+def like_out(out: Path, chosen: list[str], pairs: dict[str, Pair]) -> Path:
+    """Report path of a ``like``/``pick`` run: the default one gets the chosen pairs' keys appended when not all
+    pairs ran (``kuka_learning_random_dense``), so one pair's report never overwrites the report of all."""
+    if out in (LIKE_OUT, PICK_OUT) and set(chosen) != set(pairs):
+        return out.with_name(out.name + "_" + "_".join(chosen))
+    return out
 
 
 #: Markdown paragraph of the like-for-like report (what is matched, what is not).

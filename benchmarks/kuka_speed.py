@@ -1,20 +1,30 @@
 """Environment steps per second (resets included) of the Kuka envs vs panda-gym's matching task.
 
-Random actions, one env, one process; rounds are interleaved and the median per env is reported, so
-a load spike on the shared machine hits every env alike. Each Kuka env is compared with ITS panda-gym
-task: the pushes (book envs, the goal push, the randomized cube push of ``configs/kuka_random.yml``)
-with ``PandaPush-v3``, the gripper envs (``KukaPickAndPlace-v0`` and its robust variant) with
-``PandaPickAndPlace-v3``. panda-gym is optional: install it in a venv that sees the system packages, e.g.
+Random actions, one env per task, one process. Each Kuka env is compared with ITS panda-gym task: the
+pushes (book envs, the goal push, the randomized cube push of ``configs/kuka_random.yml``) with
+``PandaPush-v3``, the gripper envs (``KukaPickAndPlace-v0`` and its robust variant) with
+``PandaPickAndPlace-v3``. In each round every Kuka env is timed right beside a fresh timing of its reference (the
+pair's order alternating), so a ratio compares two timings seconds apart; the table reports the median of those
+per-round ratios and their range, so a slow spell of a shared host hits both sides of a ratio alike.
+
+panda-gym is optional: install it in a venv that sees the system packages, then run from the repository root::
 
     python -m venv --system-site-packages PANDA_VENV && PANDA_VENV/bin/pip install panda-gym
-    PANDA_VENV/bin/python benchmarks/kuka_speed.py --steps 3000 --rounds 3 [--json OUT.json]
+    PANDA_VENV/bin/python -m benchmarks.kuka_speed --steps 1000 --rounds 15
+
+The section ``kuka-speed`` of BENCHMARKS.md and ``benchmarks/results/kuka_speed.json`` are rewritten
+(``--output ''`` / ``--json ''`` skip them).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import functools
+import os
+import platform
+import shlex
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -23,6 +33,7 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
+from benchmarks.speed import publish
 from sbagents.envs.kuka import (
     KukaPickAndPlaceEnv,
     PickAndPlaceEnv,
@@ -32,9 +43,12 @@ from sbagents.envs.kuka import (
 )
 
 #: panda-gym's task each Kuka env is compared with.
-PUSH_REFERENCE = "PandaPush-v3 (panda-gym)"
-PICK_REFERENCE = "PandaPickAndPlace-v3 (panda-gym)"
+PUSH_REFERENCE = "PandaPush-v3"
+PICK_REFERENCE = "PandaPickAndPlace-v3"
 RANDOM_CONFIG = Path(__file__).resolve().parent / "configs" / "kuka_random.yml"
+SECTION = "kuka-speed"
+#: One Kuka env: label, constructor, panda-gym reference, and what it matches in that reference.
+Spec = tuple[str, Callable[[], gym.Env[Any, Any]], str]
 
 
 def steps_per_second(env: gym.Env[Any, Any], n_steps: int, seed: int = 0) -> tuple[float, int]:
@@ -59,75 +73,146 @@ def random_push_kwargs() -> dict[str, Any]:
     return dict(config["sbagents/PickAndPlaceGoal-v0"]["env_kwargs"])
 
 
-def make_envs() -> dict[str, tuple[Callable[[], gym.Env[Any, Any]], str | None]]:
-    """Constructor and reference name (``None`` for a reference itself) of each measured env.
-
-    The panda-gym envs are included only if panda-gym is importable.
-    """
+def kuka_specs() -> list[Spec]:
+    """The Kuka envs measured, each with its panda-gym reference (push: PandaPush-v3, gripper: PandaPickAndPlace-v3)."""
     push_kwargs = random_push_kwargs()
-    envs: dict[str, tuple[Callable[[], gym.Env[Any, Any]], str | None]] = {
-        "PickAndPlace-v0 (joints)": (PickAndPlaceEnv, PUSH_REFERENCE),
-        "PickAndPlace-v0 (ee)": (lambda: PickAndPlaceEnv(control="ee"), PUSH_REFERENCE),
-        "RobustPickAndPlace-v0 (joints)": (RobustPickAndPlaceEnv, PUSH_REFERENCE),
-        "PickAndPlaceGoal-v0 (ee)": (PickAndPlaceGoalEnv, PUSH_REFERENCE),
-        "PickAndPlaceGoal-v0 (random cube)": (lambda: PickAndPlaceGoalEnv(**push_kwargs), PUSH_REFERENCE),
-        "KukaPickAndPlace-v0": (KukaPickAndPlaceEnv, PICK_REFERENCE),
-        "RobustKukaPickAndPlace-v0": (RobustKukaPickAndPlaceEnv, PICK_REFERENCE),
-    }
+    return [
+        ("`sbagents/PickAndPlace-v0` (joints, default)", PickAndPlaceEnv, PUSH_REFERENCE),
+        ("`sbagents/RobustPickAndPlace-v0` (joints, default)", RobustPickAndPlaceEnv, PUSH_REFERENCE),
+        ("`sbagents/PickAndPlace-v0` (`control=\"ee\"`)", lambda: PickAndPlaceEnv(control="ee"), PUSH_REFERENCE),
+        ("`sbagents/PickAndPlaceGoal-v0` (ee, default)", PickAndPlaceGoalEnv, PUSH_REFERENCE),
+        (
+            "`sbagents/PickAndPlaceGoal-v0` (ee, randomized cube push of `kuka_random.yml`)",
+            lambda: PickAndPlaceGoalEnv(**push_kwargs),
+            PUSH_REFERENCE,
+        ),
+        ("`sbagents/KukaPickAndPlace-v0` (gripper)", KukaPickAndPlaceEnv, PICK_REFERENCE),
+        ("`sbagents/RobustKukaPickAndPlace-v0` (gripper)", RobustKukaPickAndPlaceEnv, PICK_REFERENCE),
+    ]
+
+
+def measure(
+    specs: list[Spec], references: dict[str, Callable[[], gym.Env[Any, Any]]], steps: int, rounds: int
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Steps/s of each Kuka env ``(rounds,)`` and its per-round ratios to its reference ``(rounds,)``.
+
+    In each round every Kuka env is timed right beside a fresh timing of its reference (the pair's order
+    alternating), so a ratio compares two timings seconds apart. References without panda-gym give no ratios.
+    The references' own rates (all their timings) are returned under their names.
+    """
+    envs = {name: make() for name, make, _ in specs}
+    refs = {name: make() for name, make in references.items()}
+    rates: dict[str, list[float]] = {name: [] for name in [*envs, *refs]}
+    ratios: dict[str, list[float]] = {name: [] for name in envs}
+    try:
+        for r in range(rounds):
+            for i, (name, _, reference) in enumerate(specs):
+                pair = [name] if reference not in refs else [name, reference]
+                timed: dict[str, float] = {}
+                for key in pair if (r + i) % 2 == 0 else reversed(pair):
+                    env = envs[key] if key in envs else refs[key]
+                    timed[key] = steps_per_second(env, steps, seed=r)[0]
+                    rates[key].append(timed[key])
+                if reference in timed:
+                    ratios[name].append(timed[name] / timed[reference])
+            print(f"round {r + 1}/{rounds} done", file=sys.stderr, flush=True)
+    finally:
+        for env in [*envs.values(), *refs.values()]:
+            env.close()
+    return rates, ratios
+
+
+def summarize(specs: list[Spec], rates: dict[str, list[float]], ratios: dict[str, list[float]]) -> list[dict[str, Any]]:
+    """One row per env: median steps/s and, for a Kuka env with its reference, the median and range of its
+    per-round ratios; the references last."""
+    rows = []
+    for name, _, reference in specs:
+        row: dict[str, Any] = {"env": name, "reference": reference, "steps_per_s": statistics.median(rates[name])}
+        if ratios[name]:
+            row.update(ratio=statistics.median(ratios[name]), ratio_min=min(ratios[name]), ratio_max=max(ratios[name]))
+        rows.append(row)
+    for reference in (PUSH_REFERENCE, PICK_REFERENCE):
+        if rates.get(reference):
+            rows.append({"env": f"panda-gym `{reference}`", "reference": None,
+                         "steps_per_s": statistics.median(rates[reference])})
+    return rows
+
+
+def cpu_name() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``), else the machine type."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return f"{os.cpu_count()} x {line.split(':', 1)[1].strip()}"
+    except OSError:
+        pass
+    return platform.machine()
+
+
+def markdown(rows: list[dict[str, Any]], argv: list[str], steps: int, rounds: int, load: float) -> str:
+    """The ``kuka-speed`` section of BENCHMARKS.md."""
+    lines = [
+        "## Kuka env speed vs panda-gym",
+        "",
+        "Command: `python -m venv --system-site-packages <panda-gym venv> && <panda-gym venv>/bin/pip install "
+        f"panda-gym`, then `<panda-gym venv>/bin/python -m benchmarks.kuka_speed {shlex.join(argv)}`. Random "
+        f"actions, resets included, one env each, one process; {rounds} rounds of {steps} steps per env "
+        f"({cpu_name()}, load average {load:.1f} at the start). The ratio is "
+        "taken within each round against a timing of the matching panda-gym task right beside it (push: "
+        "`PandaPush-v3`, gripper: `PandaPickAndPlace-v3`); the table gives the median and the range of the "
+        "per-round ratios.",
+        "",
+        "| env | steps/s (median) | vs panda-gym (median of rounds) | range over rounds | reference |",
+        "|---|---:|---:|---:|---|",
+    ]
+    for row in rows:
+        if row["reference"] is None:
+            lines.append(f"| {row['env']} | {row['steps_per_s']:,.0f} | 1.00x | | |")
+        elif "ratio" in row:
+            lines.append(
+                f"| {row['env']} | {row['steps_per_s']:,.0f} | {row['ratio']:.2f}x "
+                f"| {row['ratio_min']:.2f}-{row['ratio_max']:.2f}x | `{row['reference']}` |"
+            )
+        else:
+            lines.append(f"| {row['env']} | {row['steps_per_s']:,.0f} | n/a | | `{row['reference']}` (not installed) |")
+    lines += [
+        "",
+        "The ee variants pay for inverse kinematics (PyBullet's, 50 iterations to 0.1 mm for the pusher, 30 to 2 mm "
+        "for the gripper) and the physics of a 7-joint arm at 240 Hz (pusher) or 192 Hz (gripper); the joint-control "
+        "envs skip the inverse kinematics. Absolute rates vary with the host; ratios from one run are comparable.",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.kuka_speed", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=1000, help="steps per env per round")
+    parser.add_argument("--rounds", type=int, default=15, help="interleaved rounds (medians reported)")
+    parser.add_argument("--json", default="benchmarks/results/kuka_speed.json", help="raw rates ('' = none)")
+    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
+    argv = sys.argv[1:] if argv is None else argv
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.rounds < 1:
+        parser.error("--steps and --rounds must be >= 1")
+    specs = kuka_specs()
+    references: dict[str, Callable[[], gym.Env[Any, Any]]] = {}
     try:
         import panda_gym  # noqa: F401
 
-        envs[PUSH_REFERENCE] = (lambda: gym.make("PandaPush-v3"), None)
-        envs[PICK_REFERENCE] = (lambda: gym.make("PandaPickAndPlace-v3"), None)
+        references = {ref: functools.partial(gym.make, ref) for ref in (PUSH_REFERENCE, PICK_REFERENCE)}
     except ImportError:
-        print("panda-gym not importable: the panda-gym references are skipped")
-    return envs
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=3000, help="steps per env per round")
-    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (median reported)")
-    parser.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
-    args = parser.parse_args()
-    specs = make_envs()
-    envs = {name: make() for name, (make, _) in specs.items()}
-    rates: dict[str, list[float]] = {name: [] for name in envs}
-    episodes: dict[str, int] = {}
-    for r in range(args.rounds):
-        for name, env in envs.items():
-            rate, eps = steps_per_second(env, args.steps, seed=r)
-            rates[name].append(rate)
-            episodes[name] = eps
-    medians = {name: statistics.median(values) for name, values in rates.items()}
-    rows = []
-    print(
-        f"{'env':34s} {'steps/s (median)':>17s} {'min':>8s} {'max':>8s}"
-        f" {'episodes/round':>15s} {'ratio':>7s}  reference"
-    )
-    for name, values in rates.items():
-        reference = specs[name][1]
-        ratio = 1.0 if reference is None else medians[name] / medians.get(reference, float("nan"))
-        rows.append(
-            {
-                "env": name,
-                "steps_per_s": medians[name],
-                "min": min(values),
-                "max": max(values),
-                "episodes_per_round": episodes[name],
-                "reference": reference,
-                "ratio": ratio,
-            }
-        )
-        print(
-            f"{name:34s} {medians[name]:17.0f} {min(values):8.0f} {max(values):8.0f}"
-            f" {episodes[name]:15d} {ratio:6.2f}x  {reference or '-'}"
-        )
-    if args.json is not None:
-        args.json.write_text(json.dumps({"steps": args.steps, "rounds": args.rounds, "envs": rows}, indent=1) + "\n")
-    for env in envs.values():
-        env.close()
+        print("panda-gym is not importable: the ratios are skipped (see this module's docstring)", file=sys.stderr)
+    load = os.getloadavg()[0]
+    rates, ratios = measure(specs, references, args.steps, args.rounds)
+    rows = summarize(specs, rates, ratios)
+    kept = [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
+    results = {"steps": args.steps, "rounds": args.rounds, "load_average": load, "rates": rates, "ratios": ratios,
+               "rows": rows}
+    publish(markdown(rows, kept, args.steps, args.rounds, load), results, args.output, args.json, SECTION)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

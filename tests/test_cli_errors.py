@@ -48,6 +48,8 @@ TRAIN_CASES = [
     (["-params", "learnin_rate:0.1"], "unknown hyperparameter(s) learnin_rate for dqn"),
     (["-params", "learning_rate:__import__('os').system('true')"], "learning_rate must be a number"),
     (["--env-kwargs", "sise:5"], "unknown env kwarg(s) sise for sbagents/GridWorld-v0; accepted: goal"),
+    (["-params", "eval_env_kwargs:{sise: 5}"], "unknown env kwarg(s) sise for sbagents/GridWorld-v0; accepted: goal"),
+    (["-params", "eval_env_kwargs:5"], "eval_env_kwargs must be a mapping, got 5"),
     (["--env-kwargs", "size:abc"], "cannot create sbagents/GridWorld-v0 with env kwargs size='abc': size must be"),
     (["--env-kwargs", "obstacles:5"], "obstacles must be a list of (row, col) cells, got 5"),
     (["--env-kwargs", "max_steps:0"], "max_steps must be an integer >= 1, got 0"),

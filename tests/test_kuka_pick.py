@@ -219,3 +219,33 @@ def test_her_sac_smoke() -> None:
     assert model.replay_buffer is not None and model.replay_buffer.size() == 200
     assert model.num_timesteps == 200
     env.close()
+
+
+def test_start_in_hand_holds_the_cube_while_the_jaw_closes() -> None:
+    for make in (KukaPickAndPlaceEnv, RobustKukaPickAndPlaceEnv):
+        env = make(start_in_hand=1.0)
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            start = obs["achieved_goal"].copy()
+            assert obs["observation"][FINGER] < 2 * env.task.half_size + 0.002  # closed on the cube
+            assert np.linalg.norm(obs["achieved_goal"][:2] - obs["observation"][EE][:2]) < 0.01  # between the fingers
+            for _ in range(10):
+                obs, *_ = env.step(np.array([0.0, 0.0, 0.0, -1.0], dtype=np.float32))
+            assert abs(float(obs["achieved_goal"][2] - start[2])) < 0.01  # still held at its height
+            env.reset(seed=seed)
+            for _ in range(15):
+                obs, *_ = env.step(np.array([0.0, 0.0, 0.0, 1.0], dtype=np.float32))
+            assert obs["achieved_goal"][2] < env.task.half_size + 0.005  # let go: on the table
+        env.close()
+
+
+def test_start_in_hand_off_keeps_the_task_and_is_checked() -> None:
+    plain, off = KukaPickAndPlaceEnv(), KukaPickAndPlaceEnv(start_in_hand=0.0)
+    np.testing.assert_array_equal(rollout(plain, seed=4, n=5), rollout(off, seed=4, n=5))
+    half = KukaPickAndPlaceEnv(start_in_hand=0.5)
+    lifted = [half.reset(seed=s)[0]["observation"][FINGER] < MAX_WIDTH / 2 for s in range(40)]
+    assert 10 <= sum(lifted) <= 30  # about half of the episodes start held
+    with pytest.raises(ValueError, match="start_in_hand"):
+        KukaPickAndPlaceEnv(start_in_hand=1.5)
+    for env in (plain, off, half):
+        env.close()

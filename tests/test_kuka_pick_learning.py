@@ -90,3 +90,29 @@ def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) ->
     text = (tmp_path / "out.md").read_text()
     assert kuka_learning.PICK_NOTE in text and "-f <output dir>`" in text and str(tmp_path) not in text
     assert "| 1000 | 50 |" in text
+
+
+def test_in_hand_config_trains_with_the_aid_and_evaluates_the_plain_task() -> None:
+    from sbagents.pipeline.env_factory import make_eval_vec, make_vec
+    from sbagents.pipeline.env_names import resolve_env
+
+    path = CONF.parent / "kuka_pick_in_hand.yml"
+    entry = load_yaml(path)[OURS]
+    plain = load_yaml(CONF)[OURS]
+    differs = {k for k in set(entry) | set(plain) if entry.get(k) != plain.get(k)}
+    assert differs == {"env_kwargs", "eval_env_kwargs"}  # otherwise the like-for-like entry
+    exp = resolve("sac", OURS, dict(entry), path.name)
+    ref = resolve_env(OURS)
+    train, evaluation = make_vec(exp, ref, 1, 0), make_eval_vec(exp, ref, 1, 0)
+    assert train.get_attr("start_in_hand") == [0.5] and evaluation.get_attr("start_in_hand") == [0.0]
+    train.close()
+    evaluation.close()
+
+
+def test_a_subset_of_pairs_reports_beside_the_full_report() -> None:
+    pairs = kuka_learning.LIKE_PAIRS
+    assert kuka_learning.like_out(kuka_learning.LIKE_OUT, list(pairs), pairs) == kuka_learning.LIKE_OUT
+    dense = kuka_learning.like_out(kuka_learning.LIKE_OUT, ["dense"], pairs)
+    assert dense.name == "kuka_learning_random_dense" and dense.parent == kuka_learning.LIKE_OUT.parent
+    custom = Path("elsewhere/report")
+    assert kuka_learning.like_out(custom, ["dense"], pairs) == custom

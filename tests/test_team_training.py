@@ -194,6 +194,7 @@ TEAM_ERRORS = [
     (["--env", RELAY, "-params", "policies:everyone"], "policies must be one of shared, per_agent, per_group"),
     (["--env", RELAY, "-params", "agent_id:3"], "agent_id must be true or false, got 3"),
     (["--env", RELAY, "-params", "monitor_kwargs:{}"], "monitor_kwargs apply to Gymnasium envs only"),
+    (["--env", RELAY, "-params", "eval_env_kwargs:{max_cycles: 5}"], "eval_env_kwargs apply to Gymnasium envs only"),
     (["--env", RELAY, "--algo", "ppo", "-params", "policies:per_group", "--adversarial-eval", "gaussian:0.1"],
      "--adversarial-eval and --fairness support policies: shared"),
     (["--env", RELAY, "--env-kwargs", "scout_steps:0"],

@@ -28,6 +28,8 @@ VEL_BOUND = 5.0
 SOLVER_RESIDUAL = 1e-4
 #: Duration of one env step (s): 24 Hz control, as the push envs.
 CONTROL_PERIOD = 1.0 / 24.0
+#: Depth (m) of the TCP below the cube's centre in a ``start_in_hand`` grip (the scripted picker's grasp depth).
+HOLD_DEPTH = 0.005
 
 
 class KukaPickAndPlaceEnv(KukaEnvBase):
@@ -62,6 +64,10 @@ class KukaPickAndPlaceEnv(KukaEnvBase):
     :param ee_low: lower corner of the box TCP targets are clipped to (its z keeps the fingertips 2 mm
         above the table).
     :param ee_high: upper corner of that box.
+    :param start_in_hand: probability (default 0) that an episode starts with the cube already held in the closed
+        jaw at a height drawn as the target's, above its start: the HER paper's way of making a pick-and-place
+        learnable (Andrychowicz et al. 2017 start half of the training episodes so). A training aid: evaluate with
+        0 (a zoo entry's ``eval_env_kwargs``).
     :param render_mode: ``"rgb_array"`` (headless TinyRenderer, ``(240, 320, 3)`` uint8) or ``"human"``.
     """
 
@@ -84,10 +90,14 @@ class KukaPickAndPlaceEnv(KukaEnvBase):
         finger_step: float = 0.2,
         ee_low: Sequence[float] = (0.2, -0.5, TCP_ABOVE_TIPS + 0.002),
         ee_high: Sequence[float] = (0.9, 0.5, 0.6),
+        start_in_hand: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
         if reward_type not in ("sparse", "dense"):
             raise ValueError(f"reward_type must be 'sparse' or 'dense', got {reward_type!r}")
+        if not 0.0 <= start_in_hand <= 1.0:
+            raise ValueError(f"start_in_hand must be a probability in [0, 1], got {start_in_hand}")
+        self.start_in_hand = float(start_in_hand)
         self._init_common(max_steps, safety_zone, zone_mode, render_mode)
         self.reward_type = reward_type
         self.ee_step = float(ee_step)
@@ -155,7 +165,23 @@ class KukaPickAndPlaceEnv(KukaEnvBase):
         self.robot.reset(READY_POSE)
         self.robot.reset_fingers(MAX_WIDTH)
         self.task.reset(self.np_random)
+        if self.start_in_hand > 0 and self.np_random.random() < self.start_in_hand:
+            self._hold_cube()
         return self._get_obs(), self._info(violation=None)
+
+    def _hold_cube(self) -> None:
+        """Put the cube in the closed jaw, lifted above its start by a height drawn as the target's, and let one
+        control period of physics settle the grip."""
+        task, robot = self.task, self.robot
+        start = task.object_position()
+        centre = np.array([start[0], start[1], task.half_size + self.np_random.uniform(*task.target_height)])
+        tcp = np.clip(centre - np.array([0.0, 0.0, HOLD_DEPTH]), self.ee_low, self.ee_high)
+        robot.reset(robot.inverse_kinematics(tcp))
+        centre += robot.ee_position() - tcp  # the cube where the jaw actually is
+        self.sim.set_base_pose(task.block, centre)
+        robot.reset_fingers(2 * task.half_size)
+        robot.set_finger_width(0.0)
+        self.sim.step()
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Move the TCP by ``action[:3] * ee_step`` and the finger width by ``action[3] * finger_step``."""

@@ -281,8 +281,12 @@ def make_eval_vec(
     wrapper: Callable[[Any], Any] | None = None,
 ) -> VecEnv:
     """An evaluation env wrapped exactly as in training, with frozen normalisation (:func:`normalize_for_eval`:
-    the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env)."""
-    venv = make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=env_kwargs, wrapper=wrapper)
+    the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env).
+
+    Its env kwargs are the experiment's ``env_kwargs``, then its ``eval_env_kwargs`` (settings that shape training
+    only, such as a curriculum, reset to the task's), then ``env_kwargs`` of the call."""
+    extra = {**exp.eval_env_kwargs, **(env_kwargs or {})}
+    venv = make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=extra, wrapper=wrapper)
     return normalize_for_eval(venv, exp, stats_path)
 
 

@@ -103,6 +103,7 @@ class Experiment:
     env_wrapper: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
     vec_env_wrapper: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    eval_env_kwargs: dict[str, Any] = field(default_factory=dict)  # on top of env_kwargs for evaluation envs only
     monitor_kwargs: dict[str, Any] = field(default_factory=dict)
     callbacks: list[tuple[Any, dict[str, Any]]] = field(default_factory=list)
     noise_type: str | None = None
@@ -192,10 +193,10 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     :param multi_agent: a PettingZoo env (the multi-agent keys apply; ``monitor_kwargs`` does not).
     :param game: a turn-based game (``self_play`` applies).
     """
-    misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs"}))
+    misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs", "eval_env_kwargs"}))
     if misplaced:
         kind = ("PettingZoo envs only" if not multi_agent
-                else "Gymnasium envs only (team VecEnvs write their own monitor)")
+                else "Gymnasium envs only (team VecEnvs write their own monitor and evaluate with env_kwargs)")
         raise UsageError(f"{', '.join(misplaced)} apply to {kind} ({source})")
     if not game and set(entry) & GAME_KEYS:
         raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only ({source})")
@@ -223,7 +224,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     noise_type = entry.get("noise_type")
     if noise_type not in (None, "normal", "ornstein-uhlenbeck"):
         raise UsageError(f"noise_type must be 'normal' or 'ornstein-uhlenbeck', got {noise_type!r}")
-    for key in ("env_kwargs", "monitor_kwargs"):
+    for key in ("env_kwargs", "eval_env_kwargs", "monitor_kwargs"):
         if not isinstance(entry.get(key, {}), dict):
             raise UsageError(f"{key} must be a mapping, got {entry[key]!r} ({source})")
     deterministic_eval = entry.get("deterministic_eval", True)
@@ -245,6 +246,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
             _wrapper_list(entry["vec_env_wrapper"], "vec_env_wrapper") if entry.get("vec_env_wrapper") else []
         ),
         env_kwargs=dict(entry.get("env_kwargs") or {}),
+        eval_env_kwargs=dict(entry.get("eval_env_kwargs") or {}),
         monitor_kwargs=dict(entry.get("monitor_kwargs") or {}),
         callbacks=_wrapper_list(entry["callback"], "callback") if entry.get("callback") else [],
         noise_type=noise_type,

@@ -29,6 +29,7 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "env_wrapper",
         "vec_env_wrapper",
         "env_kwargs",
+        "eval_env_kwargs",
         "monitor_kwargs",
         "callback",
         "noise_type",

@@ -152,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=2000, help="timed learning steps per variant and round")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--panda", action="store_true", help="PandaPickAndPlace-v3 beside (needs panda-gym)")
-    parser.add_argument("--json", default="benchmarks/results/learning_speed.json", help="raw rates ('' = none)")
+    parser.add_argument("--json", default="benchmarks/results/kuka_pick_learning_speed.json",
+                        help="raw rates ('' = none)")
     parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)

@@ -33,7 +33,7 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from benchmarks.speed import publish
+from benchmarks.speed import publish, recorded_argv
 from sbagents.envs.kuka import (
     KukaPickAndPlaceEnv,
     PickAndPlaceEnv,
@@ -47,7 +47,7 @@ PUSH_REFERENCE = "PandaPush-v3"
 PICK_REFERENCE = "PandaPickAndPlace-v3"
 RANDOM_CONFIG = Path(__file__).resolve().parent / "configs" / "kuka_random.yml"
 SECTION = "kuka-speed"
-#: One Kuka env: label, constructor, panda-gym reference, and what it matches in that reference.
+#: One Kuka env: table label, constructor, and the panda-gym env id it is compared with.
 Spec = tuple[str, Callable[[], gym.Env[Any, Any]], str]
 
 
@@ -207,10 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()[0]
     rates, ratios = measure(specs, references, args.steps, args.rounds)
     rows = summarize(specs, rates, ratios)
-    kept = [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
     results = {"steps": args.steps, "rounds": args.rounds, "load_average": load, "rates": rates, "ratios": ratios,
                "rows": rows}
-    publish(markdown(rows, kept, args.steps, args.rounds, load), results, args.output, args.json, SECTION)
+    text = markdown(rows, recorded_argv(argv), args.steps, args.rounds, load)
+    publish(text, results, args.output, args.json, SECTION)
     return 0
 
 

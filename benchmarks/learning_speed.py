@@ -29,7 +29,7 @@ import gymnasium as gym
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
-from benchmarks.speed import publish
+from benchmarks.speed import publish, recorded_argv
 from sbagents.algos import ALGOS
 from sbagents.pipeline.experiment import resolve
 from sbagents.pipeline.zoo_config import load_yaml
@@ -166,8 +166,8 @@ def main(argv: list[str] | None = None) -> int:
 
         env_ids.append(PANDA)
     rates = measure(env_ids, args.steps, args.rounds)
-    kept = [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
-    publish(markdown(rates, kept, args.steps, args.rounds), {"rates": rates}, args.output, args.json, SECTION)
+    text = markdown(rates, recorded_argv(argv), args.steps, args.rounds)
+    publish(text, {"rates": rates}, args.output, args.json, SECTION)
     return 0
 
 

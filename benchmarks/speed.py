@@ -314,6 +314,12 @@ def write_section(path: str, text: str, name: str = "speed") -> None:
         fh.write(new)
 
 
+def recorded_argv(argv: list[str]) -> list[str]:
+    """``argv`` as a section's command records it: without ``--json``/``--output`` and their values (paths of the
+    machine it ran on)."""
+    return [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
+
+
 def publish(text: str, results: Any, output: str | None, json_path: str | None, name: str) -> None:
     """Print a suite's section ``text``, write it into ``output`` (section ``name``) and the raw ``results`` as
     JSON into ``json_path``; an empty or None path skips that file."""

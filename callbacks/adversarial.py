@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -13,6 +12,7 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.atomic import save_figure, write_csv
 from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker, parse_attack_spec
 from sbagents.callbacks.common import PeriodicEvalCallback, output_dir
 from sbagents.callbacks.rollout import as_vec_env, run_episodes, summarize_episodes, sync_normalization
@@ -71,12 +71,7 @@ def write_adversarial_csv(
     rows: Sequence[dict[str, Any]], path: str | Path, extra: Sequence[str] = ()
 ) -> Path:
     """Write result rows (``extra`` columns first, e.g. ``timesteps``) to ``path``."""
-    path = Path(path)
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=[*extra, *COLUMNS], extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-    return path
+    return write_csv(path, [*extra, *COLUMNS], rows)
 
 
 def plot_adversarial(rows: Sequence[dict[str, Any]], path: str | Path, title: str = "") -> Path:
@@ -105,7 +100,7 @@ def plot_adversarial(rows: Sequence[dict[str, Any]], path: str | Path, title: st
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(str(path))
+    save_figure(fig, path)
     return Path(path)
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -14,6 +13,7 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.atomic import save_figure, write_csv
 from sbagents.callbacks.common import PeriodicEvalCallback, env_attr, output_dir, split_keys
 from sbagents.callbacks.rollout import EpisodeResult, as_vec_env, run_episodes, sync_normalization
 
@@ -128,11 +128,7 @@ def write_fairness_csv(report: Mapping[str, Any], path: str | Path) -> Path:
     keys, metric = report["keys"], report["metric"]
     fields = [f for k in keys for f in (f"{k}_low", f"{k}_high")]
     fields += ["n", "successes", metric, "ci_low", "ci_high"]
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        for b in report["buckets"]:
-            writer.writerow({**b, metric: b["value"]})
+    write_csv(path, fields, ({**b, metric: b["value"]} for b in report["buckets"]))
     return Path(path)
 
 
@@ -180,7 +176,7 @@ def plot_fairness(report: Mapping[str, Any], path: str | Path) -> Path:
         ax.set_ylabel(metric)
     ax.set_title(f"{metric} per bucket (gap {report['gap']:.3g}, {report['n_episodes']} episodes)")
     fig.tight_layout()
-    fig.savefig(str(path))
+    save_figure(fig, path)
     return Path(path)
 
 

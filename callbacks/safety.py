@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections import Counter, deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.atomic import write_json
 from sbagents.callbacks.common import (
     acted_slots,
     agent_layout,
@@ -203,6 +203,6 @@ class SafetyViolationCallback(BaseCallback):
         else:
             logger_dir = self.logger.get_dir() if self.model is not None else None
             target = output_dir(self.path, logger_dir) / SAFETY_FILE
-        target.write_text(json.dumps(self.summary(), indent=2) + "\n")
+        write_json(target, self.summary())
         self.saved_path = target
         return target

@@ -8,7 +8,6 @@ partial export.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
@@ -23,6 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sbagents.atomic import raise_disk_error, write_json
 from sbagents.callbacks.common import env_attr
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
@@ -145,9 +145,10 @@ def export_run(
         report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks, observations)
         for path in staging.iterdir():
             os.replace(path, out / path.name)
-    except BaseException:
+    except BaseException as exc:
         if created:
             shutil.rmtree(out, ignore_errors=True)
+        raise_disk_error(exc, out)
         raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -212,7 +213,7 @@ def _export_into(
         "files": {name: p.name for name, p in paths.items()},
         "report": report.to_dict(),
     }
-    (staging / "policy.json").write_text(json.dumps(sidecar, indent=2) + "\n")
+    write_json(staging / "policy.json", sidecar)
     return report
 
 
@@ -268,7 +269,7 @@ def export_groups(
         from sbagents.deploy.team_export import export_team
 
         return export_team(loaded, target, int8, ExportChecks(n_observations=n_observations))
-    venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path)
+    venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path, trust=loaded.trust)
     try:
         return {"shared": export_run(loaded.model, target, ref.env_id, env=venv, int8=int8,
                                      checks=ExportChecks(n_observations=n_observations))}

@@ -1,7 +1,7 @@
 """The server's side of a federated run: the global model, the rounds, the held-out evaluation, and the files.
 
 :func:`run_federation` runs inside Flower's ServerApp (simulation or deployment) and writes into the run dir:
-the global model after every round (``<env>.zip``, with ``vecnormalize.pkl`` when the config normalizes), ``rounds.csv``
+the global model after every round (``<env>.zip``, with ``vecnormalize.npz`` when the config normalizes), ``rounds.csv``
 (one row per round: held-out homes' comfort, success, return, energy; bytes per home; DP epsilon; seconds) and
 ``federated.json`` (the homes, the settings, the rounds, and what every home's reply carried:
 :mod:`sbagents.federated.audit`).
@@ -9,8 +9,6 @@ the global model after every round (``<env>.zip``, with ``vecnormalize.pkl`` whe
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -18,13 +16,15 @@ from typing import Any
 import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sbagents.atomic import save_model, write_csv, write_json
 from sbagents.federated.audit import audit_replies
 from sbagents.federated.evaluation import evaluate_homes
 from sbagents.federated.homes import client_homes, held_out_homes
 from sbagents.federated.local import home_experiment, load_shared_state, make_env, new_model, shared_state
 from sbagents.federated.settings import FederatedSettings
 from sbagents.federated.strategies import build_strategy, dp_epsilon
-from sbagents.pipeline.run_dir import VECNORMALIZE_FILE, env_stem
+from sbagents.pipeline.run_dir import env_stem
+from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 ROUNDS_FILE = "rounds.csv"
 FEDERATED_FILE = "federated.json"
@@ -55,7 +55,7 @@ def run_federation(grid: Any, settings: FederatedSettings, run_dir: Path, report
     homes = client_homes(settings.homes, settings.seed)
     model_file = run_dir / f"{env_stem(settings.env)}.zip"
     if isinstance(env, VecNormalize):
-        env.save(str(run_dir / VECNORMALIZE_FILE))
+        save_vecnormalize(env, run_dir / VECNORMALIZE_FILE)
 
     def record() -> dict[str, Any]:
         return {"settings": settings.to_run_config(), "homes": [vars(h) for h in homes],
@@ -78,8 +78,8 @@ def run_federation(grid: Any, settings: FederatedSettings, run_dir: Path, report
         current[0] = arrays
         rows.append(row)
         _write_rows(run_dir / ROUNDS_FILE, rows)
-        model.save(str(model_file))
-        (run_dir / FEDERATED_FILE).write_text(json.dumps(record(), indent=2) + "\n")
+        save_model(model, model_file)
+        write_json(run_dir / FEDERATED_FILE, record())
         report(round_line(row, settings.rounds))
         return MetricRecord({k: float(v) for k, v in row.items() if isinstance(v, int | float)})
 
@@ -91,10 +91,7 @@ def run_federation(grid: Any, settings: FederatedSettings, run_dir: Path, report
 
 
 def _write_rows(path: Path, rows: list[dict[str, Any]]) -> None:
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=ROUND_FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(path, ROUND_FIELDS, rows)
 
 
 def round_line(row: dict[str, Any], rounds: int) -> str:

@@ -10,7 +10,6 @@ Written after each round: ``elo.csv`` (player, timesteps, elo, games, score), ``
 
 from __future__ import annotations
 
-import csv
 import shutil
 from collections import defaultdict
 from collections.abc import Callable
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.atomic import save_figure, write_csv, write_with
 from sbagents.games.matches import play_games
 from sbagents.games.players import Player, load_player, snapshot_player
 from sbagents.games.selfplay import SelfPlayEnv
@@ -120,16 +120,14 @@ class EloCallback(BaseCallback):
             points[a] += p
             points[b] += count - p
         rows = sorted(self.ratings.items(), key=lambda kv: -kv[1])
-        with (self.run_dir / ELO_CSV).open("w", newline="") as fh:
-            writer = csv.writer(fh)
-            writer.writerow(["player", "timesteps", "elo", "games", "score"])
-            for player, rating in rows:
-                steps = self.rated[player][0] if player in self.rated else ""
-                writer.writerow([player, steps, f"{rating:.1f}", games[player],
-                                 f"{points[player] / max(games[player], 1):.3f}"])
+        write_csv(self.run_dir / ELO_CSV, ["player", "timesteps", "elo", "games", "score"], (
+            {"player": player, "timesteps": self.rated[player][0] if player in self.rated else "",
+             "elo": f"{rating:.1f}", "games": games[player],
+             "score": f"{points[player] / max(games[player], 1):.3f}"} for player, rating in rows))
         best = max(self.rated, key=lambda p: self.ratings[p])
         if best != self.best:
-            shutil.copyfile(self.rated[best][1], self.run_dir / BEST_MODEL)
+            source = self.rated[best][1]
+            write_with(self.run_dir / BEST_MODEL, lambda tmp: shutil.copyfile(source, tmp))
             self.best = best
         plot_elo(self.run_dir / ELO_PNG, self.ratings, {p: s for p, (s, _) in self.rated.items()}, self.game)
 
@@ -151,7 +149,7 @@ def plot_elo(path: Path, ratings: dict[str, float], steps: dict[str, int], title
     ax.set_title(f"{title}: self-play ratings")
     ax.legend(loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
 
 

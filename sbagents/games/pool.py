@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.atomic import save_model
 from sbagents.errors import UsageError
 from sbagents.games.players import Player, load_player, snapshot_player
 
@@ -150,10 +151,7 @@ class SnapshotCallback(BaseCallback):
     def save(self) -> Path:
         """Write ``snapshot_<steps>.zip`` atomically (workers never read a half-written file)."""
         steps = self.num_timesteps
-        path = self.pool_dir / f"snapshot_{steps}.zip"
-        partial = self.pool_dir / f".partial_{steps}.zip"
-        self.model.save(str(partial))
-        os.replace(partial, path)
+        path = save_model(self.model, self.pool_dir / f"snapshot_{steps}.zip")
         self.last_saved = steps
         return path
 

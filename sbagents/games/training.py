@@ -17,6 +17,7 @@ from sb3_contrib.common.maskable.callbacks import MaskableEvalCallback
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.callbacks.run_files import AtomicEvalOutputs
 from sbagents.errors import UsageError
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
@@ -56,6 +57,10 @@ def game_env(exp: Experiment, ref: EnvRef, opponent: Player | str, seat: int | N
     return make_selfplay_env(ref.source, ref.modules, opponent=opponent, seat=seat, **exp.env_kwargs)
 
 
+class AtomicMaskableEvalCallback(AtomicEvalOutputs, MaskableEvalCallback):
+    """sb3-contrib's ``MaskableEvalCallback`` with atomic ``evaluations.npz`` (:mod:`sbagents.callbacks.run_files`)."""
+
+
 def game_callbacks(exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, n_envs: int,
                    eval_calls: int, eval_episodes: int, after_eval: BaseCallback | None) -> list[BaseCallback]:
     """Snapshot pool, illegal-move count, periodic evaluation against ``eval_opponent`` (every ``eval_calls``
@@ -67,7 +72,7 @@ def game_callbacks(exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, n_env
         return callbacks
     eval_env = make_eval_vec(exp, ref, 1, seed + ELO_SEED_OFFSET // 2, vec_env="dummy",
                              env_kwargs={"opponent": options.eval_opponent})
-    callbacks.append(MaskableEvalCallback(
+    callbacks.append(AtomicMaskableEvalCallback(
         eval_env, n_eval_episodes=eval_episodes, eval_freq=eval_calls, log_path=str(run_dir),
         best_model_save_path=None, deterministic=exp.deterministic_eval, verbose=0, callback_after_eval=after_eval))
     if options.elo_games > 0:

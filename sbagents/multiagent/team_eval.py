@@ -18,6 +18,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
+from sbagents.atomic import save_model, write_npz
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.rollout import EpisodeResult
 from sbagents.callbacks.safety import step_violation
@@ -220,8 +221,8 @@ class TeamEvalCallback(EvalCallback):
         self._is_success_buffer = [bool(e.success) for e in episodes if e.success is not None]
         self.evaluations_successes.append(self._is_success_buffer)
         if self.log_path is not None:
-            np.savez(self.log_path, timesteps=self.evaluations_timesteps, results=self.evaluations_results,
-                     ep_lengths=self.evaluations_length, successes=self.evaluations_successes)
+            write_npz(f"{self.log_path}.npz", timesteps=self.evaluations_timesteps, results=self.evaluations_results,
+                      ep_lengths=self.evaluations_length, successes=self.evaluations_successes)
         mean_reward = float(self.last_result["mean_return"])
         self.last_mean_reward = mean_reward
         self.logger.record("eval/mean_reward", mean_reward)
@@ -238,5 +239,5 @@ class TeamEvalCallback(EvalCallback):
             if self.best_model_save_path is not None:
                 for group, model in models.items():
                     name = "best_model.zip" if group == SHARED_GROUP else f"best_model.{group}.zip"
-                    model.save(os.path.join(self.best_model_save_path, name))
+                    save_model(model, os.path.join(self.best_model_save_path, name))
         return self._on_event() if self.callback is not None else True

@@ -15,7 +15,6 @@ A backend does::
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 import signal
 import threading
@@ -27,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from sbagents.atomic import write_json
 from sbagents.pipeline.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
 
 
@@ -113,8 +113,8 @@ def base_summary(algo: str, env_id: str, seed: int, n_timesteps: int, steps_done
 
 
 def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
-    """Write ``<run dir>/summary.json``."""
-    (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+    """Write ``<run dir>/summary.json`` (atomically)."""
+    write_json(run_dir / SUMMARY_FILE, summary)
 
 
 def finish_run(

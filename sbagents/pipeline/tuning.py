@@ -21,6 +21,7 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
+from sbagents.atomic import save_figure, write_text
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.pipeline.env_names import EnvRef, resolve_env
@@ -194,7 +195,7 @@ def _write_outputs(study: optuna.Study, folder: Path, stem: str, env_id: str) ->
     if completed:
         best = study.best_trial
         header = f"# best of {len(completed)} trials: objective {best.value:.4g} (trial {best.number})\n"
-        best_path.write_text(header + yaml.safe_dump({env_id: best.user_attrs["config"]}, sort_keys=True))
+        write_text(best_path, header + yaml.safe_dump({env_id: best.user_attrs["config"]}, sort_keys=True))
     import matplotlib
 
     matplotlib.use("Agg")
@@ -205,6 +206,6 @@ def _write_outputs(study: optuna.Study, folder: Path, stem: str, env_id: str) ->
         ax = plot_optimization_history(study)
     figure = ax.get_figure(root=True)
     assert figure is not None
-    figure.savefig(plot_path, dpi=100, bbox_inches="tight")
+    save_figure(figure, plot_path, dpi=100, bbox_inches="tight")
     matplotlib.pyplot.close(figure)
     return TuneResult(study, best_path, plot_path)

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
+from sbagents.atomic import write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
@@ -104,7 +105,7 @@ class _DecisionLog:
         """Write the header and the rows to ``path``."""
         assert self.header is not None, "no step was recorded"
         lines = [",".join(csv_quote(h) for h in self.header), *self.rows]
-        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_text(path, "\n".join(lines) + "\n")
 
 
 def _render_fps(venv: VecEnv) -> float:
@@ -171,7 +172,7 @@ def record_video(
         raise UsageError(f"{ref.env_id} does not render rgb_array frames (render_mode {venvs[first].render_mode!r})")
     frame_rate = fps if fps is not None else _render_fps(venvs[first])
     stats = {g: loaded.stats_paths.get(g, loaded.stats_path) for g in venvs}
-    venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g]) for g, v in venvs.items()}
+    venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g], loaded.trust) for g, v in venvs.items()}
     out = Path(output_dir) if output_dir is not None else loaded.run_dir / "videos"
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,90 @@
+"""SB3's evaluation and checkpoint callbacks, writing their files into the run dir atomically.
+
+SB3's ``EvalCallback`` (and sb3-contrib's ``MaskableEvalCallback``) write ``evaluations.npz`` and
+``best_model.zip`` in place, and ``CheckpointCallback`` writes ``rl_model_<N>_steps.zip`` and a pickled
+``VecNormalize``: a process killed mid-write leaves a truncated file that looks complete. Here every file is
+written under a temporary name and renamed into place (:mod:`sbagents.atomic`), and checkpointed statistics are
+``.npz`` (:mod:`sbagents.state_files`), written before the model zip so a checkpoint that exists always has them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+
+from sbagents.atomic import save_model
+from sbagents.state_files import save_vecnormalize
+
+#: Hidden staging names inside the run dir (never read by anything; removed when training ends).
+_STAGED_EVALUATIONS = ".evaluations.partial"
+_STAGED_BEST = ".best_model.partial"
+
+
+class AtomicEvalOutputs:
+    """Mixin for SB3 ``EvalCallback`` classes: the parent writes ``evaluations.npz`` and ``best_model.zip`` under
+    hidden staging names; after each call they are renamed to their real names, so a reader (``plot``, the
+    dashboard, ``evaluate --load-best``) never sees a half-written file."""
+
+    log_path: str | None
+    best_model_save_path: str | None
+
+    _final_log: Path | None
+    _final_best: Path | None
+
+    def _init_callback(self) -> None:
+        if hasattr(self, "_final_log"):  # a second learn() on the same callback: already staged
+            super()._init_callback()  # type: ignore[misc]
+            return
+        self._final_log = Path(self.log_path + ".npz") if self.log_path is not None else None
+        self._final_best = Path(self.best_model_save_path) if self.best_model_save_path is not None else None
+        if self._final_log is not None:
+            self.log_path = str(self._final_log.with_name(_STAGED_EVALUATIONS))  # np.savez adds ".npz"
+        if self._final_best is not None:
+            self.best_model_save_path = str(self._final_best / _STAGED_BEST)
+        super()._init_callback()  # type: ignore[misc]
+
+    def _on_step(self) -> bool:
+        result: bool = super()._on_step()  # type: ignore[misc]
+        self._publish()
+        return result
+
+    def _publish(self) -> None:
+        if self._final_log is not None:
+            staged = self._final_log.with_name(_STAGED_EVALUATIONS + ".npz")
+            if staged.exists():
+                os.replace(staged, self._final_log)
+        if self._final_best is not None:
+            staged = self._final_best / _STAGED_BEST / "best_model.zip"
+            if staged.exists():
+                os.replace(staged, self._final_best / "best_model.zip")
+
+    def _on_training_end(self) -> None:
+        self._publish()
+        if self._final_best is not None:
+            with contextlib.suppress(OSError):
+                shutil.rmtree(self._final_best / _STAGED_BEST)
+        super()._on_training_end()  # type: ignore[misc]
+
+
+class AtomicEvalCallback(AtomicEvalOutputs, EvalCallback):
+    """SB3's ``EvalCallback`` (same arguments) with atomic ``evaluations.npz`` and ``best_model.zip``."""
+
+
+class AtomicCheckpointCallback(CheckpointCallback):
+    """SB3's ``CheckpointCallback`` (same arguments) writing ``<prefix>_<N>_steps.zip`` atomically, after the
+    ``VecNormalize`` statistics of the same step (``<prefix>_vecnormalize_<N>_steps.npz``, when
+    ``save_vecnormalize`` and the model normalizes). Replay buffers are kept by
+    :class:`sbagents.pipeline.replay_buffer.ReplayBufferCheckpoint` (one file, not one per checkpoint)."""
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            venv: Any = self.model.get_vec_normalize_env()
+            if self.save_vecnormalize and venv is not None:
+                save_vecnormalize(venv, self._checkpoint_path("vecnormalize_", extension="npz"))
+            save_model(self.model, self._checkpoint_path(extension="zip"))
+        return True

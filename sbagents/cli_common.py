@@ -25,13 +25,14 @@ class ArgumentParser(argparse.ArgumentParser):
 
 def add_run_arguments(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, required: bool = True, exp_id: bool = True,
-    load_best: bool = True,
+    load_best: bool = True, trust: bool = True,
 ) -> None:
     """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
     ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` / ``--load-checkpoint`` for commands
     on one run.
 
     :param required: ``--algo`` and ``--env`` must be given (else they filter, as for ``plot``).
+    :param trust: add ``--trust-run`` (commands that load a run's model and statistics).
     """
     parser.add_argument("--algo", required=required, default=None,
                         help="algorithm of the run" if required else "algorithm of the run(s) (default: any)")
@@ -46,12 +47,17 @@ def add_run_arguments(
         which.add_argument("--load-checkpoint", type=int, default=None, metavar="STEPS",
                            help="use the checkpoint saved after STEPS timesteps (train --save-freq)")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    if trust:
+        parser.add_argument("--trust-run", action="store_true",
+                            help="the run comes from a source you trust: load pickles in its files (older runs' "
+                                 "vecnormalize.pkl, model entries beyond plain data); see docs/security.md")
 
 
 def run_ref(args: argparse.Namespace) -> RunRef:
     """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
     return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
-                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None))
+                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None),
+                  trust=getattr(args, "trust_run", False))
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:

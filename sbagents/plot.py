@@ -12,7 +12,7 @@ from sbagents.visualize.curves import plot
 def build_parser() -> ArgumentParser:
     """The ``plot`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.plot", description="Plot learning curves of runs to a PNG.")
-    add_run_arguments(p, required=False, exp_id=False, load_best=False)
+    add_run_arguments(p, required=False, exp_id=False, load_best=False, trust=False)
     p.add_argument("-o", "--output", default=None, help="PNG file (default: <log-folder>/learning_curves.png)")
     p.add_argument("--x", dest="x_axis", default="timesteps", choices=["timesteps", "episodes"], help="x axis")
     p.add_argument("--window", type=int, default=0, help="moving-average window in episodes (0: automatic)")

@@ -35,7 +35,7 @@ def build_parser() -> ArgumentParser:
                         "127.0.0.1; port 0: a free one). Loopback unless you name another host: there is no "
                         "authentication")
     run_flags = p.add_argument_group("or a run's export (<run dir>/export, made by python -m sbagents.export)")
-    add_run_arguments(run_flags, required=False, load_best=False)
+    add_run_arguments(run_flags, required=False, load_best=False, trust=False)
     run_flags.add_argument("--int8", action="store_true", help="serve policy.int8.onnx")
     return p
 

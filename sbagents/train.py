@@ -50,9 +50,13 @@ def build_parser() -> ArgumentParser:
                    help="show the progress bar even when stderr is not a terminal")
     p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
     p.add_argument("-i", "--trained-agent", default=None,
-                   help="continue training this model .zip (with the replay_buffer.pkl beside it, if any)")
+                   help="continue training this model .zip (with the replay_buffer.npz beside it, if any)")
+    p.add_argument("--trust-run", action="store_true",
+                   help="the -i model and its files come from a source you trust: load pickles in them (older "
+                        "runs' vecnormalize.pkl / replay_buffer.pkl, model entries beyond plain data); see "
+                        "docs/security.md")
     p.add_argument("--save-replay-buffer", action="store_true",
-                   help="off-policy: keep the replay buffer in the run dir (replay_buffer.pkl, replaced at each "
+                   help="off-policy: keep the replay buffer in the run dir (replay_buffer.npz, replaced at each "
                         "checkpoint and at the end, also after Ctrl-C) so that -i continues with it")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     trust = p.add_argument_group("trust (sbagents.callbacks)")
@@ -117,7 +121,8 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
     return {
         "spec": TrainSpec(args.algo, args.env, args.n_timesteps, parse_overrides(args.hyperparams, "-params"),
                           args.conf_file, parse_overrides(args.env_kwargs, "--env-kwargs"),
-                          tuple(args.gym_packages), args.trained_agent, args.robust, args.constraint),
+                          tuple(args.gym_packages), args.trained_agent, args.robust, args.constraint,
+                          trust_run=args.trust_run),
         "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command,
                                 args.save_replay_buffer),
         "evaluation": EvalOptions(args.eval_freq, args.eval_episodes, args.n_eval_envs, args.final_eval_episodes),

@@ -251,7 +251,7 @@ def test_simulation_two_homes_two_rounds_writes_a_normal_run_dir(tmp_path: Path)
                "--personalize", "1", "--personal-steps", "200", "-params", "learning_starts:100", "batch_size:32")
     assert done.returncode == 0, done.stderr[-3000:]
     run_dir = _run_dir(logs)
-    for name in ("sbagents_SmartHome-v0.zip", "vecnormalize.pkl", "rounds.csv", "rounds.png", "federated.json",
+    for name in ("sbagents_SmartHome-v0.zip", "vecnormalize.npz", "rounds.csv", "rounds.png", "federated.json",
                  "summary.json", "command.txt"):
         assert (run_dir / name).exists(), name
     rows = _rounds(run_dir)

@@ -17,7 +17,6 @@ from cli_helpers import cli, summary
 from opacus.accountants.rdp import RDPAccountant
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.vec_env import VecNormalize
 
 import sbagents  # noqa: F401 (registers the env ids)
 from sbagents.private.accounting import (
@@ -32,6 +31,7 @@ from sbagents.private.dp_sgd import make_private, planned_model_draws
 from sbagents.private.on_policy import model_rollout_schedule
 from sbagents.private.replay import PoissonReplayBuffer
 from sbagents.private.rollout import PoissonRolloutBuffer
+from sbagents.state_files import load_vecnormalize
 
 torch.set_num_threads(1)
 SMART = "sbagents/SmartHome-v0"
@@ -175,7 +175,7 @@ def test_train_with_a_target_epsilon_writes_the_privacy_spent(tmp_path: Path) ->
     assert 7.9 <= dp["epsilon"] <= 8 and dp["delta"] == 1e-5 and dp["max_grad_norm"] == 0.5
     assert dp["accountant"] == "rdp" and dp["unit"] == "transition" and dp["draws"] == 400
     assert not dp["stopped_at_budget"]
-    stats = VecNormalize.load(str(run / "vecnormalize.pkl"), make_vec_env(SMART, n_envs=1))
+    stats = load_vecnormalize(run / "vecnormalize.npz", make_vec_env(SMART, n_envs=1))
     space = stats.observation_space
     assert np.allclose(stats.obs_rms.mean, (space.low + space.high) / 2)  # type: ignore[union-attr,attr-defined]
     exported = cli("export", "--algo", "ddpg", "--env", "SmartHome-v0", "-f", str(tmp_path))

@@ -127,7 +127,7 @@ def test_smart_home_sidecar_is_unnormalized(tmp_path: Path) -> None:
     small = {"n_envs": 1, "n_steps": 128, "batch_size": 128, "n_epochs": 1}
     train(TrainSpec("ppo", "sbagents/SmartHome-v0", 128, small), OutputOptions(tmp_path),
           EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
-    assert list(tmp_path.glob("ppo/*/vecnormalize.pkl"))
+    assert list(tmp_path.glob("ppo/*/vecnormalize.npz"))
     video = record_video(RunRef("ppo", "sbagents/SmartHome-v0", tmp_path), n_steps=102, output_dir=tmp_path / "v")
     rows = _rows(sidecar_path(video))
     names = ["Temperature", "Light_Level", "Time", "Preferred_Temp", "Preferred_Light"]

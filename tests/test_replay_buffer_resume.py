@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from cli_helpers import check_error, run_main, summary
-from stable_baselines3.common.save_util import load_from_pkl
 
 SAC = ("--algo", "sac", "--env", "Pendulum-v1", "--seed", "0", "--eval-freq", "0", "--final-eval-episodes", "0",
        "--verbose", "0", "-params", "learning_starts:100", "buffer_size:5000", "policy_kwargs:{net_arch: [16]}")
 
 
 def _buffer_size(run_dir: Path) -> int:
-    buffer = load_from_pkl(run_dir / "replay_buffer.pkl")
-    return int(buffer.size() * buffer.n_envs)
+    with np.load(run_dir / "replay_buffer.npz", allow_pickle=False) as data:  # numbers only: nothing to unpickle
+        settings = json.loads(str(data["__settings__"]))
+    return (settings["buffer_size"] if settings["full"] else settings["pos"]) * settings["n_envs"]
 
 
 def test_buffer_saved_and_continued(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -22,7 +24,7 @@ def test_buffer_saved_and_continued(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert run_main("train", *SAC, "-n", "400", "-f", str(logs), "--save-freq", "300", "--save-replay-buffer") == 0
     first = logs / "sac" / "Pendulum-v1_1"
     assert _buffer_size(first) == 400  # the final save replaced the checkpoint's 300
-    assert sorted(p.name for p in first.glob("*.pkl*")) == ["replay_buffer.pkl"]  # one file, no partial left
+    assert sorted(p.name for p in first.glob("*replay_buffer*")) == ["replay_buffer.npz"]  # one file, no partial left
     assert summary(first)["replay_buffer"] == {"loaded_transitions": None, "saved": True}
 
     assert run_main("train", *SAC, "-n", "200", "-f", str(logs), "--save-replay-buffer",
@@ -37,7 +39,7 @@ def test_continuing_without_a_saved_buffer_starts_empty(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
     assert run_main("train", *SAC, "-n", "200", "-f", str(logs)) == 0
     first = logs / "sac" / "Pendulum-v1_1"
-    assert not (first / "replay_buffer.pkl").exists()
+    assert not (first / "replay_buffer.npz").exists()
     assert run_main("train", *SAC, "-n", "200", "-f", str(logs), "-i", str(first / "Pendulum-v1.zip")) == 0
     assert "replay_buffer" not in summary(logs / "sac" / "Pendulum-v1_2")
 

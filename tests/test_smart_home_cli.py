@@ -17,7 +17,7 @@ def test_train_evaluate_export_serve(tmp_path: Path) -> None:
                  "--verbose", "0", "--final-eval-episodes", "2")
     assert result.returncode == 0, result.stderr
     run_dir = tmp_path / "ddpg" / "sbagents_SmartHome-v0_1"
-    assert (run_dir / "vecnormalize.pkl").exists()
+    assert (run_dir / "vecnormalize.npz").exists()
     report = last_json(cli("evaluate", "--algo", "ddpg", "--env", ENV, "-f", str(tmp_path), "-n", "2", "--json").stdout)
     assert set(report["metrics"]) == {"criterion_share", "mean_temp_error", "mean_light_error", "mean_energy"}
     share = report["metrics"]["criterion_share"]  # the mean of 2 episodes' shares of their 90 steps after step 10

@@ -13,6 +13,8 @@ import math
 from collections import deque
 from typing import Any
 
+from sbagents.safe_load import register_plain_class
+
 
 def _check_finite(name: str, value: float, minimum: float | None = 0.0) -> float:
     value = float(value)
@@ -22,6 +24,7 @@ def _check_finite(name: str, value: float, minimum: float | None = 0.0) -> float
     return value
 
 
+@register_plain_class  # a data holder: model zips carry it, loaded without unpickling code
 class LagrangeMultiplier:
     """PPO-Lagrangian's multiplier (Ray et al. 2019): projected gradient ascent on ``lambda``.
 
@@ -58,6 +61,7 @@ class LagrangeMultiplier:
         self.history.append({"timesteps": step, "ep_cost": ep_cost, "multiplier": self.value})
 
 
+@register_plain_class
 class PIDLagrangeMultiplier(LagrangeMultiplier):
     """PID-Lagrangian multiplier (Stooke, Achiam & Abbeel 2020, Algorithm 2; OmniSafe's ``PIDLagrangian``).
 

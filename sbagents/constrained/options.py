@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sbagents.atomic import write_json
 from sbagents.constrained.lagrangian import MULTIPLIERS
 from sbagents.errors import UsageError
 
@@ -124,22 +125,23 @@ class ConstraintSpec:
         """Keyword arguments of the constrained class."""
         return {"constraint": self.method, "cost_limit": self.cost_limit, **self.kwargs}
 
-    def load_model(self, cls: type[Any], path: Path, **kwargs: Any) -> Any:
-        """``cls.load(path, **kwargs)`` to continue training (``-i``): the saved multiplier keeps its state and
-        settings under this spec's cost limit.
+    def load_model(self, cls: type[Any], path: Path, trust: bool = False, **kwargs: Any) -> Any:
+        """``cls.load(path, **kwargs)`` to continue training (``-i``; without running code from the file unless
+        ``trust``, :mod:`sbagents.safe_load`): the saved multiplier keeps its state and settings under this spec's
+        cost limit.
 
         :raises UsageError: the file holds no constrained model, or one trained with another method.
         """
-        from stable_baselines3.common.save_util import load_from_zip_file
+        from sbagents.safe_load import load_model, read_model_data
 
-        saved = load_from_zip_file(str(path), device="cpu")[0] or {}
+        saved = read_model_data(path)  # the plain JSON: nothing decoded yet
         if "multiplier" not in saved:
             raise UsageError(f"-i/--trained-agent {path} holds no {cls.__name__} model: --constraint continues a "
                              "--constraint run's model")
         if saved.get("constraint") != self.method:
             raise UsageError(f"-i/--trained-agent was trained with --constraint {saved.get('constraint')}: continue "
                              "it with the same method")
-        model = cls.load(str(path), **kwargs)
+        model = load_model(cls, path, trust=trust, **kwargs)
         model.cost_limit = model.multiplier.cost_limit = self.cost_limit
         return model
 
@@ -201,5 +203,5 @@ def record_constraint(run_dir: Path, model: Any) -> dict[str, Any]:
     path = run_dir / "safety.json"
     data = json.loads(path.read_text()) if path.exists() else {}
     data["constraint"] = {**item, "history": history}
-    path.write_text(json.dumps(data, indent=2) + "\n")
+    write_json(path, data)
     return {"constraint": item}

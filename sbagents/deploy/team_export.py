@@ -62,7 +62,7 @@ def export_team(loaded: LoadedRun, out: Path, int8: bool, checks: ExportChecks) 
     """Export every group's model of a PettingZoo run: group -> report. One group (``shared``) goes to ``out``,
     several to ``out/<group>/`` (a failure removes the group folders it made)."""
     exp, ref = loaded.experiment, loaded.env
-    venvs = {g: normalize_for_eval(v, exp, loaded.stats_paths.get(g)) for g, v in
+    venvs = {g: normalize_for_eval(v, exp, loaded.stats_paths.get(g), loaded.trust) for g, v in
              make_team_vecs(exp, ref, 1, seed=checks.seed, vec_env="dummy").items()}
     try:
         observations = record_team_observations(venvs, loaded.models, checks.n_observations, checks.seed)

@@ -20,6 +20,7 @@ from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.algos import ALGOS
+from sbagents.atomic import save_model
 from sbagents.federated.homes import Home
 from sbagents.federated.settings import FederatedSettings
 from sbagents.pipeline.env_factory import make_vec, normalize_for_training
@@ -27,9 +28,11 @@ from sbagents.pipeline.env_names import resolve_env
 from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.models import make_model
 from sbagents.pipeline.options import TrainSpec
+from sbagents.safe_load import load_model
+from sbagents.state_files import existing, load_replay_buffer, load_vecnormalize, save_replay_buffer
 
 MODEL_FILE = "model.zip"
-BUFFER_FILE = "replay_buffer.pkl"
+BUFFER_FILE = "replay_buffer.npz"
 
 
 def home_experiment(settings: FederatedSettings, env_kwargs: dict[str, Any] | None = None,
@@ -62,8 +65,9 @@ def make_env(exp: Experiment, seed: int, env_kwargs: list[dict[str, Any]] | None
     else:
         parts = [make_vec(exp, ref, 1, seed + i, vec_env="dummy", env_kwargs=kw) for i, kw in enumerate(env_kwargs)]
         venv = DummyVecEnv([_first_env(p) for p in parts])
-    if stats_path is not None and stats_path.exists():
-        loaded = VecNormalize.load(str(stats_path), venv)
+    found = existing(stats_path)
+    if found is not None:
+        loaded = load_vecnormalize(found, venv)
         loaded.training, loaded.norm_reward = False, False
         return loaded
     return population_normalization(freeze_normalization(normalize_for_training(venv, exp)))
@@ -165,17 +169,17 @@ class HomeLearner:
         if first:
             model = new_model(self.exp, env, self.seed)
         else:
-            model = ALGOS[self.settings.algo].cls.load(str(model_path), env=env, device="cpu")
+            model = load_model(ALGOS[self.settings.algo].cls, model_path, env=env, device="cpu")
             if isinstance(model, OffPolicyAlgorithm) and (self.state_dir / BUFFER_FILE).exists():
-                model.load_replay_buffer(str(self.state_dir / BUFFER_FILE))
+                load_replay_buffer(model.replay_buffer, self.state_dir / BUFFER_FILE)
         load_shared_state(model, global_state, sync_targets=first)
         hooks = add_proximal_term(model, shared_state(model), proximal_mu) if proximal_mu > 0 else []
         model.learn(self.settings.local_steps, reset_num_timesteps=first)
         for hook in hooks:
             hook.remove()
         self.state_dir.mkdir(parents=True, exist_ok=True)
-        model.save(str(model_path))
-        if isinstance(model, OffPolicyAlgorithm):
-            model.save_replay_buffer(str(self.state_dir / BUFFER_FILE))
+        save_model(model, model_path)
+        if isinstance(model, OffPolicyAlgorithm) and model.replay_buffer is not None:
+            save_replay_buffer(model.replay_buffer, self.state_dir / BUFFER_FILE)
         env.close()
         return shared_state(model)

@@ -13,12 +13,15 @@ import torch
 from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
+from sbagents.atomic import save_model, write_with
 from sbagents.errors import UsageError
 from sbagents.federated.evaluation import evaluate_home, for_home
 from sbagents.federated.homes import Home
 from sbagents.federated.local import make_env
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, finish_run, new_run_dir
-from sbagents.pipeline.run_dir import VECNORMALIZE_FILE, env_stem, load_experiment, model_path
+from sbagents.pipeline.run_dir import env_stem, load_experiment, model_path
+from sbagents.safe_load import load_model
+from sbagents.state_files import VECNORMALIZE_FILE, existing
 
 #: Seed offset of the before/after evaluation episodes (the same episodes before and after).
 EVAL_SEED = 70_000
@@ -44,9 +47,9 @@ def personalize(base_run: Path, algo: str, env_id: str, home: Home, steps: int, 
         raise UsageError(f"the fine-tuning budget must be >= 1 step, got {steps}")
     torch.set_num_threads(1)
     exp = for_home(load_experiment(base_run, algo, env_id), home)
-    stats = base_run / VECNORMALIZE_FILE
+    stats = existing(base_run / VECNORMALIZE_FILE)
     env = make_env(exp, seed, stats_path=stats)
-    model = ALGOS[algo].cls.load(str(model_path(base_run, env_id)), env=env, device="cpu")
+    model = load_model(ALGOS[algo].cls, model_path(base_run, env_id), env=env, device="cpu")
     before = evaluate_home(model, exp, home, episodes, seed + EVAL_SEED, stats)
     if hasattr(model, "learning_starts"):
         model.learning_starts = min(int(model.learning_starts), steps // 4) if learning_starts is None \
@@ -60,9 +63,9 @@ def personalize(base_run: Path, algo: str, env_id: str, home: Home, steps: int, 
     clock = LearningClock(graceful=True)
     with clock:
         model.learn(steps, reset_num_timesteps=True)
-    model.save(str(run_dir / f"{env_stem(env_id)}.zip"))
-    if stats.exists():  # the statistics the model was trained with, kept fixed
-        shutil.copy(stats, run_dir / VECNORMALIZE_FILE)
+    if stats is not None:  # the statistics the model was trained with, kept fixed
+        write_with(run_dir / stats.name, lambda tmp: shutil.copyfile(stats, tmp))
+    save_model(model, run_dir / f"{env_stem(env_id)}.zip")
     after = evaluate_home(model, exp, home, episodes, seed + EVAL_SEED, stats)
     env.close()
     summary = base_summary(algo, env_id, seed, model.num_timesteps, model.num_timesteps, clock)

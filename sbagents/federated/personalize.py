@@ -14,7 +14,7 @@ from sbagents.errors import UsageError
 def build_parser() -> ArgumentParser:
     p = ArgumentParser(prog="python -m sbagents.federated.personalize",
                        description="Fine-tune a SmartHome policy in one home; comfort before and after.")
-    add_run_arguments(p, load_best=False)
+    add_run_arguments(p, load_best=False, trust=False)
     p.add_argument("--home", type=int, default=None, help="client home I of the run's federation")
     p.add_argument("--preferred-temp", type=float, default=None, help="the home's user: preferred temperature (C)")
     p.add_argument("--preferred-light", type=float, default=None, help="the home's user: preferred light (lux)")

@@ -97,21 +97,26 @@ def _parameters(fn: Callable[..., Any]) -> tuple[str, ...]:
 
 @functools.lru_cache(maxsize=32)
 def load_model(path: str) -> Any:
-    """Load a game model zip on the CPU (MaskablePPO first, then the other Discrete-action algorithms).
+    """Load a game model zip on the CPU (MaskablePPO first, then the other Discrete-action algorithms), without
+    running code from the file (:mod:`sbagents.safe_load`: an opponent's zip may come from anyone).
 
     Cached by path: self-play envs load the same snapshot many times.
     """
     from sbagents.algos import ALGOS
+    from sbagents.safe_load import UntrustedContentError, load_model, read_model_data
 
+    read_model_data(path)  # one line for a missing, empty or truncated file
     errors = []
     for name in ("ppo_mask", "ppo", "a2c", "dqn", "qrdqn", "trpo"):
         if name not in ALGOS:
             continue
         try:
-            return ALGOS[name].cls.load(path, device="cpu")
-        except Exception as exc:  # noqa: BLE001 - any load failure means: try the next class
-            errors.append(f"{name}: {type(exc).__name__}")
-    raise UsageError(f"cannot load a model from {path} ({'; '.join(errors)})")
+            return load_model(ALGOS[name].cls, path, device="cpu")
+        except UntrustedContentError:
+            raise
+        except UsageError:  # the model of another class: try the next one
+            errors.append(name)
+    raise UsageError(f"cannot load a model from {path} (tried {', '.join(errors)})")
 
 
 def run_dir_model(path: Path) -> Path:

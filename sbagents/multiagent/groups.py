@@ -100,5 +100,5 @@ def group_model_name(stem: str, group: str) -> str:
 
 
 def group_stats_name(group: str) -> str:
-    """The VecNormalize statistics file of a group: ``vecnormalize.pkl`` (shared) or ``vecnormalize.<group>.pkl``."""
-    return "vecnormalize.pkl" if group == SHARED_GROUP else f"vecnormalize.{group}.pkl"
+    """The VecNormalize statistics file of a group: ``vecnormalize.npz`` (shared) or ``vecnormalize.<group>.npz``."""
+    return "vecnormalize.npz" if group == SHARED_GROUP else f"vecnormalize.{group}.npz"

@@ -174,7 +174,7 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
     if buffer:
         loaded = buffer["loaded_transitions"]
         parts = ([] if loaded is None else [f"continued with the {loaded} transitions saved beside -i's model"]) + (
-            [f"saved in {run_dir}/replay_buffer.pkl"] if buffer["saved"] else [])
+            [f"saved in {run_dir}/replay_buffer.npz"] if buffer["saved"] else [])
         lines.append("replay buffer: " + "; ".join(parts))
     constraint = summary.get("constraint")
     if constraint:

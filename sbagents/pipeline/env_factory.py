@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import (
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_names import EnvRef, pettingzoo_factory
 from sbagents.pipeline.experiment import Experiment
+from sbagents.state_files import existing, load_vecnormalize
 
 VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
     "dummy": DummyVecEnv,
@@ -244,10 +245,16 @@ def _make_base_vec(
     return venv
 
 
-def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | None = None) -> VecEnv:
-    """Wrap ``venv`` in :class:`VecNormalize` when the experiment asks for it (or resume saved statistics)."""
-    if stats_path is not None and stats_path.exists():
-        loaded = VecNormalize.load(str(stats_path), venv)
+def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | None = None,
+                           trust: bool = False) -> VecEnv:
+    """Wrap ``venv`` in :class:`VecNormalize` when the experiment asks for it (or resume saved statistics).
+
+    :param stats_path: saved statistics to resume (``vecnormalize.npz``; a legacy ``.pkl`` beside it only with
+        ``trust``, see :mod:`sbagents.state_files`).
+    """
+    found = existing(stats_path)
+    if found is not None:
+        loaded = load_vecnormalize(found, venv, trust)
         loaded.training = True
         return loaded
     if not exp.normalize:
@@ -256,10 +263,15 @@ def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | Non
     return VecNormalize(venv, **kwargs)
 
 
-def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = None) -> VecEnv:
-    """Frozen normalisation for evaluation: saved statistics if given, never reward normalisation."""
-    if stats_path is not None and stats_path.exists():
-        loaded = VecNormalize.load(str(stats_path), venv)
+def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = None,
+                       trust: bool = False) -> VecEnv:
+    """Frozen normalisation for evaluation: saved statistics if given, never reward normalisation.
+
+    :param trust: a legacy ``vecnormalize.pkl`` may be unpickled (``--trust-run``).
+    """
+    found = existing(stats_path)
+    if found is not None:
+        loaded = load_vecnormalize(found, venv, trust)
     elif exp.normalize:
         kwargs = dict(exp.normalize) if isinstance(exp.normalize, dict) else {}
         loaded = VecNormalize(venv, **kwargs)
@@ -279,15 +291,17 @@ def make_eval_vec(
     vec_env: str = "auto",
     env_kwargs: dict[str, Any] | None = None,
     wrapper: Callable[[Any], Any] | None = None,
+    trust: bool = False,
 ) -> VecEnv:
     """An evaluation env wrapped exactly as in training, with frozen normalisation (:func:`normalize_for_eval`:
-    the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env).
+    the run's saved statistics, or fresh ones that SB3's eval callbacks sync from the training env; ``trust``:
+    a legacy ``.pkl`` of them may be unpickled).
 
     Its env kwargs are the experiment's ``env_kwargs``, then its ``eval_env_kwargs`` (settings that shape training
     only, such as a curriculum, reset to the task's), then ``env_kwargs`` of the call."""
     extra = {**exp.eval_env_kwargs, **(env_kwargs or {})}
     venv = make_vec(exp, ref, n_envs, seed, vec_env=vec_env, env_kwargs=extra, wrapper=wrapper)
-    return normalize_for_eval(venv, exp, stats_path)
+    return normalize_for_eval(venv, exp, stats_path, trust)
 
 
 def render_modes(exp: Experiment, ref: EnvRef) -> list[str]:

@@ -60,6 +60,12 @@ class EnvRef:
             return tuple(dict.fromkeys((self.source, self.env_id)))
         return (self.env_id, "atari") if self.is_atari else (self.env_id,)
 
+    def trusted_modules(self) -> tuple[str, ...]:
+        """The modules the user named for this env (``--gym-packages``, ``--env module:...``, a PettingZoo env's
+        module): the classes a run's config or model may name besides sbagents' import allow-list."""
+        source = self.source.partition(":")[0]
+        return tuple(dict.fromkeys(m for m in (*self.modules, source) if m))
+
     def make_fn(self) -> str | Callable[..., gym.Env]:
         """The ``env_id`` argument for SB3's ``make_vec_env``: the id itself, or (when :attr:`modules` is not
         empty) a picklable callable that imports them first, so subprocess workers find the env."""

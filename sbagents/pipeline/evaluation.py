@@ -64,11 +64,12 @@ def summarize(
 
 def evaluate_model(
     model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions | None = None,
-    stats_path: Path | None = None,
+    stats_path: Path | None = None, trust: bool = False,
 ) -> dict[str, Any]:
     """Play ``options.n_episodes`` episodes with ``model`` on a fresh env wrapped exactly as in training.
 
     :param stats_path: saved ``VecNormalize`` statistics of the run (frozen during evaluation).
+    :param trust: a legacy pickle of them may be unpickled (``--trust-run``).
     :return: the summary of :func:`summarize` (team returns for multi-agent envs).
     """
     options = options or EvaluateOptions()
@@ -80,12 +81,12 @@ def evaluate_model(
     if options.opponent is not None:
         raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
     if ref.multi_agent:
-        return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path})
+        return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path}, trust)
     text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
     extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
     # the reference envs (not the batched ones) render every step
     venv = make_eval_vec(exp, ref, 1, options.seed, stats_path, vec_env="dummy", env_kwargs=extra,
-                         wrapper=TextStepPrinter if text else None)
+                         wrapper=TextStepPrinter if text else None, trust=trust)
     metrics_fn = _episode_metrics_fn(venv)
     step_infos: list[dict[str, Any]] = []
     successes: list[bool] = []
@@ -122,12 +123,13 @@ def evaluate_model(
 
 def evaluate_groups(
     models: Mapping[str, BaseAlgorithm], exp: Experiment, ref: EnvRef, options: EvaluateOptions | None = None,
-    stats_paths: Mapping[str, Path | None] | None = None,
+    stats_paths: Mapping[str, Path | None] | None = None, trust: bool = False,
 ) -> dict[str, Any]:
     """Play ``options.n_episodes`` team episodes of a PettingZoo env, every group acting with its model (one group,
     ``shared``, for parameter sharing), on a fresh team wrapped exactly as in training.
 
     :param stats_paths: group -> its saved ``VecNormalize`` statistics (frozen during evaluation).
+    :param trust: legacy pickles of them may be unpickled (``--trust-run``).
     :return: the summary of :func:`summarize` with team returns and the team metrics
         (:func:`sbagents.multiagent.team_eval.team_summary`).
     """
@@ -137,7 +139,7 @@ def evaluate_groups(
     extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
     venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy", env_kwargs=extra,
                            wrapper=ParallelTextStepPrinter if text else None)
-    venvs = {g: normalize_for_eval(v, exp, (stats_paths or {}).get(g)) for g, v in venvs.items()}
+    venvs = {g: normalize_for_eval(v, exp, (stats_paths or {}).get(g), trust) for g, v in venvs.items()}
     try:
         actors = {g: model_actor(models[g], options.greedy(exp.deterministic_eval)) for g in venvs}
         episodes = run_team_episodes(venvs, actors, options.n_episodes, options.seed)
@@ -156,11 +158,11 @@ def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]
     if len(run.models) > 1:
         if options.attacks or options.fairness:
             raise UsageError("--attack and --fairness evaluate one model; this run has one model per group")
-        return evaluate_groups(run.models, run.experiment, run.env, options, run.stats_paths)
+        return evaluate_groups(run.models, run.experiment, run.env, options, run.stats_paths, run.trust)
     if run.env.game and (options.attacks or options.fairness):
         raise UsageError("--attack and --fairness are not available for turn-based games; --opponent picks who to "
                          "play against")
-    summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path)
+    summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path, run.trust)
     if options.attacks or options.fairness:
         summary.update(trust_report(run, options))
     return summary

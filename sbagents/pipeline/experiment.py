@@ -51,19 +51,65 @@ _CLASS_KWARGS = ("replay_buffer_class", "features_extractor_class", "optimizer_c
 _RUNTIME_KWARGS = {"policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model"}
 
 
-def import_object(path: str, what: str = "object") -> Any:
-    """Import ``package.module.Name`` or ``package.module:Name`` (or a short name of :data:`KNOWN_CLASSES`)."""
+#: Packages whose classes a config may name (``env_wrapper``, ``callback``, ``policy_kwargs`` classes, ...) without
+#: the user vouching for them; a module the user names (``--gym-packages``, ``--env module:...``) is trusted too.
+ALLOWED_IMPORTS: tuple[str, ...] = ("sbagents", "stable_baselines3", "sb3_contrib", "gymnasium", "torch.nn",
+                                    "torch.optim")
+
+
+def _expected_bases(what: str) -> tuple[type, ...]:
+    """The classes an import path of config key ``what`` must derive from, when it names an allowed package."""
+    import gymnasium as gym
+    import torch
+    from pettingzoo.utils import BaseParallelWrapper, BaseWrapper
+    from stable_baselines3.common.buffers import BaseBuffer
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    return {
+        "env_wrapper": (gym.Wrapper, BaseWrapper, BaseParallelWrapper),
+        "vec_env_wrapper": (VecEnvWrapper,),
+        "callback": (BaseCallback,),
+        "optimizer_class": (torch.optim.Optimizer,),
+        "replay_buffer_class": (BaseBuffer,),
+    }.get(what, (nn.Module,))  # activation_fn, features_extractor_class
+
+
+def _within(module: str, prefixes: tuple[str, ...]) -> bool:
+    return any(module == p or module.startswith(p + ".") for p in prefixes)
+
+
+def import_object(path: str, what: str = "object", trusted_modules: tuple[str, ...] = ()) -> Any:
+    """Import ``package.module.Name`` or ``package.module:Name`` (or a short name of :data:`KNOWN_CLASSES`).
+
+    Only from the allow-list: a class of the kind ``what`` takes (a wrapper, a callback, a network module, ...) from
+    :data:`ALLOWED_IMPORTS`, or anything from ``trusted_modules`` (the modules the user named on the command line).
+    Nothing is imported before the path passes that check, so a config can neither run code on import nor call a
+    function of its choosing.
+
+    :raises UsageError: one line: a malformed path, a module outside the allow-list, or the wrong kind of object.
+    """
     path = KNOWN_CLASSES.get(path, path)
     module_name, sep, attr = path.partition(":")
     if not sep:
         module_name, _, attr = path.rpartition(".")
     if not module_name or not attr:
         raise UsageError(f"{what} {path!r} must be an import path like 'package.module.Name'")
+    trusted = _within(module_name, trusted_modules)
+    if not trusted and not _within(module_name, ALLOWED_IMPORTS):
+        raise UsageError(
+            f"{what} {path!r} is outside the import allow-list ({', '.join(ALLOWED_IMPORTS)}): a config may not "
+            f"import code from elsewhere; if {module_name.split('.')[0]!r} is your own package, name it with "
+            "--gym-packages to trust it")
     try:
-        module = importlib.import_module(module_name)
-        return getattr(module, attr)
+        obj = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError) as exc:
         raise UsageError(f"cannot import {what} {path!r}: {exc}") from None
+    if not trusted and not (inspect.isclass(obj) and issubclass(obj, _expected_bases(what))):
+        kinds = " or ".join(b.__name__ for b in _expected_bases(what))
+        raise UsageError(f"{what} {path!r} is not a {kinds} class (a config names classes of that kind from the "
+                         "allow-list; functions and other objects only from packages you name with --gym-packages)")
+    return obj
 
 
 def _team_options(entry: dict[str, Any], source: str) -> TeamOptions:
@@ -130,16 +176,18 @@ def accepted_algo_kwargs(algo: str) -> list[str]:
     return sorted(k for k in params if k not in _RUNTIME_KWARGS and k != "self" and not k.startswith("_"))
 
 
-def _wrapper_list(value: Any, key: str) -> list[tuple[Any, dict[str, Any]]]:
+def _wrapper_list(value: Any, key: str, trusted: tuple[str, ...]) -> list[tuple[Any, dict[str, Any]]]:
     """``env_wrapper``/``callback`` values: a path, a list of paths, or ``{path: kwargs}`` items."""
     items = value if isinstance(value, list) else [value]
     result: list[tuple[Any, dict[str, Any]]] = []
     for item in items:
         if isinstance(item, str):
-            result.append((import_object(item, key), {}))
+            result.append((import_object(item, key, trusted), {}))
         elif isinstance(item, dict) and len(item) == 1:
             (path, kwargs), = item.items()
-            result.append((import_object(str(path), key), dict(kwargs or {})))
+            if kwargs is not None and not isinstance(kwargs, dict):
+                raise UsageError(f"{key} {path!r}: its arguments must be a mapping, got {kwargs!r:.80}")
+            result.append((import_object(str(path), key, trusted), dict(kwargs or {})))
         else:
             raise UsageError(f"{key} entries must be import paths or {{path: kwargs}} mappings, got {item!r}")
     return result
@@ -157,7 +205,7 @@ def _schedule(key: str, value: Any) -> Any:
     return float(value)
 
 
-def _policy_kwargs(value: Any) -> dict[str, Any]:
+def _policy_kwargs(value: Any, trusted: tuple[str, ...]) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise UsageError(f"policy_kwargs must be a mapping such as {{net_arch: [64, 64]}}, got {value!r}")
     kwargs = dict(value)
@@ -167,10 +215,10 @@ def _policy_kwargs(value: Any) -> dict[str, Any]:
         if name in ACTIVATIONS:
             kwargs["activation_fn"] = ACTIVATIONS[name]
         else:
-            kwargs["activation_fn"] = import_object(act, "activation_fn")
+            kwargs["activation_fn"] = import_object(act, "activation_fn", trusted)
     for key in _CLASS_KWARGS:
         if isinstance(kwargs.get(key), str):
-            kwargs[key] = import_object(kwargs[key], key)
+            kwargs[key] = import_object(kwargs[key], key, trusted)
     return kwargs
 
 
@@ -186,13 +234,15 @@ def _positive_int(entry: dict[str, Any], key: str, default: int | None) -> int |
 
 
 def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_agent: bool = False,
-            game: bool = False) -> Experiment:
+            game: bool = False, trusted_modules: tuple[str, ...] = ()) -> Experiment:
     """Validate a zoo entry (after CLI overrides) and build the :class:`Experiment`.
 
     :param source: where the entry came from, for error messages (file and env id).
     :param multi_agent: a PettingZoo env (the multi-agent keys apply; ``monitor_kwargs`` does not).
     :param game: a turn-based game (``self_play`` applies).
+    :param trusted_modules: modules the user named, whose objects import paths may name (:func:`import_object`).
     """
+    trusted = trusted_modules
     misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs", "eval_env_kwargs"}))
     if misplaced:
         kind = ("PettingZoo envs only" if not multi_agent
@@ -215,9 +265,9 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
         if key in _SCHEDULABLE:
             value = _schedule(key, value)
         elif key == "policy_kwargs":
-            value = _policy_kwargs(value)
+            value = _policy_kwargs(value, trusted)
         elif key in _CLASS_KWARGS and isinstance(value, str):
-            value = import_object(value, key)
+            value = import_object(value, key, trusted)
         elif key == "train_freq" and isinstance(value, list):
             value = tuple(value)
         algo_kwargs[key] = value
@@ -241,14 +291,15 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
         policy=str(entry.get("policy", "MlpPolicy")),
         normalize=normalize,
         frame_stack=_positive_int(entry, "frame_stack", None),
-        env_wrapper=_wrapper_list(entry["env_wrapper"], "env_wrapper") if entry.get("env_wrapper") else [],
+        env_wrapper=_wrapper_list(entry["env_wrapper"], "env_wrapper", trusted) if entry.get("env_wrapper") else [],
         vec_env_wrapper=(
-            _wrapper_list(entry["vec_env_wrapper"], "vec_env_wrapper") if entry.get("vec_env_wrapper") else []
+            _wrapper_list(entry["vec_env_wrapper"], "vec_env_wrapper", trusted) if entry.get("vec_env_wrapper")
+            else []
         ),
         env_kwargs=dict(entry.get("env_kwargs") or {}),
         eval_env_kwargs=dict(entry.get("eval_env_kwargs") or {}),
         monitor_kwargs=dict(entry.get("monitor_kwargs") or {}),
-        callbacks=_wrapper_list(entry["callback"], "callback") if entry.get("callback") else [],
+        callbacks=_wrapper_list(entry["callback"], "callback", trusted) if entry.get("callback") else [],
         noise_type=noise_type,
         noise_std=float(entry.get("noise_std", 0.1)),
         algo_kwargs=algo_kwargs,
@@ -272,4 +323,4 @@ def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
     entry, where = spec_entry(spec, spec.algo, ref)
-    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game)
+    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game, ref.trusted_modules())

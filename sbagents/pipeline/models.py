@@ -19,6 +19,7 @@ from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuf
 from sbagents.pipeline.env_factory import make_vec
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
+from sbagents.safe_load import load_model
 
 if TYPE_CHECKING:
     from sbagents.constrained.options import ConstraintSpec
@@ -49,9 +50,10 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
 def make_model(
     exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
     verbose: int = 0, trained_agent: Path | None = None, robust: str | None = None,
-    constraint: ConstraintSpec | None = None,
+    constraint: ConstraintSpec | None = None, trust: bool = False,
 ) -> BaseAlgorithm:
-    """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue.
+    """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue
+    (without running code from its file unless ``trust``: :mod:`sbagents.safe_load`).
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
     :param robust: ``--robust`` (:func:`sbagents.robust.options.parse_robust`): the algorithm's robust class.
@@ -71,9 +73,9 @@ def make_model(
     if trained_agent is not None:
         if constraint is not None:  # the saved multiplier and its state continue (under the new cost limit)
             return constraint.load_model(cls, trained_agent, env=env, device=device, tensorboard_log=tensorboard_log,
-                                         verbose=verbose)
-        return cls.load(str(trained_agent), env=env, device=device, tensorboard_log=tensorboard_log, verbose=verbose,
-                        **extra)
+                                         verbose=verbose, trust=trust)
+        return load_model(cls, trained_agent, env=env, device=device, trust=trust, tensorboard_log=tensorboard_log,
+                          verbose=verbose, **extra)
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))

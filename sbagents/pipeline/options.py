@@ -41,6 +41,8 @@ class TrainSpec:
         plain training.
     :param constraint: constrained training (``--constraint lagrangian|pid``, with the trust options' ``cost_limit``
         and the entry's ``constraint_kwargs``; :mod:`sbagents.constrained`), None for none.
+    :param trust_run: the ``-i`` model and the files beside it come from a trusted source: load pickles in them
+        as they are (``--trust-run``; by default loading runs no code from a file, see docs/security.md).
     """
 
     algo: str = "qlearning"
@@ -53,6 +55,7 @@ class TrainSpec:
     trained_agent: str | Path | None = None
     robust: str | None = None
     constraint: str | None = None
+    trust_run: bool = False
 
     def validate(self) -> None:
         """Check the budget and ``robust`` (the rest is checked against the config and the env)."""
@@ -72,7 +75,7 @@ class OutputOptions:
     :param tensorboard_log: TensorBoard folder (``-tb``; None: none).
     :param save_freq: checkpoint every N env steps (``--save-freq``; <= 0: never).
     :param command: the command line recorded in ``command.txt`` (default: one rebuilt from the spec).
-    :param save_replay_buffer: off-policy runs keep their replay buffer in ``replay_buffer.pkl`` (replaced at each
+    :param save_replay_buffer: off-policy runs keep their replay buffer in ``replay_buffer.npz`` (replaced at each
         checkpoint and at the end), which ``-i`` loads to continue (``--save-replay-buffer``).
     """
 

@@ -10,14 +10,15 @@ from __future__ import annotations
 import errno
 import os
 import re
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from sbagents.atomic import write_text
 from sbagents.errors import UsageError
+from sbagents.state_files import VECNORMALIZE_FILE
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -25,7 +26,6 @@ if TYPE_CHECKING:
     from sbagents.pipeline.experiment import Experiment
 
 SUMMARY_FILE = "summary.json"
-VECNORMALIZE_FILE = "vecnormalize.pkl"
 BEST_MODEL_FILE = "best_model.zip"
 
 
@@ -106,7 +106,7 @@ def checkpoint_path(run_dir: Path, steps: int) -> Path:
 
 def checkpoint_stats_path(run_dir: Path, steps: int) -> Path:
     """The ``VecNormalize`` statistics saved with the checkpoint of ``steps`` (the file may not exist)."""
-    return run_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"
+    return run_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.npz"
 
 
 def model_path(run_dir: Path, env_id: str, load_best: bool = False, checkpoint: int | None = None) -> Path:
@@ -128,45 +128,70 @@ def config_path(run_dir: Path, env_id: str) -> Path:
 def save_run_config(
     run_dir: Path, env_id: str, hyperparams: dict[str, Any], args: dict[str, Any], command: str
 ) -> None:
-    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt`` (any backend)."""
+    """Write ``config.yml`` (the resolved hyperparameters), ``args.yml`` and ``command.txt`` (any backend),
+    each atomically."""
     folder = config_path(run_dir, env_id).parent
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "config.yml").write_text(yaml.safe_dump(hyperparams, sort_keys=True))
-    (folder / "args.yml").write_text(yaml.safe_dump(args, sort_keys=True))
-    (run_dir / "command.txt").write_text(command + "\n")
+    write_text(folder / "config.yml", yaml.safe_dump(hyperparams, sort_keys=True))
+    write_text(folder / "args.yml", yaml.safe_dump(args, sort_keys=True))
+    write_text(run_dir / "command.txt", command + "\n")
 
 
 def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
     """The hyperparameters saved in a run's ``config.yml``, or :class:`UsageError` if the file is missing."""
-    from sbagents.pipeline.zoo_config import load_yaml
-
     path = config_path(run_dir, env_id)
     if not path.exists():
         raise UsageError(f"{run_dir} has no {path.relative_to(run_dir)}; is it a sbagents run dir?")
-    return load_yaml(path) or {}
+    return read_settings_file(path)
+
+
+def read_settings_file(path: Path) -> dict[str, Any]:
+    """A run's YAML file that must hold a mapping (``config.yml``, ``args.yml``; safe YAML); one line for anything
+    else (malformed, binary, a list)."""
+    from sbagents.pipeline.zoo_config import load_yaml
+
+    try:
+        data = load_yaml(path)
+    except UnicodeDecodeError:
+        raise UsageError(f"{path} is not a text file (binary content); is it a sbagents run dir?") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise UsageError(f"{path} must hold a YAML mapping of settings, not a {type(data).__name__}")
+    return data
+
+
+def run_args(run_dir: Path, env_id: str) -> dict[str, Any]:
+    """A run's ``args.yml`` (the CLI settings it was trained with; ``{}`` when the file is missing)."""
+    path = config_path(run_dir, env_id).with_name("args.yml")
+    return read_settings_file(path) if path.exists() else {}
 
 
 def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False,
-                    game: bool = False) -> Experiment:
+                    game: bool = False, trusted_modules: tuple[str, ...] = ()) -> Experiment:
     """The :class:`~sbagents.pipeline.experiment.Experiment` a run was trained with (so evaluation wraps the
-    env identically); ``multi_agent`` for PettingZoo envs, ``game`` for turn-based games."""
+    env identically); ``multi_agent`` for PettingZoo envs, ``game`` for turn-based games.
+
+    :param trusted_modules: modules the user named (``--env module:...``, ``--gym-packages``) whose classes the
+        run's config may name besides the import allow-list (:data:`~sbagents.pipeline.experiment.ALLOWED_IMPORTS`).
+    """
     from sbagents.pipeline.experiment import resolve
 
     return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent,
-                   game)
+                   game, trusted_modules)
 
 
 def check_model_file(path: str | Path) -> Path:
-    """Raise :class:`UsageError` unless ``path`` is an SB3 model zip (a zip holding ``data``)."""
+    """Raise :class:`UsageError` unless ``path`` is an SB3 model zip (a complete zip holding a valid ``data``)."""
+    from sbagents.safe_load import read_model_data
+
     path = Path(path)
     if not path.exists():
         raise UsageError(f"--trained-agent {path} does not exist")
     try:
-        with zipfile.ZipFile(path) as archive:
-            if "data" not in archive.namelist():
-                raise UsageError(f"--trained-agent {path} is a zip file but not an SB3 model (no 'data' entry)")
-    except zipfile.BadZipFile:
-        raise UsageError(f"--trained-agent {path} is not an SB3 model file (not a zip archive)") from None
+        read_model_data(path)
+    except UsageError as exc:
+        raise UsageError(f"--trained-agent: {exc}") from None
     return path
 
 
@@ -181,6 +206,8 @@ class RunRef:
     :param load_best: the run's ``best_model.zip`` instead of its final model.
     :param gym_packages: packages to import that register the env.
     :param checkpoint: the checkpoint saved after this many timesteps (``--save-freq``) instead of the final model.
+    :param trust: the run's files come from a trusted source: load pickles in them as they are (``--trust-run``;
+        by default nothing in a run dir can run code, see docs/security.md).
     """
 
     algo: str | None
@@ -190,6 +217,7 @@ class RunRef:
     load_best: bool = False
     gym_packages: tuple[str, ...] = ()
     checkpoint: int | None = None
+    trust: bool = False
 
     def __post_init__(self) -> None:
         if self.load_best and self.checkpoint is not None:
@@ -224,22 +252,24 @@ class LoadedRun:
     model: BaseAlgorithm
     env: Any  # EnvRef
     models: dict[str, BaseAlgorithm] = field(default_factory=dict)
-    stats_paths: dict[str, Path] = field(default_factory=dict)
+    stats_paths: dict[str, Path | None] = field(default_factory=dict)
+    trust: bool = False
 
     @property
-    def stats_path(self) -> Path:
-        """Where the ``VecNormalize`` statistics of the (first) model are (the file may not exist)."""
-        return next(iter(self.stats_paths.values()), self.run_dir / VECNORMALIZE_FILE)
+    def stats_path(self) -> Path | None:
+        """The ``VecNormalize`` statistics of the (first) model (None: the run has none)."""
+        return next(iter(self.stats_paths.values()), None)
 
 
 def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
     """The groups of a PettingZoo run (``args.yml``; None for runs of other envs or made before groups)."""
-    from sbagents.pipeline.zoo_config import load_yaml
-
-    path = config_path(run_dir, env_id).with_name("args.yml")
-    args = (load_yaml(path) or {}) if path.exists() else {}
-    groups = args.get("groups")
-    return {str(g): list(a) for g, a in groups.items()} if isinstance(groups, dict) else None
+    groups = run_args(run_dir, env_id).get("groups")
+    if groups is None:
+        return None
+    if not isinstance(groups, dict) or not all(isinstance(a, list) for a in groups.values()):
+        raise UsageError(f"{config_path(run_dir, env_id).with_name('args.yml')}: groups must map group names to "
+                         f"lists of agents, got {groups!r:.80}")
+    return {str(g): [str(x) for x in a] for g, a in groups.items()}
 
 
 def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = False) -> Path:
@@ -253,20 +283,26 @@ def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = F
 
 
 def load_run(ref: RunRef) -> LoadedRun:
-    """Find the run ``ref`` names and load its model(s) and experiment."""
+    """Find the run ``ref`` names and load its model(s) and experiment, without running code from its files
+    (:mod:`sbagents.safe_load`; ``ref.trust`` loads them as they are)."""
     from sbagents.algos import ALGOS
+    from sbagents.safe_load import load_model
 
     if ref.algo not in ALGOS:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
-    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game)
+    trusted = env.trusted_modules()
+    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game, trusted)
     cls: Any = ALGOS[ref.algo].cls
-    args_file = config_path(run_dir, env.env_id).with_name("args.yml")
-    if args_file.exists() and (yaml.safe_load(args_file.read_text()) or {}).get("constraint"):
+    if run_args(run_dir, env.env_id).get("constraint"):
         from sbagents.constrained.options import constrained_class  # its zip holds a cost critic PPO.load refuses
 
         cls = constrained_class(ref.algo)
+
+    def load(path: Path) -> Any:
+        return load_model(cls, path, device="cpu", trust=ref.trust, trusted_modules=trusted)
+
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
         from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo
@@ -275,12 +311,25 @@ def load_run(ref: RunRef) -> LoadedRun:
             raise UsageError("--load-checkpoint loads one model; this run has one model per group (its checkpoints "
                              "are rl_model.<group>_<steps>_steps.zip)")
         paths = {g: group_model_path(run_dir, env.env_id, g, ref.load_best) for g in groups}
-        models = {g: cls.load(str(path), device="cpu") for g, path in paths.items()}
+        models = {g: load(path) for g, path in paths.items()}
         first = next(iter(models))
-        stats = {g: run_dir / group_stats_name(g) for g in groups}
-        return LoadedRun(run_dir, paths[first], exp, models[first], env, models, stats)
+        stats = {g: _stats(run_dir / group_stats_name(g), ref.trust) for g in groups}
+        return LoadedRun(run_dir, paths[first], exp, models[first], env, models, stats, ref.trust)
     path = model_path(run_dir, env.env_id, ref.load_best, ref.checkpoint)
-    model = cls.load(str(path), device="cpu")
+    model = load(path)
     stats_path = (checkpoint_stats_path(run_dir, ref.checkpoint) if ref.checkpoint is not None
                   else run_dir / VECNORMALIZE_FILE)
-    return LoadedRun(run_dir, path, exp, model, env, {"shared": model}, {"shared": stats_path})
+    return LoadedRun(run_dir, path, exp, model, env, {"shared": model}, {"shared": _stats(stats_path, ref.trust)},
+                     ref.trust)
+
+
+def _stats(path: Path, trust: bool) -> Path | None:
+    """The statistics file to use for ``path``: itself, a legacy pickle beside it (refused in one line now, before
+    anything else runs, unless ``trust``), or None when the run has none."""
+    from sbagents.safe_load import load_pickle_file
+    from sbagents.state_files import existing
+
+    found = existing(path)
+    if found is not None and found.suffix == ".pkl" and not trust:
+        load_pickle_file(found, "VecNormalize statistics", trust, lambda p: None)  # raises: says why and how
+    return found

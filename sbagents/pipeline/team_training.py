@@ -3,7 +3,7 @@ backend's path for such experiments (:func:`train_groups`, called by :func:`sbag
 
 The models learn side by side on one team (:func:`sbagents.multiagent.lockstep.learn_in_lockstep`), each on its own
 rollout or replay data. ``n_timesteps`` counts agent steps of the whole team, as for a shared policy. The run dir
-holds one model per group (``<EnvId>.<group>.zip``, ``best_model.<group>.zip``, ``vecnormalize.<group>.pkl``) and
+holds one model per group (``<EnvId>.<group>.zip``, ``best_model.<group>.zip``, ``vecnormalize.<group>.npz``) and
 the groups in ``args.yml``; evaluation, export and video load them all.
 """
 
@@ -17,12 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.algos import ALGOS, algos_for
+from sbagents.atomic import save_model
 from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback
+from sbagents.callbacks.run_files import AtomicCheckpointCallback
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_model_name, group_stats_name
 from sbagents.multiagent.lockstep import learn_in_lockstep
@@ -37,6 +39,7 @@ from sbagents.pipeline.models import make_model
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX
 from sbagents.pipeline.trust import TrustOptions
+from sbagents.state_files import save_vecnormalize
 
 #: Seed offset of the evaluation team (as single-model runs).
 EVAL_SEED_OFFSET = 10_000
@@ -80,8 +83,8 @@ def _group_callbacks(
     for group, model in models.items():
         own: list[BaseCallback] = [ActedMaskCallback()] if isinstance(model, OnPolicyAlgorithm) else []
         if output.save_freq > 0:
-            own.append(CheckpointCallback(max(round(output.save_freq * calls_per_env_step), 1), str(run_dir),
-                                          name_prefix=f"{CHECKPOINT_PREFIX}.{group}", save_vecnormalize=True))
+            own.append(AtomicCheckpointCallback(max(round(output.save_freq * calls_per_env_step), 1), str(run_dir),
+                                                name_prefix=f"{CHECKPOINT_PREFIX}.{group}", save_vecnormalize=True))
         own += [cb(**kw) for cb, kw in exp.callbacks]
         own += _trust_callbacks(trust, run_dir, group)
         each[group] = own
@@ -153,10 +156,10 @@ def learn_groups(setup: GroupSetup, clock: LearningClock, log_interval: int, run
 
 
 def _save(models: dict[str, BaseAlgorithm], venvs: dict[str, VecEnv], run_dir: Path, stem: str) -> None:
-    for group, model in models.items():
-        model.save(str(run_dir / group_model_name(stem, group)))
+    for group, model in models.items():  # statistics first: a model file that exists has them beside it
         if isinstance(venvs[group], VecNormalize):
-            venvs[group].save(str(run_dir / group_stats_name(group)))  # type: ignore[attr-defined]
+            save_vecnormalize(venvs[group], run_dir / group_stats_name(group))
+        save_model(model, run_dir / group_model_name(stem, group))
     for venv in venvs.values():
         with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
             venv.close()

@@ -16,12 +16,14 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.algos import ALGOS
+from sbagents.atomic import save_model
+from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
@@ -34,9 +36,10 @@ from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, 
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.replay_buffer import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
-from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, VECNORMALIZE_FILE, check_model_file, env_stem
+from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
 from sbagents.private.options import PrivacyOptions
+from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 if TYPE_CHECKING:
     from sbagents.constrained.options import ConstraintSpec
@@ -110,10 +113,10 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
                                               deterministic=exp.deterministic_eval, **common))
         else:
             eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET)
-            callbacks.append(EvalCallback(eval_env, deterministic=exp.deterministic_eval, **common))
+            callbacks.append(AtomicEvalCallback(eval_env, deterministic=exp.deterministic_eval, **common))
     if save_freq > 0:
-        callbacks.append(CheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
-                                            save_vecnormalize=True))
+        callbacks.append(AtomicCheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
+                                                  save_vecnormalize=True))
     callbacks.extend(cb(**kw) for cb, kw in exp.callbacks)
     return callbacks
 
@@ -178,14 +181,15 @@ def train_sb3(
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env,
-                                                    env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats)
+                                                    env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats,
+                                           spec.trust_run)
         if privacy.enabled:
             from sbagents.private.training import freeze_normalization
 
             train_env = freeze_normalization(train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
-                           max(execution.verbose - 1, 0), agent_path, spec.robust, constraint)
-        resumed_buffer = load_replay_buffer(model, agent_path) if agent_path is not None else None
+                           max(execution.verbose - 1, 0), agent_path, spec.robust, constraint, spec.trust_run)
+        resumed_buffer = load_replay_buffer(model, agent_path, spec.trust_run) if agent_path is not None else None
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
@@ -308,9 +312,10 @@ def _train_groups(
 
 
 def _save(model: BaseAlgorithm, ctx: RunContext) -> None:
-    """The final model (and VecNormalize statistics) into the run dir; the training env is closed."""
-    model.save(str(ctx.run_dir / f"{env_stem(ctx.ref.env_id)}.zip"))
+    """The VecNormalize statistics, then the final model into the run dir (each atomically: a model file that
+    exists is complete and has its statistics beside it); the training env is closed."""
     if isinstance(ctx.train_env, VecNormalize):
-        ctx.train_env.save(str(ctx.run_dir / VECNORMALIZE_FILE))
+        save_vecnormalize(ctx.train_env, ctx.run_dir / VECNORMALIZE_FILE)
+    save_model(model, ctx.run_dir / f"{env_stem(ctx.ref.env_id)}.zip")
     with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
         ctx.train_env.close()  # SubprocVecEnv workers may already be gone after Ctrl-C

@@ -173,14 +173,14 @@ def trust_report(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]:
     specs = parse_attacks(options.attacks, "--attack")
     keys = parse_keys(options.fairness)
     if specs:
-        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path, trust=run.trust)
         try:
             check_attacks(model, venv, specs, "--attack")
             result["adversarial"] = adversarial_report(model, venv, specs, options.n_episodes, run.run_dir, seed=seed)
         finally:
             venv.close()
     if keys:
-        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path)
+        venv = make_eval_vec(exp, ref, 1, seed, run.stats_path, trust=run.trust)
         try:
             result["fairness"] = fairness_report(model, venv, keys, options.bins, options.n_episodes, run.run_dir,
                                                  seed=seed)

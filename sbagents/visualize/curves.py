@@ -21,8 +21,7 @@ import numpy as np
 
 from sbagents.errors import UsageError
 from sbagents.pipeline.monitor_files import read_monitor_files
-from sbagents.pipeline.run_dir import RunRef, env_stem
-from sbagents.pipeline.zoo_config import load_yaml
+from sbagents.pipeline.run_dir import RunRef, env_stem, read_settings_file
 
 _RUN_DIR = re.compile(r"^(?P<stem>.+)_(?P<k>\d+)$")
 
@@ -53,14 +52,14 @@ def read_monitor(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
 def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:
     """How many model timesteps one monitor step is (1/frame_skip under AtariWrapper, n_agents for teams)."""
     config = run_dir / stem / "config.yml"
-    entry: dict[str, Any] = (load_yaml(config) or {}) if config.exists() else {}
+    entry = read_settings_file(config) if config.exists() else {}
     wrappers = entry.get("env_wrapper") or []
     for item in wrappers if isinstance(wrappers, list) else [wrappers]:
         name, kwargs = (item, {}) if isinstance(item, str) else next(iter(dict(item).items()))
         if str(name).endswith("AtariWrapper"):
             return 1.0 / float((kwargs or {}).get("frame_skip", 4))
     args_file = run_dir / stem / "args.yml"
-    args: dict[str, Any] = (load_yaml(args_file) or {}) if args_file.exists() else {}
+    args = read_settings_file(args_file) if args_file.exists() else {}
     if "timesteps_per_env_step" in args:  # PettingZoo runs record it: the first model's agents per team step
         return float(args["timesteps_per_env_step"])
     from sbagents.registration import PETTINGZOO_ENVS

@@ -1,0 +1,198 @@
+"""Training state kept beside a model, in files that hold numbers only: ``VecNormalize`` statistics
+(``vecnormalize.npz``) and replay buffers (``replay_buffer.npz``).
+
+SB3 writes both as pickles, and unpickling a file runs whatever code it names. These ``.npz`` files are read with
+``numpy.load(allow_pickle=False)``: arrays, plus one JSON string of settings. A ``.pkl`` of a run made before
+sbagents wrote them is loaded only when the user trusts it (``--trust-run``, :mod:`sbagents.safe_load`).
+
+Both writers are atomic (:mod:`sbagents.atomic`).
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sbagents.atomic import write_npz
+from sbagents.errors import UsageError
+from sbagents.safe_load import load_pickle_file
+
+#: The statistics file of a run dir (of one model; ``vecnormalize.<group>.npz`` for a group's).
+VECNORMALIZE_FILE = "vecnormalize.npz"
+#: The replay buffer file of a run dir (``--save-replay-buffer``).
+REPLAY_BUFFER_FILE = "replay_buffer.npz"
+#: Format version written into the settings of both files.
+FORMAT = 1
+
+_SETTINGS = "__settings__"
+_VECNORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon", "norm_obs_keys")
+
+
+def legacy_path(path: Path) -> Path:
+    """The pickle an older run kept in place of ``path`` (``vecnormalize.npz`` -> ``vecnormalize.pkl``)."""
+    return path.with_suffix(".pkl")
+
+
+def existing(path: Path | None) -> Path | None:
+    """``path`` if it exists, else the legacy pickle beside it if that exists, else None."""
+    if path is None:
+        return None
+    if path.exists():
+        return path
+    legacy = legacy_path(path)
+    return legacy if legacy.exists() else None
+
+
+def _read_npz(path: Path, what: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays and the settings of one of these files (one-line errors for anything malformed)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
+            raise
+        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {exc})") from None
+    try:
+        settings = json.loads(str(arrays.pop(_SETTINGS)))
+    except (KeyError, ValueError) as exc:
+        raise UsageError(f"{path} is not a valid {what} file (no settings: {exc})") from None
+    if not isinstance(settings, dict) or settings.get("format") != FORMAT:
+        raise UsageError(f"{path} is not a {what} file of format {FORMAT}")
+    return arrays, settings
+
+
+# --- VecNormalize ---------------------------------------------------------------------------------------------
+def save_vecnormalize(venv: Any, path: str | Path) -> Path:
+    """Write the statistics and settings of a ``VecNormalize`` to ``path`` (``.npz``, atomically)."""
+    arrays: dict[str, Any] = {}
+    rms = venv.obs_rms if isinstance(venv.obs_rms, dict) else {"": venv.obs_rms}
+    for key, stats in rms.items():
+        arrays |= {f"obs_rms/{key}/mean": stats.mean, f"obs_rms/{key}/var": stats.var,
+                   f"obs_rms/{key}/count": np.asarray(stats.count, np.float64)}
+    arrays |= {"ret_rms/mean": venv.ret_rms.mean, "ret_rms/var": venv.ret_rms.var,
+               "ret_rms/count": np.asarray(venv.ret_rms.count, np.float64)}
+    settings = {k: getattr(venv, k) for k in _VECNORMALIZE_KEYS}
+    settings |= {"format": FORMAT, "dict_obs": isinstance(venv.obs_rms, dict)}
+    arrays[_SETTINGS] = np.asarray(json.dumps(settings))
+    return write_npz(path, **arrays)
+
+
+def load_vecnormalize(path: str | Path, venv: Any, trust: bool = False) -> Any:
+    """A ``VecNormalize`` around ``venv`` with the statistics saved at ``path`` (``.npz``; a legacy ``.pkl`` only
+    with ``trust``).
+
+    :raises UsageError: the file is malformed or its statistics do not fit ``venv``'s observations.
+    """
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    path = Path(path)
+    if path.suffix == ".pkl":
+        return load_pickle_file(path, "VecNormalize statistics", trust,
+                                lambda p: VecNormalize.load(str(p), venv))
+    arrays, settings = _read_npz(path, "VecNormalize statistics")
+    try:
+        kwargs = {k: settings[k] for k in _VECNORMALIZE_KEYS}
+        norm = VecNormalize(venv, **kwargs)
+        keys = sorted({name.split("/")[1] for name in arrays if name.startswith("obs_rms/")})
+        loaded = {key: _rms(arrays, f"obs_rms/{key}", RunningMeanStd) for key in keys}
+        obs_rms = loaded if settings.get("dict_obs") else loaded[""]
+        _check_same_shapes(norm.obs_rms, obs_rms)
+        norm.obs_rms, norm.ret_rms = obs_rms, _rms(arrays, "ret_rms", RunningMeanStd)
+    except (KeyError, TypeError, ValueError, AssertionError) as exc:
+        raise UsageError(f"{path} does not fit this env's observations ({type(exc).__name__}: {exc})") from None
+    return norm
+
+
+def _rms(arrays: dict[str, np.ndarray], prefix: str, cls: Any) -> Any:
+    stats = cls(shape=arrays[f"{prefix}/mean"].shape)
+    stats.mean = arrays[f"{prefix}/mean"].astype(np.float64)
+    stats.var = arrays[f"{prefix}/var"].astype(np.float64)
+    stats.count = float(arrays[f"{prefix}/count"])
+    return stats
+
+
+def _check_same_shapes(expected: Any, loaded: Any) -> None:
+    if isinstance(expected, dict) != isinstance(loaded, dict):
+        raise ValueError("the file normalizes Dict observations and the env does not, or the other way round")
+    pairs = expected.keys() if isinstance(expected, dict) else [None]
+    for key in pairs:
+        want = expected[key] if key is not None else expected
+        got = loaded.get(key) if key is not None else loaded
+        if got is None or np.shape(want.mean) != np.shape(got.mean):
+            raise ValueError(f"observation statistics of shape {np.shape(got.mean) if got is not None else None}, "
+                             f"the env's observations have shape {np.shape(want.mean)}"
+                             + (f" (key {key!r})" if key is not None else ""))
+
+
+# --- replay buffers -------------------------------------------------------------------------------------------
+def _plain_json(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not plain data")
+
+
+def save_replay_buffer(buffer: Any, path: str | Path) -> Path:
+    """Write a replay buffer's arrays and position to ``path`` (``.npz``, atomically): every numpy array attribute
+    (also per key of Dict observations), object arrays (HER's ``infos``) as JSON, and ``pos``/``full``."""
+    arrays: dict[str, Any] = {}
+    for name, value in vars(buffer).items():
+        if isinstance(value, np.ndarray) and value.dtype == object:
+            try:
+                arrays[f"json/{name}"] = np.asarray(json.dumps(value.tolist(), default=_plain_json))
+            except TypeError as exc:
+                raise UsageError(f"cannot save the replay buffer's {name}: {exc}") from None
+        elif isinstance(value, np.ndarray):
+            arrays[f"array/{name}"] = value
+        elif isinstance(value, dict) and value and all(isinstance(v, np.ndarray) for v in value.values()):
+            arrays |= {f"dict/{name}/{key}": v for key, v in value.items()}
+    settings = {"format": FORMAT, "class": type(buffer).__name__, "pos": int(buffer.pos), "full": bool(buffer.full),
+                "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
+    arrays[_SETTINGS] = np.asarray(json.dumps(settings))
+    return write_npz(path, **arrays)
+
+
+def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model: Any = None) -> None:
+    """Fill ``buffer`` (the model's, built from its config) with the one saved at ``path`` (``.npz``; a legacy
+    ``.pkl`` only with ``trust``, through ``model.load_replay_buffer``).
+
+    :raises UsageError: the file is malformed, or was saved from a buffer of another size, kind or spaces.
+    """
+    path = Path(path)
+    if path.suffix == ".pkl":
+        load_pickle_file(path, "a replay buffer", trust, lambda p: model.load_replay_buffer(str(p)))
+        return
+    arrays, settings = _read_npz(path, "replay buffer")
+    mine = {"class": type(buffer).__name__, "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
+    theirs = {k: settings.get(k) for k in mine}
+    if theirs != mine:
+        raise UsageError(f"{path} holds a {theirs['class']} of buffer_size {theirs['buffer_size']} for "
+                         f"{theirs['n_envs']} envs; this model's is a {mine['class']} of buffer_size "
+                         f"{mine['buffer_size']} for {mine['n_envs']} envs")
+    updates: dict[str, Any] = {}
+    for name, value in arrays.items():
+        kind, _, rest = name.partition("/")
+        attr, _, key = rest.partition("/")
+        target = getattr(buffer, attr, None)
+        if kind == "dict" and isinstance(target, dict):
+            target = target.get(key)
+        if kind == "json":
+            try:
+                value = np.asarray(json.loads(str(value)), dtype=object).reshape(np.shape(target))  # type: ignore[arg-type]
+            except (ValueError, RecursionError, TypeError) as exc:
+                raise UsageError(f"{path}: {rest} is not valid ({type(exc).__name__}: {exc})") from None
+        if not isinstance(target, np.ndarray) or target.shape != value.shape or (
+                kind != "json" and target.dtype != value.dtype):
+            raise UsageError(f"{path}: {rest} does not fit this model's replay buffer "
+                             f"({getattr(value, 'shape', None)} {getattr(value, 'dtype', '')} vs "
+                             f"{getattr(target, 'shape', None)} {getattr(target, 'dtype', '')})")
+        updates[name] = (target, value)
+    for target, value in updates.values():  # all checked first: a mismatch leaves the buffer as it was
+        target[...] = value
+    buffer.pos, buffer.full = int(settings["pos"]), bool(settings["full"])

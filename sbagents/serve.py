@@ -8,8 +8,9 @@ Usage::
 
 With ``--model`` it needs only numpy and onnxruntime (no torch, SB3 or gymnasium): an edge device installs those
 two and copies the export folder. The protocols are in :mod:`sbagents.deploy.serving` and
-:mod:`sbagents.deploy.http_serving`. Exit status: 0 at end of input (stdin) or on Ctrl-C / SIGTERM (HTTP); 2 with
-one line on stderr when the model or sidecar is missing or invalid, or the address cannot be bound.
+:mod:`sbagents.deploy.http_serving`: a line or request that is not one observation gets ``{"error": ...}`` and
+serving goes on. Exit status: 0 at end of input (stdin) or on Ctrl-C / SIGTERM (HTTP); 2 with one line on stderr
+when the model or sidecar is missing or invalid, or the address cannot be bound.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     if args.http is None:
-        serve(policy, sys.stdin, sys.stdout, args.csv)
+        serve(policy, sys.stdin.buffer, sys.stdout, args.csv)
         return 0
     return serve_http(policy, args.http, args.csv)
 

@@ -194,7 +194,7 @@ def _loads(data: str | bytes) -> Any:
         raise ServeError("empty observation; send one JSON observation (a list of numbers or an object keyed by "
                          "obs_names)")
     try:
-        return json.loads(data, parse_int=_parse_int, parse_constant=_refuse_constant)
+        return _DECODER.decode(data)
     except json.JSONDecodeError as exc:
         raise ServeError(f"bad JSON: {exc.msg} (at character {exc.pos})") from None
     except RecursionError:
@@ -210,6 +210,10 @@ def _parse_int(text: str) -> int:
 
 def _refuse_constant(name: str) -> float:
     raise ServeError(f"not a finite number: {name} (JSON numbers only)")
+
+
+#: JSON with the hooks above, made once (``json.loads`` with hooks builds a decoder per call)
+_DECODER = json.JSONDecoder(parse_int=_parse_int, parse_constant=_refuse_constant)
 
 
 def _kind(value: Any) -> str:

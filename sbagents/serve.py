@@ -66,13 +66,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     run_dir = run_ref(args).run_dir() if args.model is None and args.algo is not None else None
     path = model_file(args.model, args.algo, run_dir, args.int8)
+    if args.allow_any_host and args.http is None:
+        raise UsageError("--allow-any-host is for --http HOST:PORT (stdin/stdout has no Host header)")
     try:
         policy = Policy(path, args.meta)
     except (OSError, ValueError) as exc:
         raise UsageError(str(exc)) from None
     if args.http is None:
-        if args.allow_any_host:
-            raise UsageError("--allow-any-host is for --http HOST:PORT (stdin/stdout has no Host header)")
         serve(policy, sys.stdin.buffer, sys.stdout, args.csv)
         return 0
     return serve_http(policy, args.http, args.csv, args.allow_any_host)

@@ -504,6 +504,8 @@ def _corrupt_cases(folder: Path, models: Models) -> list[tuple[str, Path, list[s
     cases.append(("a folder for a model", folder, [], "model file not found"))
     cases.append(("a missing --meta", models.box, ["--meta", str(folder / "nowhere.json")], "sidecar not found"))
     cases.append(("--allow-any-host without --http", models.box, ["--allow-any-host"], "is for --http"))
+    cases.append(("a --csv in a missing folder, over HTTP", models.box,
+                  ["--http", "127.0.0.1:0", "--csv", str(folder / "nowhere" / "log.csv")], "cannot use"))
     return cases
 
 

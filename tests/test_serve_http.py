@@ -145,3 +145,17 @@ def test_address_parsing_and_loopback() -> None:
     assert parse_address("[::1]:8080") == ("::1", 8080)
     assert all(is_loopback(h) for h in ("localhost", "127.0.0.1", "127.1.2.3", "::1"))
     assert not any(is_loopback(h) for h in ("0.0.0.0", "192.168.1.10", "::", "hub.local"))
+
+
+def test_benchmark_section_is_its_saved_results() -> None:
+    """BENCHMARKS.md's serve-latency section is what ``benchmarks.serve_latency`` makes of its saved results, and
+    those back the claim made of them: 50 clients connecting at once lost no request."""
+    from benchmarks import serve_latency
+
+    saved = json.loads((ROOT / "benchmarks" / "results" / "serve_latency.json").read_text())
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    start, end = "<!-- serve-latency:start -->\n", "\n<!-- serve-latency:end -->"
+    section = text[text.index(start) + len(start): text.index(end)]
+    assert serve_latency.markdown(saved) == section
+    at_once = saved["bursts"]["at_once"]
+    assert at_once["clients"] == 50 and at_once["requests"] == at_once["answered"] == 1000 and at_once["lost"] == 0

@@ -95,6 +95,8 @@ HOSTILE: list[tuple[str, bytes, str]] = [
     ("a string value", b'[22, "55", 3, 24, 70]', "not a finite number"),
     ("2,000 unknown keys", json.dumps({f"k{i}": i for i in range(2000)}).encode(), "more)"),
     ("missing keys", json.dumps(dict(zip(OBS_NAMES[:3], GOOD[0], strict=False))).encode(), "missing keys"),
+    ("a repeated key", ("{" + ", ".join(f'"{k}": 1' for k in (*OBS_NAMES, "Time")) + "}").encode(),
+     "key 'Time' is given twice"),
     ("empty line", b"", "empty observation"),
     ("blank line", b"  \t ", "empty observation"),
     ("over-long line", b"[" + b"1.0, " * 40_000 + b"1.0]", f"more than {MAX_REQUEST_BYTES} bytes"),

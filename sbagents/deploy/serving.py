@@ -10,9 +10,9 @@ Protocol:
   :data:`MAX_REQUEST_BYTES` bytes.
 - Output: for every line exactly one line: the action as a JSON list of floats (Box) or an int (Discrete), or
   ``{"error": "<reason>"}`` for a line that is not one observation (empty, too long, not UTF-8, bad or too deeply
-  nested JSON, wrong length, unknown or missing keys, non-numbers, NaN/Infinity, numbers out of the float32 range
-  or a Discrete observation outside the sidecar's range). Serving goes on after an error. The output is flushed per
-  line.
+  nested JSON, wrong length, unknown, missing or repeated keys, non-numbers, NaN/Infinity, numbers out of the
+  float32 range or a Discrete observation outside the sidecar's range). Serving goes on after an error. The output
+  is flushed per line.
 - CSV log: every served decision is appended as ``timestamp, <obs_names>, <action_names>`` (header written
   when the file is new or empty; LF line ends) and flushed per line.
 
@@ -212,8 +212,18 @@ def _refuse_constant(name: str) -> float:
     raise ServeError(f"not a finite number: {name} (JSON numbers only)")
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are all different (else which value counts would be a guess)."""
+    seen: set[str] = set()
+    for key, _ in pairs:
+        if key in seen:
+            raise ServeError(f"key {_show(key)} is given twice; give each observation name once")
+        seen.add(key)
+    return dict(pairs)
+
+
 #: JSON with the hooks above, made once (``json.loads`` with hooks builds a decoder per call)
-_DECODER = json.JSONDecoder(parse_int=_parse_int, parse_constant=_refuse_constant)
+_DECODER = json.JSONDecoder(parse_int=_parse_int, parse_constant=_refuse_constant, object_pairs_hook=_unique_keys)
 
 
 def _kind(value: Any) -> str:

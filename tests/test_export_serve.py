@@ -191,7 +191,7 @@ def test_serve_end_to_end(
         json.dumps({**named, "Humidity": 3}),  # unknown key
         json.dumps([22.0, "hot", 3.0, 24.0, 70.0]),  # non-number
         "[22.0, NaN, 3.0, 24.0, 70.0]",  # not finite
-        "",  # blank: skipped
+        "",  # blank: an error too (every line gets one reply)
         json.dumps(named),
         json.dumps(good[1]),
     ]
@@ -200,11 +200,12 @@ def test_serve_end_to_end(
     proc = _run(code, "\n".join(lines) + "\n", ("--model", str(out / "policy.onnx"), "--csv", str(csv_path)))
     assert proc.returncode == 0, proc.stderr
     replies = [json.loads(x) for x in proc.stdout.splitlines()]
-    assert len(replies) == 8
+    assert len(replies) == 9
     errors = [r for r in replies if isinstance(r, dict)]
-    assert len(errors) == 5 and all("error" in e for e in errors)
+    assert len(errors) == 6 and all("error" in e for e in errors)
     assert errors[2]["error"].startswith("unknown keys ['Humidity']; expected")  # no empty "missing keys []"
-    actions = np.array([replies[0], replies[6], replies[7]])
+    assert errors[5]["error"].startswith("empty observation")
+    actions = np.array([replies[0], replies[7], replies[8]])
     obs = np.array([good[0], [named[k] for k in OBS_NAMES], good[1]])
     expected, _ = model.predict(venv.normalize_obs(obs), deterministic=True)
     np.testing.assert_allclose(actions, expected, atol=1e-4)

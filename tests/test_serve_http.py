@@ -117,7 +117,7 @@ def test_http_serves_the_same_actions_errors_and_log_as_the_line_protocol(
 
     proc.send_signal(signal.SIGTERM)
     _, stderr = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "stopped: 3 decisions, 5 malformed requests" in stderr
+    assert proc.returncode == 0 and "stopped: 3 decisions, 5 malformed requests, 4 refused" in stderr
     rows = list(csv.reader(log.open()))
     assert rows[0] == ["timestamp", *OBS_NAMES, "Action_Temp", "Action_Light"] and len(rows) == 4
     assert [float(v) for v in rows[2][1:6]] == list(named.values())
@@ -133,7 +133,7 @@ def test_port_in_use_and_bad_addresses_are_one_line(exported: tuple[Path, TD3]) 
                               text=True, env=_env(), timeout=60)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert f"port {port} is in use on 127.0.0.1" in done.stderr
-    for bad in ("127.0.0.1:http", "99999", "127.0.0.1:"):
+    for bad in ("127.0.0.1:http", "99999", "127.0.0.1:", "127.0.0.1:\u0668\u0660"):  # Arabic-Indic digits too
         done = subprocess.run(_cmd("--model", str(exported[0]), "--http", bad), capture_output=True, text=True,
                               env=_env(), timeout=60)
         assert done.returncode == 2 and "expected HOST:PORT or PORT" in done.stderr, bad
@@ -145,3 +145,17 @@ def test_address_parsing_and_loopback() -> None:
     assert parse_address("[::1]:8080") == ("::1", 8080)
     assert all(is_loopback(h) for h in ("localhost", "127.0.0.1", "127.1.2.3", "::1"))
     assert not any(is_loopback(h) for h in ("0.0.0.0", "192.168.1.10", "::", "hub.local"))
+
+
+def test_benchmark_section_is_its_saved_results() -> None:
+    """BENCHMARKS.md's serve-latency section is what ``benchmarks.serve_latency`` makes of its saved results, and
+    those back the claim made of them: 50 clients connecting at once lost no request."""
+    from benchmarks import serve_latency
+
+    saved = json.loads((ROOT / "benchmarks" / "results" / "serve_latency.json").read_text())
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    start, end = "<!-- serve-latency:start -->\n", "\n<!-- serve-latency:end -->"
+    section = text[text.index(start) + len(start): text.index(end)]
+    assert serve_latency.markdown(saved) == section
+    at_once = saved["bursts"]["at_once"]
+    assert at_once["clients"] == 50 and at_once["requests"] == at_once["answered"] == 1000 and at_once["lost"] == 0

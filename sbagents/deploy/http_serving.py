@@ -5,15 +5,21 @@ this module needs only numpy and onnxruntime (the server is the standard library
 
 Routes:
 
-- ``POST /`` (or ``/act``): the body is one observation (a JSON list, or an object keyed by ``obs_names``).
-  200 with the action (a JSON list of floats, or an int); 400 with ``{"error": reason}`` for a malformed body
-  (the same reasons as the line protocol); 411 without ``Content-Length``; 413 for a body over
-  :data:`MAX_BODY` bytes.
+- ``POST /`` (or ``/act``) with ``Content-Type: application/json``: the body is one observation (a JSON list, or an
+  object keyed by ``obs_names``). 200 with the action (a JSON list of floats, or an int); 400 with
+  ``{"error": reason}`` for a body that is not one observation (the same reasons as the line protocol).
 - ``GET /`` (or ``/policy``): 200 with ``{"obs_names", "action_names", "discrete_action"}``.
-- Anything else: 404 (unknown path) or 405 (other methods), with ``{"error": reason}``.
 
-Connections are kept alive (HTTP/1.1); each client connection has its own thread, and decisions are made and
-logged one at a time.
+Every other answer is an error status with ``{"error": reason}``: 404 (unknown path), 405 (other methods), 408 (a
+body that stopped arriving), 411 (no ``Content-Length``; chunked bodies are not taken), 413 (a body over
+:data:`MAX_BODY` bytes), 415 (a POST that is not ``application/json``: a web page cannot send one without the
+browser asking first, which this server never allows), 421 (a ``Host`` header that is not this server's address:
+see :func:`host_allowed`; a web page that reaches the server by DNS rebinding carries its own host name), and the
+standard library's 400/414/431 for requests it cannot parse. A problem with the request never closes the
+connection without a reply.
+
+Connections are kept alive (HTTP/1.1); each client connection has its own thread, closed after
+:data:`CONNECTION_TIMEOUT` seconds without a byte from the client. Decisions are made and logged one at a time.
 """
 
 from __future__ import annotations
@@ -22,17 +28,26 @@ import errno
 import ipaddress
 import json
 import socket
+import sys
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
-from sbagents.deploy.serving import DecisionLog, Policy, decide
+from sbagents.deploy.serving import MAX_REQUEST_BYTES, DecisionLog, Policy, decide, error_reply
 
 #: Largest request body accepted (bytes); an observation is a few hundred.
-MAX_BODY = 64 * 1024
+MAX_BODY = MAX_REQUEST_BYTES
+#: A body over :data:`MAX_BODY` is read past (up to this many bytes) before the 413, so the client gets the reply
+#: rather than a connection reset; a larger one is answered and the connection closed at once.
+MAX_DRAIN = 1024 * 1024
+#: Seconds a connection may stay silent (idle between requests, or in the middle of one) before it is closed.
+CONNECTION_TIMEOUT = 15.0
+#: Connections the kernel queues before the server accepts them (http.server's default is 5).
+REQUEST_QUEUE_SIZE = 128
 ACT_PATHS = ("/", "/act")
 INFO_PATHS = ("/", "/policy")
+ALLOW_ANY_HOST_FLAG = "--allow-any-host"
 
 
 class PolicyHTTPServer(ThreadingHTTPServer):
@@ -40,23 +55,44 @@ class PolicyHTTPServer(ThreadingHTTPServer):
 
     :param address: ``(host, port)``; port 0 takes a free port (read it back from ``server_address``).
     :param csv_path: append every served decision to this CSV (None: no log).
-    :raises OSError: the address cannot be bound (``errno.EADDRINUSE`` when the port is in use).
+    :param allow_any_host: answer requests whatever their ``Host`` header (by default only this server's address:
+        :func:`host_allowed`).
+    :param connection_timeout: seconds of silence after which a client connection is closed (default
+        :attr:`connection_timeout`).
+    :raises OSError: the address cannot be bound (``errno.EADDRINUSE`` when the port is in use) or the CSV log
+        cannot be opened.
     """
 
     daemon_threads = True
     allow_reuse_address = False  # a port in use is an error, not something to share
+    request_queue_size = REQUEST_QUEUE_SIZE
+    connection_timeout: float = CONNECTION_TIMEOUT
 
-    def __init__(self, address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None) -> None:
+    def __init__(self, address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
+                 allow_any_host: bool = False, connection_timeout: float | None = None) -> None:
         if ":" in address[0]:
             self.address_family = socket.AF_INET6
         self.policy = policy
         self.log: DecisionLog | None = None
         self.lock = threading.Lock()
-        self.served = self.errors = 0
+        self.served = self.errors = self.refused = 0
+        self.host_name = address[0]  # as the user named it: what a Host header must say
+        self.allow_any_host = allow_any_host
+        if connection_timeout is not None:
+            self.connection_timeout = connection_timeout
         super().__init__(address, _Handler)  # binds (closes itself when that fails)
-        self.log = DecisionLog(policy, csv_path)
+        try:
+            self.log = DecisionLog(policy, csv_path)
+        except OSError:
+            super().server_close()
+            raise
 
-    def act(self, body: str) -> tuple[bool, str]:
+    @property
+    def port(self) -> int:
+        """The bound port."""
+        return int(self.server_address[1])
+
+    def act(self, body: str | bytes) -> tuple[bool, str]:
         """Decide on one observation (thread-safe); ``(ok, reply JSON)``."""
         with self.lock:
             assert self.log is not None, "the server is closed"
@@ -64,6 +100,22 @@ class PolicyHTTPServer(ThreadingHTTPServer):
             self.served += ok
             self.errors += not ok
         return ok, reply
+
+    def count_refused(self) -> None:
+        """Count one request refused before it reached the policy (route, method, size, Host, Content-Type)."""
+        with self.lock:
+            self.refused += 1
+
+    def host_ok(self, header: str | None) -> bool:
+        """Whether a request with this ``Host`` header is answered."""
+        return self.allow_any_host or host_allowed(header, self.host_name, self.port)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that went away is not worth a line; anything else is one line on stderr (no traceback)."""
+        exc = sys.exc_info()[1]
+        if isinstance(exc, OSError):
+            return
+        print(f"error while serving {client_address[0]}: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
 
     def server_close(self) -> None:
         super().server_close()
@@ -73,41 +125,99 @@ class PolicyHTTPServer(ThreadingHTTPServer):
 
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
+    default_request_version = "HTTP/1.0"  # a garbled request line still gets a status line (not a bare HTTP/0.9 body)
     disable_nagle_algorithm = True  # replies are small: send at once (else ~40 ms waits on delayed ACKs)
     server: PolicyHTTPServer
 
+    def setup(self) -> None:
+        super().setup()
+        self.connection.settimeout(self.server.connection_timeout)  # a silent client's thread ends
+
     def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
-        length = self.headers.get("Content-Length")
-        if length is None or not length.isdigit():
-            self._reply(411, _error("Content-Length is required (one JSON observation per request)"), close=True)
+        body = self._read_body(required=True)
+        if body is None or not self._host_checked():
             return
-        if int(length) > MAX_BODY:
-            self._reply(413, _error(f"body of {length} bytes; at most {MAX_BODY}"), close=True)
-            return
-        raw = self.rfile.read(int(length))  # read before any reply: the connection stays usable
         if self.path not in ACT_PATHS:
-            self._reply(404, _error(f"no route {self.path}; POST an observation to / or /act"))
-            return
-        try:
-            body = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            self._reply(400, _error("body is not UTF-8 text"))
-            return
-        ok, reply = self.server.act(body)
-        self._reply(200 if ok else 400, reply)
+            self._refuse(404, f"no route {self.path}; POST an observation to / or /act")
+        elif self.headers.get_content_type() != "application/json":  # a missing header reads as text/plain
+            given = self.headers.get("Content-Type")
+            self._refuse(415, f"Content-Type {_shown([given] if given is not None else [])}: POST the observation "
+                              "as application/json")
+        else:
+            ok, reply = self.server.act(body)
+            self._reply(200 if ok else 400, reply)
 
     def do_GET(self) -> None:  # noqa: N802
+        if self._read_body(required=False) is None or not self._host_checked():
+            return
         if self.path not in INFO_PATHS:
-            self._reply(404, _error(f"no route {self.path}; GET / describes the policy, POST / decides"))
+            self._refuse(404, f"no route {self.path}; GET / describes the policy, POST / decides")
             return
         policy = self.server.policy
         self._reply(200, json.dumps({"obs_names": list(policy.obs_names), "action_names": list(policy.action_names),
                                      "discrete_action": policy.discrete_action}))
 
     def _not_allowed(self) -> None:
-        self._reply(405, _error(f"{self.command} is not served; POST an observation, GET the policy"), close=True)
+        self._refuse(405, f"{self.command} is not served; POST an observation, GET the policy", close=True)
 
-    do_PUT = do_DELETE = do_PATCH = _not_allowed  # noqa: N815
+    do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_HEAD = _not_allowed  # noqa: N815
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """The standard library's parse errors (400, 414, 431, 501), as ``{"error": ...}`` like every other."""
+        reason = message or self.responses.get(code, ("error", ""))[0]
+        self._refuse(code, f"{reason}" + (f": {explain}" if explain else ""), close=True)
+
+    def _read_body(self, required: bool) -> bytes | None:
+        """The request body (``b""`` when there is none and none is ``required``); None when it was answered
+        already (no or a bad ``Content-Length``, too large, stopped arriving) or the client went away."""
+        if "Transfer-Encoding" in self.headers:
+            self._refuse(411, "chunked bodies are not taken; send Content-Length", close=True)
+            return None
+        lengths = self.headers.get_all("Content-Length") or []
+        if not lengths:
+            if required:
+                self._refuse(411, "Content-Length is required (one JSON observation per request)", close=True)
+                return None
+            return b""
+        text = lengths[0].strip()
+        if len(lengths) > 1 or not (text.isascii() and text.isdigit() and len(text) <= 18):
+            self._refuse(400, "Content-Length must be one byte count", close=True)
+            return None
+        length = int(text)
+        try:
+            if length > MAX_BODY:
+                self._drain(length)
+                self._refuse(413, f"body of {length} bytes; at most {MAX_BODY}", close=True)
+                return None
+            body = self.rfile.read(length)  # read before any reply: the connection stays usable
+        except TimeoutError:
+            self._refuse(408, f"the body stopped arriving ({self.server.connection_timeout:g} s without a byte)",
+                         close=True)
+            return None
+        if len(body) < length:  # the client closed its side: nobody to answer
+            self.close_connection = True
+            return None
+        return body
+
+    def _drain(self, length: int) -> None:
+        """Read past up to :data:`MAX_DRAIN` bytes of a body that is refused."""
+        left = min(length, MAX_DRAIN)
+        while left > 0 and (chunk := self.rfile.read(min(left, 65536))):
+            left -= len(chunk)
+
+    def _host_checked(self) -> bool:
+        """Whether the ``Host`` header names this server (else the 421 is sent)."""
+        hosts = self.headers.get_all("Host") or []
+        if len(hosts) <= 1 and self.server.host_ok(hosts[0] if hosts else None):
+            return True
+        self._refuse(421, f"Host header {_shown(hosts)} does not name this server; expected "
+                          f"{expected_hosts(self.server.host_name, self.server.port)} (or start it with "
+                          f"{ALLOW_ANY_HOST_FLAG})")
+        return False
+
+    def _refuse(self, status: int, reason: str, close: bool = False) -> None:
+        self.server.count_refused()
+        self._reply(status, error_reply(reason), close)
 
     def _reply(self, status: int, body: str, close: bool = False) -> None:
         data = (body + "\n").encode()
@@ -118,14 +228,18 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header("Connection", "close")
             self.close_connection = True
         self.end_headers()
-        self.wfile.write(data)
+        if getattr(self, "command", "") != "HEAD":
+            self.wfile.write(data)
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - one line per request is noise here
         pass
 
 
-def _error(reason: str) -> str:
-    return json.dumps({"error": reason})
+def _shown(hosts: list[str]) -> str:
+    if not hosts:
+        return "(none)"
+    text = ", ".join(hosts)
+    return repr(text if len(text) <= 80 else text[:77] + "...")
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -137,29 +251,98 @@ def parse_address(text: str) -> tuple[str, int]:
     if not sep:
         host, port = "127.0.0.1", text
     host = host.strip("[]") or "127.0.0.1"
-    if not port.isdigit() or not 0 <= int(port) <= 65535:
+    if not (port.isascii() and port.isdigit()) or not 0 <= int(port) <= 65535:
         raise ValueError(f"--http {text!r}: expected HOST:PORT or PORT with a port in 0-65535 (e.g. 127.0.0.1:8000)")
     return host, int(port)
 
 
 def is_loopback(host: str) -> bool:
     """Whether ``host`` only listens on this machine (``localhost``, 127.0.0.0/8, ``::1``)."""
-    if host == "localhost":
+    if host.lower() == "localhost":
         return True
+    ip = _ip(host)
+    return ip is not None and ip.is_loopback
+
+
+def _ip(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     try:
-        return ipaddress.ip_address(host).is_loopback
+        return ipaddress.ip_address(host.strip("[]"))
     except ValueError:
+        return None
+
+
+def _is_wildcard(host: str) -> bool:
+    ip = _ip(host)
+    return host == "" or (ip is not None and ip.is_unspecified)
+
+
+def split_host(value: str) -> tuple[str, int | None] | None:
+    """A ``Host`` header -> ``(host, port)``: the host lower-case without IPv6 brackets, the port None when not
+    given; None when the header is malformed."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        host, bracket, rest = value[1:].partition("]")
+        if not bracket or (rest and not rest.startswith(":")) or _ip(host) is None:
+            return None
+        port = rest[1:]
+    else:
+        host, _, port = value.partition(":")  # a second ':' (an IPv6 address without brackets) fails the port
+    if not host:
+        return None
+    if not port:
+        return host, None
+    if not (port.isascii() and port.isdigit() and len(port) <= 5):
+        return None
+    return host, int(port)
+
+
+def host_allowed(header: str | None, bound: str, port: int) -> bool:
+    """Whether a request whose ``Host`` header is ``header`` is for the server bound to ``bound``:``port``.
+
+    The port must be ``port`` (absent means 80). The host: ``localhost`` or a loopback address when bound to loopback;
+    ``localhost`` or any IP address when bound to all addresses (``0.0.0.0``, ``::``: a DNS-rebinding page carries
+    a name, not an address); else the host the server was bound to, as named. A missing or malformed header is not
+    allowed.
+    """
+    parsed = split_host(header) if header is not None else None
+    if parsed is None:
         return False
+    host, given_port = parsed
+    if (80 if given_port is None else given_port) != port:
+        return False
+    bound = bound.strip("[]").lower()
+    ip = _ip(host)
+    if is_loopback(bound):
+        return host == "localhost" or (ip is not None and ip.is_loopback)
+    if _is_wildcard(bound):
+        return host == "localhost" or ip is not None
+    bound_ip = _ip(bound)
+    return ip == bound_ip if bound_ip is not None else host == bound.rstrip(".")
 
 
-def bind(address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None) -> PolicyHTTPServer:
-    """A bound :class:`PolicyHTTPServer` (not yet serving).
+def expected_hosts(bound: str, port: int) -> str:
+    """The ``Host`` headers :func:`host_allowed` takes for ``bound``:``port``, in words."""
+    shown = f"[{bound}]" if ":" in bound else bound
+    if is_loopback(bound):
+        return f"localhost:{port} or a loopback address such as 127.0.0.1:{port}"
+    if _is_wildcard(bound):
+        return f"an IP address of this machine with :{port}, or localhost:{port}"
+    return f"{shown}:{port}"
+
+
+def bind(address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
+         allow_any_host: bool = False, connection_timeout: float | None = None) -> PolicyHTTPServer:
+    """A bound :class:`PolicyHTTPServer` (not yet serving); the keywords are the server's.
 
     :raises ValueError: the port is in use, or the host cannot be bound here (one readable line).
+    :raises OSError: the CSV log cannot be opened.
     """
     try:
-        return PolicyHTTPServer(address, policy, csv_path)
+        return PolicyHTTPServer(address, policy, csv_path, allow_any_host=allow_any_host,
+                                connection_timeout=connection_timeout)
     except OSError as exc:
+        if exc.filename is not None:  # the CSV log, not the address
+            raise
         where = f"{address[0]}:{address[1]}"
         if exc.errno == errno.EADDRINUSE:
             raise ValueError(f"port {address[1]} is in use on {address[0]} (another server?); pick another "

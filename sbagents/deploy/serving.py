@@ -5,17 +5,20 @@ Needs only numpy and onnxruntime: this module imports neither torch, SB3 nor gym
 
 Protocol:
 
-- Input: each non-blank line is a JSON list of numbers (``obs_dim`` of them; a single integer for a
-  Discrete observation), or a JSON object keyed by exactly the sidecar's ``obs_names``. Blank lines are
-  skipped.
-- Output: for every other line exactly one line: the action as a JSON list of floats (Box) or an int
-  (Discrete), or ``{"error": "<reason>"}`` for a malformed line (bad JSON, wrong length, unknown or missing
-  keys, non-numbers, NaN/inf). Serving goes on after an error. The output is flushed per line.
+- Input: each line is a JSON list of numbers (``obs_dim`` of them; a single integer for a Discrete
+  observation), or a JSON object keyed by exactly the sidecar's ``obs_names``; UTF-8, at most
+  :data:`MAX_REQUEST_BYTES` bytes.
+- Output: for every line exactly one line: the action as a JSON list of floats (Box) or an int (Discrete), or
+  ``{"error": "<reason>"}`` for a line that is not one observation (empty, too long, not UTF-8, bad or too deeply
+  nested JSON, wrong length, unknown, missing or repeated keys, non-numbers, NaN/Infinity, numbers out of the
+  float32 range or a Discrete observation outside the sidecar's range). Serving goes on after an error. The output
+  is flushed per line.
 - CSV log: every served decision is appended as ``timestamp, <obs_names>, <action_names>`` (header written
   when the file is new or empty; LF line ends) and flushed per line.
 
-The sidecar (``policy.json``, found next to the model unless given) supplies ``obs_names`` / ``action_names``;
-without it only lists are accepted and columns are ``obs_i``/``action_i``.
+The sidecar (``policy.json``, found next to the model unless given) supplies ``obs_names`` / ``action_names`` (both
+required in a sidecar: lists of distinct strings, as many as the model's observation and action values); without a
+sidecar only lists are accepted and columns are ``obs_i``/``action_i``.
 """
 
 from __future__ import annotations
@@ -23,12 +26,23 @@ from __future__ import annotations
 import csv
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, BinaryIO, TextIO
 
 import numpy as np
+
+#: Longest observation line (stdin) or body (HTTP) accepted, in bytes; an observation is a few hundred.
+MAX_REQUEST_BYTES = 64 * 1024
+#: Longest sidecar read; the exported ``policy.json`` is a few KiB.
+MAX_SIDECAR_BYTES = 16 * 1024 * 1024
+#: Most digits of a JSON integer: float32 reaches 3.4e38 (39 digits); longer ones are refused before conversion.
+MAX_INT_DIGITS = 40
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+INT64_RANGE = (-(2**63), 2**63)
+#: ONNX input/output element types a policy may have: float32 (Box) or int64 (Discrete).
+TENSOR_TYPES = ("tensor(float)", "tensor(int64)")
 
 
 class ServeError(ValueError):
@@ -40,7 +54,8 @@ class Policy:
 
     :param model_path: ONNX file with input ``(batch, obs_dim)`` float32 (or ``(batch,)`` int64).
     :param meta_path: sidecar JSON; default ``policy.json`` next to the model, if it exists.
-    :raises FileNotFoundError, ValueError: the model or sidecar cannot be loaded.
+    :raises FileNotFoundError, ValueError: the model or sidecar cannot be loaded (a one-line message naming the
+        file and what is accepted).
     """
 
     def __init__(self, model_path: str | Path, meta_path: str | Path | None = None) -> None:
@@ -56,78 +71,101 @@ class Policy:
         try:
             self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types
-            raise ValueError(f"invalid ONNX model {path}: {exc}".splitlines()[0]) from exc
-        inp = self.session.get_inputs()[0]
+            raise ValueError(f"invalid ONNX model {path}: {_first_line(exc)}") from None
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        if len(inputs) != 1 or not outputs or inputs[0].type not in TENSOR_TYPES or outputs[0].type not in TENSOR_TYPES:
+            raise ValueError(f"invalid policy model {path}: expected one float32 or int64 input and a float32 or int64 "
+                             f"output (as python -m sbagents.export writes), got inputs "
+                             f"{[(i.name, i.type) for i in inputs]}, outputs {[(o.name, o.type) for o in outputs]}")
+        inp, out = inputs[0], outputs[0]
         self.input_name = inp.name
-        self.discrete_obs = "int64" in inp.type
-        shape = inp.shape[1:]
-        if self.discrete_obs:
-            self.obs_dim = 1
-        elif all(isinstance(d, int) for d in shape):
-            self.obs_dim = int(np.prod(shape)) if shape else 1
-        else:
-            raise ValueError(f"model input {inp.name} has a non-static observation shape {inp.shape}")
+        self.discrete_obs = inp.type == "tensor(int64)"
+        shape, out_shape = list(inp.shape[1:]), list(out.shape[1:])
+        if not all(isinstance(d, int) and d > 0 for d in shape + out_shape):
+            raise ValueError(f"invalid policy model {path}: the observation and action shapes must be static, got "
+                             f"input {inp.shape} and output {out.shape}")
+        if self.discrete_obs and shape:
+            raise ValueError(f"invalid policy model {path}: an int64 (Discrete) input takes one index per row, got "
+                             f"shape {inp.shape}")
+        self.obs_dim = 1 if self.discrete_obs else int(np.prod(shape)) if shape else 1
         self.obs_shape = tuple(int(d) for d in shape)
-        out = self.session.get_outputs()[0]
-        self.discrete_action = "int64" in out.type
-        self.act_dim = 1 if self.discrete_action else int(np.prod([int(d) for d in out.shape[1:]] or [1]))
-        meta = self._load_meta(path, meta_path)
-        self.obs_names: tuple[str, ...] = tuple(
-            meta.get("obs_names") or (f"obs_{i}" for i in range(self.obs_dim))
-        )
-        self.action_names: tuple[str, ...] = tuple(
-            meta.get("action_names") or (f"action_{i}" for i in range(self.act_dim))
-        )
-        if len(self.obs_names) != self.obs_dim or len(self.action_names) != self.act_dim:
-            raise ValueError(
-                f"sidecar names ({len(self.obs_names)} obs, {len(self.action_names)} action) do not "
-                f"match the model ({self.obs_dim} obs, {self.act_dim} action)"
-            )
+        self.discrete_action = out.type == "tensor(int64)"
+        self.act_dim = 1 if self.discrete_action else int(np.prod(out_shape)) if out_shape else 1
+        meta_file = Path(meta_path) if meta_path is not None else path.parent / "policy.json"
+        meta = self._load_meta(meta_file, required=meta_path is not None)
+        try:
+            self.obs_names = _names(meta, "obs_names", self.obs_dim, "obs")
+            self.action_names = _names(meta, "action_names", self.act_dim, "action")
+            #: ``[low, high)`` of a Discrete observation (the sidecar's ``observation_space``; else int64's range)
+            self.index_range = _index_range(meta) if self.discrete_obs else INT64_RANGE
+        except ValueError as exc:
+            raise ValueError(f"invalid sidecar {meta_file}: {exc}") from None
 
     @staticmethod
-    def _load_meta(model_path: Path, meta_path: str | Path | None) -> dict[str, Any]:
-        meta_file = Path(meta_path) if meta_path is not None else model_path.parent / "policy.json"
+    def _load_meta(meta_file: Path, required: bool) -> dict[str, Any]:
+        """The sidecar's JSON object (``{}`` when it is not there and not ``required``)."""
         if not meta_file.is_file():
-            if meta_path is not None:
+            if required:
                 raise FileNotFoundError(f"sidecar not found: {meta_file}")
             return {}
+        what = f"invalid sidecar {meta_file}"
+        if meta_file.stat().st_size > MAX_SIDECAR_BYTES:
+            raise ValueError(f"{what}: {meta_file.stat().st_size} bytes; a policy.json is at most "
+                             f"{MAX_SIDECAR_BYTES} bytes")
         try:
-            meta = json.loads(meta_file.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"invalid sidecar {meta_file}: {exc}") from exc
+            meta = json.loads(meta_file.read_bytes().decode("utf-8"))
+        except UnicodeDecodeError:
+            raise ValueError(f"{what}: not UTF-8 text (expected the JSON object python -m sbagents.export "
+                             "writes)") from None
+        except (json.JSONDecodeError, RecursionError, ValueError) as exc:  # ValueError: an integer too long to read
+            raise ValueError(f"{what}: not JSON ({_first_line(exc)})") from None
         if not isinstance(meta, dict):
-            raise ValueError(f"invalid sidecar {meta_file}: not a JSON object")
+            raise ValueError(f"{what}: a JSON {type(meta).__name__} where an object with obs_names and action_names "
+                             "is expected")
+        missing = [key for key in ("obs_names", "action_names") if key not in meta]
+        if missing:
+            raise ValueError(f"{what}: no {' or '.join(missing)} (lists of names, as python -m sbagents.export "
+                             "writes)")
         return meta
 
-    def parse(self, line: str) -> list[float]:
-        """One observation line -> ``obs_dim`` finite numbers (raises :class:`ServeError`)."""
-        try:
-            value = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise ServeError(f"bad JSON: {exc.msg}") from None
+    def parse(self, data: str | bytes) -> list[float]:
+        """One observation line or body -> ``obs_dim`` finite numbers.
+
+        :raises ServeError: anything but one observation (the message says what was wrong and what is accepted);
+            nothing else is raised, whatever ``data`` holds.
+        """
+        value = _loads(data)
         if isinstance(value, dict):
-            unknown = sorted(set(value) - set(self.obs_names))
-            missing = [k for k in self.obs_names if k not in value]
+            keys = set(value)
+            unknown = sorted(keys - set(self.obs_names))
+            missing = [k for k in self.obs_names if k not in keys]
             if unknown or missing:
                 named = (("unknown", unknown), ("missing", missing))
-                problems = [f"{what} keys {keys}" for what, keys in named if keys]
+                problems = [f"{what} keys {_clip_list(keys)}" for what, keys in named if keys]
                 raise ServeError(f"{', '.join(problems)}; expected {list(self.obs_names)}")
             value = [value[k] for k in self.obs_names]
         elif self.discrete_obs and not isinstance(value, list):
             value = [value]
         if not isinstance(value, list):
-            raise ServeError("observation must be a JSON list or object")
+            raise ServeError(f"observation must be a JSON list or object, got {_kind(value)}")
         if len(value) != self.obs_dim:
             raise ServeError(f"expected {self.obs_dim} values, got {len(value)}")
         for v in value:
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ServeError(f"not a finite number: {v!r}")
-            if self.discrete_obs and float(v) != int(v):
-                raise ServeError(f"discrete observation must be an integer, got {v!r}")
+                raise ServeError(f"not a finite number: {_show(v)}")
+            if self.discrete_obs:
+                low, high = self.index_range
+                if float(v) != int(v) or not low <= int(v) < high:
+                    raise ServeError(f"a Discrete observation is an integer in [{low}, {high}), got {_show(v)}")
+            elif abs(v) > FLOAT32_MAX:
+                raise ServeError(f"{_show(v)} is outside the float32 range (+-{FLOAT32_MAX:.4g})")
         return [float(v) for v in value]
 
     def act(self, obs: Sequence[float]) -> list[float] | int:
-        """Action for one observation: a list of floats (Box) or an int (Discrete)."""
+        """Action for one observation: a list of floats (Box) or an int (Discrete).
+
+        :raises ServeError: the policy gave a non-finite action (a JSON reply cannot carry it).
+        """
         x: np.ndarray
         if self.discrete_obs:
             x = np.asarray([int(obs[0])], dtype=np.int64)
@@ -136,7 +174,100 @@ class Policy:
         action = self.session.run(None, {self.input_name: x})[0]
         if self.discrete_action:
             return int(np.asarray(action).reshape(-1)[0])
-        return [float(a) for a in np.asarray(action).reshape(-1)]
+        values = [float(a) for a in np.asarray(action).reshape(-1)]
+        if not all(math.isfinite(a) for a in values):
+            raise ServeError(f"the policy gave a non-finite action {values} for this observation")
+        return values
+
+
+def _loads(data: str | bytes) -> Any:
+    """``data`` as JSON, with the limits a server needs (size, UTF-8, integer length, nesting); :class:`ServeError`
+    for anything else."""
+    if len(data) > MAX_REQUEST_BYTES:
+        raise ServeError(f"observation of more than {MAX_REQUEST_BYTES} bytes; one observation is at most that")
+    if isinstance(data, bytes):
+        try:
+            data = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ServeError("not UTF-8 text; send one JSON observation") from None
+    if not data.strip():
+        raise ServeError("empty observation; send one JSON observation (a list of numbers or an object keyed by "
+                         "obs_names)")
+    try:
+        return _DECODER.decode(data)
+    except json.JSONDecodeError as exc:
+        raise ServeError(f"bad JSON: {exc.msg} (at character {exc.pos})") from None
+    except RecursionError:
+        raise ServeError("bad JSON: nested too deeply; an observation is a flat list or object") from None
+
+
+def _parse_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INT_DIGITS:
+        raise ServeError(f"a {digits}-digit integer is outside the float32 range (+-{FLOAT32_MAX:.4g})")
+    return int(text)
+
+
+def _refuse_constant(name: str) -> float:
+    raise ServeError(f"not a finite number: {name} (JSON numbers only)")
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object whose keys are all different (else which value counts would be a guess)."""
+    seen: set[str] = set()
+    for key, _ in pairs:
+        if key in seen:
+            raise ServeError(f"key {_show(key)} is given twice; give each observation name once")
+        seen.add(key)
+    return dict(pairs)
+
+
+#: JSON with the hooks above, made once (``json.loads`` with hooks builds a decoder per call)
+_DECODER = json.JSONDecoder(parse_int=_parse_int, parse_constant=_refuse_constant, object_pairs_hook=_unique_keys)
+
+
+def _kind(value: Any) -> str:
+    return {str: "a string", type(None): "null", bool: "a boolean"}.get(type(value), "a number")
+
+
+def _show(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters (a reply never echoes a whole hostile request)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _clip_list(items: list[str], shown: int = 5) -> str:
+    head = ", ".join(_show(k) for k in items[:shown])
+    return f"[{head}{f', ... ({len(items) - shown} more)' if len(items) > shown else ''}]"
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+def _names(meta: dict[str, Any], key: str, size: int, prefix: str) -> tuple[str, ...]:
+    """The sidecar's ``key`` (``size`` distinct strings), or ``<prefix>_<i>`` without a sidecar."""
+    if not meta:
+        return tuple(f"{prefix}_{i}" for i in range(size))
+    names = meta[key]
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names) or len(set(names)) < len(names):
+        raise ValueError(f"{key} must be a list of distinct non-empty strings, got {_show(names, 80)}")
+    if len(names) != size:
+        what = "observation" if prefix == "obs" else prefix
+        raise ValueError(f"{key} has {len(names)} names; the model has {size} {what} values")
+    return tuple(names)
+
+
+def _index_range(meta: dict[str, Any]) -> tuple[int, int]:
+    """``[start, start + n)`` of the sidecar's Discrete ``observation_space``; int64's range when it has none."""
+    space = meta.get("observation_space")
+    if not isinstance(space, dict) or space.get("type") != "discrete":
+        return INT64_RANGE
+    n, start = space.get("n"), space.get("start", 0)
+    if not isinstance(n, int) or not isinstance(start, int) or isinstance(n, bool) or isinstance(start, bool) or n < 1:
+        raise ValueError(f"observation_space n and start must be integers (n >= 1), got {_show(space, 80)}")
+    return start, start + n
 
 
 class DecisionLog:
@@ -180,32 +311,56 @@ class DecisionLog:
         self.close()
 
 
-def decide(policy: Policy, text: str, log: DecisionLog) -> tuple[bool, str]:
-    """One observation (JSON text) -> ``(ok, reply JSON)``: the action, or ``{"error": reason}`` for malformed input.
+def decide(policy: Policy, data: str | bytes | None, log: DecisionLog) -> tuple[bool, str]:
+    """One observation (JSON text or UTF-8 bytes) -> ``(ok, reply JSON)``: the action, or ``{"error": reason}``.
 
-    Served decisions are appended to ``log``.
+    ``None`` stands for a line that was too long to read. Nothing in ``data`` makes this raise: what cannot be
+    decided on (malformed input, or a failure of the model on it) is an error reply. Served decisions are appended
+    to ``log``.
     """
+    if data is None:
+        return False, error_reply(f"line of more than {MAX_REQUEST_BYTES} bytes; one observation is at most that")
     try:
-        obs = policy.parse(text)
+        obs = policy.parse(data)
     except ServeError as exc:
-        return False, json.dumps({"error": str(exc)})
-    action = policy.act(obs)
+        return False, error_reply(str(exc))
+    try:
+        action = policy.act(obs)
+    except ServeError as exc:
+        return False, error_reply(str(exc))
+    except Exception as exc:  # onnxruntime's own exception types: the model failed on this input
+        return False, error_reply(f"the policy could not decide on this observation: {_first_line(exc)}")
     log.write(obs, action)
-    return True, json.dumps(action)
+    return True, json.dumps(action, allow_nan=False)
+
+
+def error_reply(reason: str) -> str:
+    """``{"error": reason}`` as one line of JSON."""
+    return json.dumps({"error": reason})
+
+
+def read_lines(stream: BinaryIO, limit: int = MAX_REQUEST_BYTES) -> Iterator[bytes | None]:
+    """The lines of ``stream`` (bytes, without the ``\\n``); ``None`` for a line over ``limit`` bytes, which is read
+    past in chunks without being kept."""
+    while line := stream.readline(limit + 1):
+        if len(line) <= limit or line.endswith(b"\n"):
+            yield line.removesuffix(b"\n")
+            continue
+        while (rest := stream.readline(limit)) and not rest.endswith(b"\n"):
+            pass
+        yield None
 
 
 def serve(
-    policy: Policy, lines: TextIO, out: TextIO, csv_path: str | Path | None = None
+    policy: Policy, lines: BinaryIO, out: TextIO, csv_path: str | Path | None = None
 ) -> tuple[int, int]:
-    """Run the loop until ``lines`` ends.
+    """Answer every line of ``lines`` (binary, e.g. ``sys.stdin.buffer``) with one line on ``out`` until it ends.
 
     :return: ``(n_served, n_errors)``.
     """
     served = errors = 0
     with DecisionLog(policy, csv_path) as log:
-        for line in lines:
-            if not line.strip():
-                continue
+        for line in read_lines(lines):
             ok, reply = decide(policy, line, log)
             out.write(reply + "\n")
             out.flush()

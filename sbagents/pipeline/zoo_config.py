@@ -108,8 +108,101 @@ def lookup_entry(path: str | Path, keys: str | tuple[str, ...], atari: bool = Fa
     raise UsageError(f"{path} has no entry for {names[0]!r} and no 'default' (entries: {known})")
 
 
+#: The longest value ``-params`` / ``--env-kwargs`` take (characters), and their deepest nesting of lists/mappings.
+MAX_OVERRIDE_CHARS = 10_000
+MAX_OVERRIDE_DEPTH = 32
+#: Integers a value may hold: numpy's and torch's int64 (no hyperparameter or env argument takes more).
+INT64_RANGE = (-(2**63), 2**63 - 1)
+_SCALARS = (str, bool, int, float, type(None))
+_YAML_KINDS = {"bytes": "!!binary", "date": "date", "datetime": "timestamp", "set": "!!set"}
+
+
+class OverrideLoader(ZooLoader):
+    """:class:`ZooLoader` for one command-line value: no aliases (``*name``: a value can then not expand into a
+    huge or self-referencing structure), at most :data:`MAX_OVERRIDE_DEPTH` levels of nesting, and integer
+    literals no longer than an int64's (so ``int()`` never meets a 100,000-digit string)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        """Refuse aliases and deep nesting before composing the node."""
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted here",
+                                              self.peek_event().start_mark)
+        if self._depth >= MAX_OVERRIDE_DEPTH:
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_OVERRIDE_DEPTH} levels",
+                                              self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_bounded_int(self, node: yaml.ScalarNode) -> Any:
+        """YAML's int, refused (a :class:`~yaml.constructor.ConstructorError`) when its literal is too long to
+        be an int64."""
+        if len(str(node.value).replace("_", "")) > 2 + 64:  # 0b + 64 binary digits is the longest int64
+            raise yaml.constructor.ConstructorError(None, None, "integer out of range", node.start_mark)
+        return self.construct_yaml_int(node)
+
+
+OverrideLoader.add_constructor("tag:yaml.org,2002:int", OverrideLoader.construct_bounded_int)
+
+
+def _shorten(text: str, limit: int = 60) -> str:
+    """``text`` for a one-line message: as is, or its start and its length."""
+    return repr(text) if len(text) <= limit else f"{text[:40]!r}... ({len(text):,} characters)"
+
+
+def _check_plain(value: Any, where: str, depth: int = 0) -> None:
+    """Raise :class:`UsageError` unless ``value`` is plain data: None, bool, str, float, an int64, and lists and
+    mappings (with scalar keys) of them."""
+    if isinstance(value, bool) or value is None or isinstance(value, str | float):
+        return
+    if isinstance(value, int):
+        if not INT64_RANGE[0] <= value <= INT64_RANGE[1]:
+            raise UsageError(f"{where}: integer {_shorten(str(value))} is outside the 64-bit range "
+                             "(-2**63 .. 2**63-1)")
+        return
+    if isinstance(value, list):
+        for item in value:
+            _check_plain(item, where, depth + 1)
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, _SCALARS):
+                raise UsageError(f"{where}: mapping keys must be plain names or numbers, got {_shorten(str(key))}")
+            _check_plain(key, where, depth + 1)
+            _check_plain(item, where, depth + 1)
+        return
+    kind = _YAML_KINDS.get(type(value).__name__, type(value).__name__)
+    raise UsageError(f"{where}: the value reads as a YAML {kind}; quote it to pass text (key:'...')")
+
+
+def parse_value(raw: str, where: str) -> Any:
+    """One ``key:value`` value read as a YAML scalar, list or mapping (never executed), checked to be plain data
+    (:func:`_check_plain`); :class:`UsageError` (one line naming ``where``) for anything else.
+
+    >>> parse_value("[64, 64]", "-params net_arch")
+    [64, 64]
+    """
+    if len(raw) > MAX_OVERRIDE_CHARS:
+        raise UsageError(f"{where}: value of {len(raw):,} characters is too long (at most {MAX_OVERRIDE_CHARS:,})")
+    if not raw.strip():
+        return None
+    try:
+        value = yaml.load(raw, Loader=OverrideLoader)  # noqa: S506 - a yaml.SafeLoader
+    except Exception as exc:  # the SafeLoader's constructors raise more than YAMLError on bad tagged values
+        problem = " ".join(str(getattr(exc, "problem", None) or "").split())
+        detail = f" ({problem[:100]})" if problem else ""
+        raise UsageError(f"{where}: value {_shorten(raw)} is not a YAML scalar, list or mapping{detail}") from None
+    _check_plain(value, where)
+    return value
+
+
 def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str, Any]:
-    """Parse ``key:value`` pairs; each value is read as a YAML scalar, list or mapping (never executed).
+    """Parse ``key:value`` pairs; each value is read as a YAML scalar, list or mapping, never executed
+    (:func:`parse_value`); keys are keyword names. Anything else is one :class:`UsageError` line.
 
     >>> parse_overrides(["learning_rate:3e-4", "policy_kwargs:{net_arch: [64, 64]}"])
     {'learning_rate': 0.0003, 'policy_kwargs': {'net_arch': [64, 64]}}
@@ -119,14 +212,10 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
         key, sep, raw = pair.partition(":")
         key = key.strip()
         if not sep or not key:
-            raise UsageError(f"{flag} expects key:value pairs, got {pair!r}")
-        try:
-            value = yaml.load(raw, Loader=ZooLoader) if raw.strip() else None  # noqa: S506 - a yaml.SafeLoader
-        except yaml.YAMLError:
-            raise UsageError(
-                f"{flag} {key}: value {raw!r} is not a YAML scalar, list or mapping"
-            ) from None
-        result[key] = value
+            raise UsageError(f"{flag} expects key:value pairs, got {_shorten(pair)}")
+        if not key.isidentifier() or len(key) > 100:
+            raise UsageError(f"{flag} key {_shorten(key)} is not a keyword name (letters, digits and _)")
+        result[key] = parse_value(raw, f"{flag} {key}")
     return result
 
 

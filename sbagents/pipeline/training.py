@@ -25,6 +25,7 @@ from sbagents.algos import ALGOS
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
+from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
 from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
 from sbagents.pipeline.env_names import EnvRef, resolve_env
@@ -187,7 +188,9 @@ def train_sb3(
                            max(execution.verbose - 1, 0), agent_path, spec.robust, constraint)
         resumed_buffer = load_replay_buffer(model, agent_path) if agent_path is not None else None
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
-        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
+        steps_before = model.num_timesteps if agent_path is not None else 0
+        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0,
+                                    start=steps_before)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
         if output.save_replay_buffer and output.save_freq > 0:
             own.append(ReplayBufferCheckpoint(run_dir, ctx.calls(output.save_freq)))
@@ -201,7 +204,9 @@ def train_sb3(
     log_interval = execution.log_interval
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
-    steps_before = model.num_timesteps if agent_path is not None else 0
+    warnings = budget_warnings(model, spec.algo, exp.n_timesteps, steps_before)
+    for warning in warnings:
+        reporter.warn(warning)
     clock = LearningClock(graceful=True)
     try:
         with clock:
@@ -214,6 +219,8 @@ def train_sb3(
             save_replay_buffer(model, run_dir)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
+    if warnings:
+        summary["warnings"] = warnings
     if resumed_buffer is not None or output.save_replay_buffer:
         summary["replay_buffer"] = {"loaded_transitions": resumed_buffer, "saved": output.save_replay_buffer}
     if constraint is not None:

@@ -6,12 +6,17 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import gymnasium as gym
+import numpy as np
 import pytest
-from cli_helpers import summary
+from cli_helpers import check_error, run_main, summary
+from gymnasium import spaces
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
 from sbagents.pipeline.env_names import resolve_env
+from sbagents.pipeline.experiment import build_experiment
 from sbagents.pipeline.run_dir import env_stem
 
 GRID = "sbagents/GridWorld-v0"
@@ -87,3 +92,59 @@ def test_progress_after_i_counts_this_runs_steps(tmp_path: Path, capsys: pytest.
     evals = [line.split("steps")[0] for line in capsys.readouterr().out.splitlines() if line.startswith("eval ")]
     assert evals == ["eval 1,024/2,048 ", "eval 2,048/2,048 "]
     assert second.summary["n_timesteps"] == 5120
+
+
+class _Pixels(gym.Env[np.ndarray, np.int64]):
+    """A single-agent env of 40 x 40 RGB images (8 steps an episode; reward 1 for action 1)."""
+
+    metadata = {"render_modes": ["rgb_array"]}
+    observation_space = spaces.Box(0, 255, (40, 40, 3), np.uint8)
+    action_space = spaces.Discrete(2)
+
+    def __init__(self, render_mode: str | None = None) -> None:
+        self.render_mode, self.t = render_mode, 0
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.t = 0
+        return self.observation_space.sample(), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.t += 1
+        return self.observation_space.sample(), float(action), False, self.t >= 8, {}
+
+
+PIXELS = "NewcomerPixels-v0"
+if PIXELS not in gym.registry:
+    gym.register(PIXELS, entry_point=_Pixels)
+PISTONBALL = "pettingzoo.butterfly.pistonball_v6"
+
+
+def test_pixel_envs_without_an_entry_get_the_image_recipe_not_an_mlp(tmp_path: Path) -> None:
+    """pistonball (20 agents x 457 x 120 x 3) and a Gymnasium image env have no entry of their own: ppo gets
+    grayscale 84 x 84 frames, 4 stacked, and CnnPolicy (recorded in config.yml, so evaluate builds the same), not
+    MlpPolicy on raw pixels; the env's own entry and -params policy:... are taken as they are."""
+    pistonball = build_experiment(TrainSpec("ppo", PISTONBALL), resolve_env(PISTONBALL))
+    assert pistonball.policy == "CnnPolicy" and pistonball.frame_stack == 4
+    assert pistonball.hyperparams["env_wrapper"] == [
+        {"sbagents.multiagent.preprocessing.ImagePreprocessing": {"grayscale": True, "shape": [84, 84]}}]
+    insisted = build_experiment(TrainSpec("ppo", PISTONBALL, hyperparams={"policy": "MlpPolicy"}),
+                                resolve_env(PISTONBALL))
+    assert insisted.policy == "MlpPolicy" and not insisted.env_wrapper
+    pong = "pettingzoo.butterfly.cooperative_pong_v6"  # an entry of its own: as written
+    assert build_experiment(TrainSpec("ppo", pong), resolve_env(pong)).hyperparams["policies"] == "per_agent"
+    result = train(TrainSpec("ppo", PIXELS, 64, {"n_envs": 1, "n_steps": 64, "batch_size": 32, "n_epochs": 1}),
+                   OutputOptions(tmp_path), EvalOptions(eval_freq=0, final_eval_episodes=2), ExecOptions(seed=0))
+    assert result.experiment.policy == "CnnPolicy" and result.model is not None
+    assert result.model.observation_space.shape == (4, 84, 84)  # WarpFrame, 4 stacked, channel-first for the CNN
+    assert result.summary["eval"]["n_episodes"] == 2
+
+
+@pytest.mark.parametrize("algo", ["sac", "dqn"])
+def test_pixel_envs_without_an_entry_refuse_replay_algorithms(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              algo: str) -> None:
+    env = PISTONBALL if algo == "sac" else PIXELS
+    code = run_main("train", "--algo", algo, "--env", env, "-n", "256", "-f", str(tmp_path / "logs"))
+    check_error(code, capsys.readouterr().err, f"has no zoo entry of its own, so {algo} would train an MLP on raw "
+                                               "pixels; give it an entry with policy: CnnPolicy")
+    assert not (tmp_path / "logs").exists()

@@ -272,4 +272,7 @@ def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
     entry, where = spec_entry(spec, spec.algo, ref)
+    from sbagents.pipeline.image_obs import image_entry
+
+    entry = image_entry(spec, ref, entry)
     return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game)

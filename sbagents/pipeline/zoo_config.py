@@ -91,21 +91,37 @@ def lookup_entry(path: str | Path, keys: str | tuple[str, ...], atari: bool = Fa
     """
     path = Path(path)
     names = (keys, *(("atari",) if atari else ())) if isinstance(keys, str) else tuple(keys)
+    data = _entries(path)
+    key = entry_name(path, names, data)
+    if key is not None:
+        entry = data[key] or {}
+        if not isinstance(entry, dict):
+            raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
+        return dict(entry)
+    if not path.exists():
+        return {}
+    known = ", ".join(str(k) for k in data) or "none"
+    raise UsageError(f"{path} has no entry for {names[0]!r} and no 'default' (entries: {known})")
+
+
+def _entries(path: Path) -> dict[Any, Any]:
+    """The entries of the zoo file ``path`` (a missing file has none)."""
     data = load_yaml(path) if path.exists() else {}
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise UsageError(f"{path} must map env ids to hyperparameters, got a {type(data).__name__}")
-    for key in (*names, "default"):
-        if key in data:
-            entry = data[key] or {}
-            if not isinstance(entry, dict):
-                raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
-            return dict(entry)
-    if not path.exists():
-        return {}
-    known = ", ".join(str(k) for k in data) or "none"
-    raise UsageError(f"{path} has no entry for {names[0]!r} and no 'default' (entries: {known})")
+    return data
+
+
+def entry_name(path: str | Path, keys: tuple[str, ...], data: dict[Any, Any] | None = None) -> str | None:
+    """Which entry of the zoo file ``path`` :func:`lookup_entry` reads for ``keys``: the first of them the file
+    has, else ``default``, else None.
+
+    :param data: the file's entries, when already read.
+    """
+    data = _entries(Path(path)) if data is None else data
+    return next((key for key in (*keys, "default") if key in data), None)
 
 
 #: The longest value ``-params`` / ``--env-kwargs`` take (characters), and their deepest nesting of lists/mappings.

@@ -13,6 +13,7 @@ from typing import NoReturn
 
 from sbagents.errors import UsageError
 from sbagents.pipeline.run_dir import RunRef
+from sbagents.source_tree import shadowing_folder, shadowing_hint
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -66,7 +67,12 @@ def describe_os_error(exc: OSError) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> NoReturn:
     """Run a CLI body: SIGTERM acts like Ctrl-C; :class:`UsageError` and file-system errors (a path that
-    cannot be read or written) become one line on stderr and exit code 2."""
+    cannot be read or written) become one line on stderr and exit code 2, and so does a folder named ``sbagents``
+    that Python imported instead of the package (:func:`~sbagents.source_tree.shadowing_folder`)."""
+    shadow = shadowing_folder()
+    if shadow is not None:  # nothing of sbagents is registered: say why instead of "unknown env id"
+        print(f"{prog}: error: {shadowing_hint(shadow)}", file=sys.stderr)
+        raise SystemExit(2)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         code = body() or 0

@@ -3,6 +3,7 @@ entry, progress after ``-i``, the clone's parent folder, and ``evaluate --env-kw
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,6 +22,7 @@ from sbagents.pipeline.run_dir import env_stem
 
 GRID = "sbagents/GridWorld-v0"
 USER_ENVS = Path(__file__).resolve().parent / "user_envs"
+REPO = Path(__file__).resolve().parents[1]
 
 _MAKE_ENV = '''from tiny_marl_pkg.relay_v0 import parallel_env
 
@@ -148,3 +150,62 @@ def test_pixel_envs_without_an_entry_refuse_replay_algorithms(tmp_path: Path, ca
     check_error(code, capsys.readouterr().err, f"has no zoo entry of its own, so {algo} would train an MLP on raw "
                                                "pixels; give it an entry with policy: CnnPolicy")
     assert not (tmp_path / "logs").exists()
+
+
+_EDITABLE_LAUNCH = '''
+import importlib.abc, importlib.machinery, importlib.util, runpy, sys
+from pathlib import Path
+
+REPO = Path(sys.argv[1])
+FOLDERS = {"sbagents": REPO / "sbagents", "sbagents.envs": REPO / "envs", "sbagents.callbacks": REPO / "callbacks",
+           "sbagents.zoo_configs": REPO / "zoo_configs"}
+
+
+class EditableFinder(importlib.abc.MetaPathFinder):
+    """What setuptools' editable finder does: map package names to folders, after Python's own path search."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        for package in sorted(FOLDERS, key=len, reverse=True):
+            if fullname == package or fullname.startswith(package + "."):
+                parts = fullname[len(package):].lstrip(".").split(".") if fullname != package else []
+                where = FOLDERS[package].joinpath(*parts)
+                if where.is_dir():
+                    return importlib.util.spec_from_file_location(
+                        fullname, where / "__init__.py", submodule_search_locations=[str(where)])
+                return importlib.util.spec_from_file_location(fullname, where.with_suffix(".py"))
+        return None
+
+
+sys.path = [p for p in sys.path if Path(p or ".").resolve() != REPO]
+sys.meta_path.insert(sys.meta_path.index(importlib.machinery.PathFinder) + 1, EditableFinder())
+sys.argv = ["train", "-n", "100"]
+runpy.run_module("sbagents.train", run_name="__main__", alter_sys=True)
+'''
+
+
+def test_the_clones_parent_folder_says_why_nothing_is_registered(tmp_path: Path) -> None:
+    """Started in the folder that holds a clone named ``sbagents``, an editable install imports that folder as a
+    namespace package (setuptools issue 3557): one line says so, instead of "unknown env id 'sbagents/GridWorld-v0'"."""
+    import subprocess
+
+    (tmp_path / "sbagents").mkdir()  # the clone, seen from its parent: a folder without __init__.py
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run([sys.executable, "-c", _EDITABLE_LAUNCH, str(REPO)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    check_error(done.returncode, done.stderr, f"python -m sbagents.train: error: Python imported the folder "
+                                              f"{(tmp_path / 'sbagents').resolve()} as sbagents instead of the "
+                                              "installed package")
+    assert "setuptools issue 3557" in done.stderr and "unknown env id" not in done.stderr
+    assert not (tmp_path / "logs").exists()
+
+
+def test_the_hint_is_also_in_the_library_error(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    import types
+
+    from sbagents.errors import UsageError
+
+    namespace = types.ModuleType("sbagents")
+    namespace.__path__ = [str(tmp_path / "sbagents")]  # a namespace package has no __file__
+    monkeypatch.setitem(sys.modules, "sbagents", namespace)
+    with pytest.raises(UsageError, match="unknown env id 'Nope-v0'; Python imported the folder .*issue 3557"):
+        resolve_env("Nope-v0")

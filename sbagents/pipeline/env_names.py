@@ -223,6 +223,11 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     known = list(gym.registry) + list(PETTINGZOO_ENVS)
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see python -m sbagents.train --list"
+    from sbagents.source_tree import shadowing_folder, shadowing_hint
+
+    shadow = shadowing_folder()
+    if shadow is not None:  # sbagents/__init__.py never ran: its ids are not registered
+        hint = f"; {shadowing_hint(shadow)}"
     raise UsageError(f"unknown env id {name!r}{hint}")
 
 

@@ -9,7 +9,7 @@ import signal
 import sys
 from collections.abc import Callable
 from types import FrameType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from sbagents.errors import UsageError
 from sbagents.pipeline.run_dir import RunRef
@@ -26,13 +26,15 @@ class ArgumentParser(argparse.ArgumentParser):
 
 def add_run_arguments(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, required: bool = True, exp_id: bool = True,
-    load_best: bool = True,
+    load_best: bool = True, env_kwargs: bool = False,
 ) -> None:
     """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
     ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` / ``--load-checkpoint`` for commands
     on one run.
 
     :param required: ``--algo`` and ``--env`` must be given (else they filter, as for ``plot``).
+    :param env_kwargs: add ``--env-kwargs KEY:VALUE...`` (parsed as ``train``'s): env constructor arguments on top of
+        the run's, for commands that build its env.
     """
     parser.add_argument("--algo", required=required, default=None,
                         help="algorithm of the run" if required else "algorithm of the run(s) (default: any)")
@@ -47,12 +49,20 @@ def add_run_arguments(
         which.add_argument("--load-checkpoint", type=int, default=None, metavar="STEPS",
                            help="use the checkpoint saved after STEPS timesteps (train --save-freq)")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    if env_kwargs:
+        parser.add_argument("--env-kwargs", nargs="+", metavar="KEY:VALUE",
+                            help="env constructor keyword arguments on top of the run's (as train's --env-kwargs)")
 
 
 def run_ref(args: argparse.Namespace) -> RunRef:
     """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
+    env_kwargs: dict[str, Any] = {}
+    if getattr(args, "env_kwargs", None):
+        from sbagents.pipeline.zoo_config import parse_overrides  # imports gymnasium: only when given
+
+        env_kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
     return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
-                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None))
+                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None), env_kwargs)
 
 
 def _raise_interrupt(signum: int, frame: FrameType | None) -> None:

@@ -12,7 +12,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from cli_helpers import check_error, run_main, summary
+from cli_helpers import check_error, last_json, run_main, summary
 from gymnasium import spaces
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
@@ -209,3 +209,24 @@ def test_the_hint_is_also_in_the_library_error(monkeypatch: pytest.MonkeyPatch, 
     monkeypatch.setitem(sys.modules, "sbagents", namespace)
     with pytest.raises(UsageError, match="unknown env id 'Nope-v0'; Python imported the folder .*issue 3557"):
         resolve_env("Nope-v0")
+
+
+def test_evaluate_and_record_video_take_env_kwargs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--env-kwargs`` (train's parser) reaches the env of ``evaluate`` and ``record_video``: the learned 8-move path
+    is cut at max_steps 3 (return -3, no success), the video's episodes at 2 steps; a bad key is one line."""
+    train(TrainSpec("qlearning", GRID), OutputOptions(tmp_path), EvalOptions(eval_freq=0, final_eval_episodes=0),
+          ExecOptions(seed=0, verbose=0))
+    run = ["--algo", "qlearning", "--env", "GridWorld-v0", "-f", str(tmp_path)]
+    assert run_main("evaluate", *run, "-n", "2", "--json") == 0
+    assert last_json(capsys.readouterr().out)["mean_return"] == 93.0
+    assert run_main("evaluate", *run, "-n", "2", "--json", "--env-kwargs", "max_steps:3") == 0
+    cut = last_json(capsys.readouterr().out)
+    assert (cut["mean_return"], cut["mean_length"], cut["success_rate"]) == (-3.0, 3.0, 0.0)
+    check_error(run_main("evaluate", *run, "--env-kwargs", "sise:3"), capsys.readouterr().err,
+                "unknown env kwarg(s) sise for sbagents/GridWorld-v0; accepted: goal, max_steps")
+    check_error(run_main("evaluate", *run, "--env-kwargs", "max_steps:" + "9" * 30), capsys.readouterr().err,
+                "--env-kwargs max_steps: integer '999999999999999999999999999999' is outside the 64-bit range")
+    assert run_main("record_video", *run, "-n", "6", "--env-kwargs", "max_steps:2") == 0
+    sidecar = next((tmp_path / "qlearning" / f"{env_stem(GRID)}_1" / "videos").glob("*.csv"))
+    rows = sidecar.read_text().splitlines()[1:]
+    assert [row.split(",")[2] for row in rows] == ["0", "1"] * 3  # every episode truncated after 2 steps

@@ -181,6 +181,7 @@ class RunRef:
     :param load_best: the run's ``best_model.zip`` instead of its final model.
     :param gym_packages: packages to import that register the env.
     :param checkpoint: the checkpoint saved after this many timesteps (``--save-freq``) instead of the final model.
+    :param env_kwargs: env constructor arguments on top of the run's (``--env-kwargs``) when its env is built again.
     """
 
     algo: str | None
@@ -190,6 +191,7 @@ class RunRef:
     load_best: bool = False
     gym_packages: tuple[str, ...] = ()
     checkpoint: int | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
         if self.load_best and self.checkpoint is not None:
@@ -252,6 +254,15 @@ def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = F
     return path
 
 
+def with_env_kwargs(exp: Experiment, env_kwargs: dict[str, Any]) -> Experiment:
+    """``exp`` building its envs with ``env_kwargs`` on top of its own (its ``eval_env_kwargs`` no longer override
+    those keys)."""
+    if env_kwargs:
+        exp.env_kwargs = {**exp.env_kwargs, **env_kwargs}
+        exp.eval_env_kwargs = {k: v for k, v in exp.eval_env_kwargs.items() if k not in env_kwargs}
+    return exp
+
+
 def load_run(ref: RunRef) -> LoadedRun:
     """Find the run ``ref`` names and load its model(s) and experiment."""
     from sbagents.algos import ALGOS
@@ -260,7 +271,7 @@ def load_run(ref: RunRef) -> LoadedRun:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
-    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game)
+    exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game), ref.env_kwargs)
     cls: Any = ALGOS[ref.algo].cls
     args_file = config_path(run_dir, env.env_id).with_name("args.yml")
     if args_file.exists() and (yaml.safe_load(args_file.read_text()) or {}).get("constraint"):

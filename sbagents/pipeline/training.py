@@ -142,7 +142,8 @@ def train_sb3(
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
-    exp = build_experiment(spec, ref)
+    features = (("robust",) if spec.robust is not None else ()) + (("dp",) if privacy.enabled else ())
+    exp = build_experiment(spec, ref, features)
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     if privacy.enabled:
@@ -231,8 +232,13 @@ def train_sb3(
         summary.update(getattr(callback, "summary_items", dict)())
 
     def final_eval() -> dict[str, Any]:
-        return evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed),
-                              run_dir / VECNORMALIZE_FILE)
+        result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes,
+                                                                 seed=seed), run_dir / VECNORMALIZE_FILE)
+        if constraint is not None:  # did the limit hold for the greedy policy too
+            from sbagents.constrained.options import judge_evaluation
+
+            judge_evaluation(summary["constraint"], result)
+        return result
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))

@@ -200,7 +200,7 @@ def test_train_with_a_given_noise_stops_before_the_budget(tmp_path: Path) -> Non
      "DP training (--dp-*) is for ddpg, td3, sac, ppo, a2c"),
     (["--algo", "ddpg", "--dp-epsilon", "0"], "--dp-epsilon must be a finite number > 0"),
     (["--algo", "ddpg", "--dp-epsilon", "-1"], "--dp-epsilon must be a finite number > 0"),
-    (["--algo", "ddpg", "--dp-epsilon", "8", "--dp-delta", "0.001"], "--dp-delta 0.001 must be below 1 / 8,000"),
+    (["--algo", "ddpg", "--dp-epsilon", "8", "--dp-delta", "0.001"], "--dp-delta 0.001 must be below 1 / 40,000"),
     (["--algo", "ddpg", "--dp-noise", "0"], "--dp-noise must be a finite number > 0"),
     (["--algo", "ddpg", "--dp-clip", "2"], "add --dp-epsilon E or --dp-noise SIGMA"),
     (["--algo", "sac", "--dp-epsilon", "8"], "needs a fixed ent_coef"),

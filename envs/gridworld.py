@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sbagents.envs.bounds import MAX_EPISODE_STEPS, MAX_GRID_SIDE, check_int
 from sbagents.envs.text_grid import TextGridRendering
 
 Cell = tuple[int, int]
@@ -50,11 +51,11 @@ def _int_pair(value: Any, what: str) -> Cell:
 class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
     """Deterministic grid navigation with obstacles and a single goal.
 
-    :param size: grid side length, or ``(n_rows, n_cols)``.
+    :param size: grid side length, or ``(n_rows, n_cols)`` (each in 1..256).
     :param start: start cell ``(row, col)``.
     :param goal: goal cell; reaching it gives +100 and terminates the episode.
     :param obstacles: blocked cells; moving into one gives -10 and the agent stays.
-    :param max_steps: steps after which an unsuccessful episode is truncated.
+    :param max_steps: steps after which an unsuccessful episode is truncated (1..10**9).
     :param render_mode: ``"ansi"`` (returns the book's text grid), ``"human"`` (prints it)
         or ``"rgb_array"`` (an ``(H, W, 3)`` uint8 image, 32 pixels per cell).
     """
@@ -72,9 +73,8 @@ class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
         max_steps: int = 100,
         render_mode: str | None = None,
     ) -> None:
-        n_rows, n_cols = (int(size), int(size)) if isinstance(size, int | np.integer) else _int_pair(size, "size")
-        if n_rows < 1 or n_cols < 1:
-            raise ValueError(f"size must be positive, got {size!r}")
+        sides = (size, size) if _is_int(size) else _int_pair(size, "size")
+        n_rows, n_cols = (check_int(n, "size", 1, MAX_GRID_SIDE) for n in sides)
         self.n_rows, self.n_cols = n_rows, n_cols
         self.start = self._cell(start, "start")
         self.goal = self._cell(goal, "goal")
@@ -83,8 +83,7 @@ class GridWorldEnv(TextGridRendering, gym.Env[np.int64, np.int64]):
         self.obstacles = frozenset(self._cell(c, "obstacle") for c in obstacles)
         if self.start in self.obstacles or self.goal in self.obstacles:
             raise ValueError("start and goal must not be obstacles")
-        if not _is_int(max_steps) or max_steps < 1:
-            raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+        max_steps = check_int(max_steps, "max_steps", 1, MAX_EPISODE_STEPS)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.max_steps = max_steps

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from sbagents.envs.bounds import check_number
 from sbagents.envs.gridworld import GridWorldEnv
 
 DEFAULT_HAZARDS = ((1, 3), (2, 3), (3, 3), (4, 3))
@@ -57,9 +58,7 @@ class HazardGridWorldEnv(GridWorldEnv):
         self.hazards = frozenset(self._cell(c, "hazard") for c in hazards)
         if {self.start, self.goal} & self.hazards or self.hazards & self.obstacles:
             raise ValueError("hazards must not be the start, the goal or an obstacle")
-        if not np.isfinite(hazard_penalty) or hazard_penalty > 0:
-            raise ValueError(f"hazard_penalty must be a finite number <= 0, got {hazard_penalty!r}")
-        self.hazard_penalty = float(hazard_penalty)
+        self.hazard_penalty = check_number(hazard_penalty, "hazard_penalty", high=0.0)
 
     def step(self, action: Any) -> tuple[np.int64, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = super().step(action)

@@ -38,15 +38,22 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sbagents.envs.bounds import MAX_EPISODE_STEPS, check_int, check_number, show
+
 Range = tuple[float, float]
+
+#: The largest noise, tolerance or action bound an env takes (float32 observation bounds stay finite).
+MAX_MAGNITUDE = 1e6
 
 OBS_NAMES: tuple[str, ...] = ("Temperature", "Light_Level", "Time", "Preferred_Temp", "Preferred_Light")
 ACTION_NAMES: tuple[str, ...] = ("Action_Temp", "Action_Light")
 
 
 def _range(value: Sequence[float], what: str) -> Range:
-    low, high = float(value[0]), float(value[1])
-    if not (np.isfinite(low) and np.isfinite(high) and low <= high):
+    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray) or len(value) != 2:
+        raise ValueError(f"{what} must be a finite (low, high) with low <= high, got {show(value)}")
+    low, high = (check_number(v, what) for v in value)
+    if low > high:
         raise ValueError(f"{what} must be a finite (low, high) with low <= high, got {tuple(value)!r}")
     return low, high
 
@@ -103,16 +110,15 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         success_share: float = 0.97,
         render_mode: str | None = None,
     ) -> None:
-        if not (np.isfinite(noise_std) and noise_std >= 0):
-            raise ValueError(f"noise_std must be >= 0, got {noise_std}")
-        if temp_tolerance < 0 or light_tolerance < 0:
-            raise ValueError("tolerances must be >= 0")
-        if max_steps < 1 or not (0 <= warmup_steps < max_steps):
-            raise ValueError(
-                f"need max_steps >= 1 and 0 <= warmup_steps < max_steps, got {max_steps}, {warmup_steps}"
-            )
-        if max_temp_step <= 0 or max_light_step <= 0:
-            raise ValueError("action bounds must be > 0")
+        noise_std = check_number(noise_std, "noise_std", 0.0, MAX_MAGNITUDE)
+        temp_tolerance = check_number(temp_tolerance, "temp_tolerance", 0.0, MAX_MAGNITUDE)
+        light_tolerance = check_number(light_tolerance, "light_tolerance", 0.0, MAX_MAGNITUDE)
+        max_steps = check_int(max_steps, "max_steps", 1, MAX_EPISODE_STEPS)
+        warmup_steps = check_int(warmup_steps, "warmup_steps", 0, max_steps - 1)
+        success_share = check_number(success_share, "success_share", 0.0, 1.0)
+        if min(check_number(max_temp_step, "max_temp_step", 0.0, MAX_MAGNITUDE),
+               check_number(max_light_step, "max_light_step", 0.0, MAX_MAGNITUDE)) <= 0:
+            raise ValueError("action bounds max_temp_step and max_light_step must be > 0")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             modes = self.metadata["render_modes"]
             raise ValueError(f"render_mode must be one of {modes}, got {render_mode!r}")
@@ -134,7 +140,7 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
             (preferred_temp, self.temp_range, "preferred_temp"),
             (preferred_light, self.light_range, "preferred_light"),
         ):
-            if value is not None and not rng[0] <= float(value) <= rng[1]:
+            if value is not None and not rng[0] <= check_number(value, what) <= rng[1]:
                 raise ValueError(f"{what} {value} must lie inside {rng}")
         self.fixed_pref_temp = None if preferred_temp is None else float(preferred_temp)
         self.fixed_pref_light = None if preferred_light is None else float(preferred_light)

@@ -43,6 +43,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from sbagents.envs.bounds import MAX_EPISODE_STEPS, MAX_GRID_SIDE, check_int
 from sbagents.envs.text_grid import TextGridRendering
 
 Cell = tuple[int, int]
@@ -74,17 +75,21 @@ ACCEPTED_KWARGS: tuple[str, ...] = (
     "render_mode",
 )
 
+#: The most agents and treasures an env takes (observations grow with both; the book has 3 and 5).
+MAX_AGENTS = 64
+MAX_TREASURES = 256
+
 _COLOURS = {"A": (30, 110, 230), "T": (230, 180, 20), "X": (60, 60, 60), ".": (235, 235, 235)}
 
 
 class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
     """Cooperative multi-agent treasure collection on a grid with obstacles.
 
-    :param grid_size: side length of the square grid.
-    :param n_agents: number of agents ``agent_0 .. agent_{n-1}``.
-    :param n_treasures: treasures placed each episode.
+    :param grid_size: side length of the square grid (2..256).
+    :param n_agents: number of agents ``agent_0 .. agent_{n-1}`` (1..64).
+    :param n_treasures: treasures placed each episode (1..256).
     :param obstacles: blocked cells ``(row, col)``; default the book's 10 cells.
-    :param max_cycles: steps after which the episode is truncated.
+    :param max_cycles: steps after which the episode is truncated (1..10**9).
     :param reward_mode: ``"shared"`` (every agent gets +10 per treasure) or ``"individual"``.
     :param observation: ``"book"`` (absolute layout) or ``"egocentric"`` (offsets + agent id).
     :param render_mode: ``"ansi"`` (text grid), ``"human"`` (prints it) or ``"rgb_array"``
@@ -111,9 +116,11 @@ class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
         observation: str = "book",
         render_mode: str | None = None,
     ) -> None:
-        if grid_size < 2:
-            raise ValueError(f"grid_size must be >= 2, got {grid_size}")
-        self.grid_size = int(grid_size)
+        self.grid_size = check_int(grid_size, "grid_size", 2, MAX_GRID_SIDE)
+        n_agents = check_int(n_agents, "n_agents", 1, MAX_AGENTS)
+        n_treasures = check_int(n_treasures, "n_treasures", 1, MAX_TREASURES)
+        if isinstance(obstacles, str) or not isinstance(obstacles, Iterable):
+            raise ValueError(f"obstacles must be a list of (row, col) cells, got {obstacles!r}")
         self.obstacles: tuple[Cell, ...] = tuple(self._cell(c, "obstacle") for c in obstacles)
         self._blocked = frozenset(self.obstacles)
         n_free = self.grid_size**2 - len(self._blocked)
@@ -122,8 +129,7 @@ class CooperativeTreasureHunt(TextGridRendering, ParallelEnv):
                 f"need n_agents >= 1, n_treasures >= 1 and n_agents + n_treasures <= {n_free} free cells, "
                 f"got n_agents={n_agents}, n_treasures={n_treasures}"
             )
-        if max_cycles < 1:
-            raise ValueError(f"max_cycles must be >= 1, got {max_cycles}")
+        max_cycles = check_int(max_cycles, "max_cycles", 1, MAX_EPISODE_STEPS)
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
         if observation not in OBSERVATION_MODES:

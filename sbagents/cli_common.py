@@ -9,10 +9,11 @@ import signal
 import sys
 from collections.abc import Callable
 from types import FrameType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from sbagents.errors import UsageError
 from sbagents.pipeline.run_dir import RunRef
+from sbagents.source_tree import shadowing_folder, shadowing_hint
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -25,13 +26,15 @@ class ArgumentParser(argparse.ArgumentParser):
 
 def add_run_arguments(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, required: bool = True, exp_id: bool = True,
-    load_best: bool = True, trust: bool = True,
+    load_best: bool = True, env_kwargs: bool = False, trust: bool = True,
 ) -> None:
     """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
     ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` / ``--load-checkpoint`` for commands
     on one run.
 
     :param required: ``--algo`` and ``--env`` must be given (else they filter, as for ``plot``).
+    :param env_kwargs: add ``--env-kwargs KEY:VALUE...`` (parsed as ``train``'s): env constructor arguments on top of
+        the run's, for commands that build its env.
     :param trust: add ``--trust-run`` (commands that load a run's model and statistics).
     """
     parser.add_argument("--algo", required=required, default=None,
@@ -47,6 +50,9 @@ def add_run_arguments(
         which.add_argument("--load-checkpoint", type=int, default=None, metavar="STEPS",
                            help="use the checkpoint saved after STEPS timesteps (train --save-freq)")
     parser.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
+    if env_kwargs:
+        parser.add_argument("--env-kwargs", nargs="+", metavar="KEY:VALUE",
+                            help="env constructor keyword arguments on top of the run's (as train's --env-kwargs)")
     if trust:
         parser.add_argument("--trust-run", action="store_true",
                             help="the run comes from a source you trust: load pickles in its files (older runs' "
@@ -55,8 +61,13 @@ def add_run_arguments(
 
 def run_ref(args: argparse.Namespace) -> RunRef:
     """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
+    env_kwargs: dict[str, Any] = {}
+    if getattr(args, "env_kwargs", None):
+        from sbagents.pipeline.zoo_config import parse_overrides  # imports gymnasium: only when given
+
+        env_kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
     return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
-                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None),
+                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None), env_kwargs=env_kwargs,
                   trust=getattr(args, "trust_run", False))
 
 
@@ -72,7 +83,12 @@ def describe_os_error(exc: OSError) -> str:
 
 def run(prog: str, body: Callable[[], int | None]) -> NoReturn:
     """Run a CLI body: SIGTERM acts like Ctrl-C; :class:`UsageError` and file-system errors (a path that
-    cannot be read or written) become one line on stderr and exit code 2."""
+    cannot be read or written) become one line on stderr and exit code 2, and so does a folder named ``sbagents``
+    that Python imported instead of the package (:func:`~sbagents.source_tree.shadowing_folder`)."""
+    shadow = shadowing_folder()
+    if shadow is not None:  # nothing of sbagents is registered: say why instead of "unknown env id"
+        print(f"{prog}: error: {shadowing_hint(shadow)}", file=sys.stderr)
+        raise SystemExit(2)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         code = body() or 0

@@ -18,7 +18,7 @@ from sbagents.pipeline.options import EvaluateOptions
 def build_parser() -> ArgumentParser:
     """The ``evaluate`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.evaluate", description="Evaluate a trained run.")
-    add_run_arguments(p)
+    add_run_arguments(p, env_kwargs=True)
     p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes (games) to run (default 10)")
     p.add_argument("--render", action="store_true", help="print each state (text envs) or render in 'human' mode")
     group = p.add_mutually_exclusive_group()

@@ -17,7 +17,7 @@ from sbagents.deploy.exporting import export_groups, format_report
 def build_parser() -> ArgumentParser:
     """The ``export`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.export", description="Export a trained policy to ONNX.")
-    add_run_arguments(p)
+    add_run_arguments(p, env_kwargs=True)
     p.add_argument("--int8", action="store_true", help="also write policy.int8.onnx (onnxruntime quantize_dynamic)")
     p.add_argument("--out", default=None, help="output folder (default: <run dir>/export)")
     p.add_argument("--n-observations", type=int, default=1000, help="observations for the parity check")

@@ -5,6 +5,8 @@ Parses the flags and calls :func:`sbagents.visualize.curves.plot`.
 
 from __future__ import annotations
 
+import sys
+
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
 from sbagents.visualize.curves import plot
 
@@ -21,9 +23,14 @@ def build_parser() -> ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse ``argv``, plot, print the PNG path."""
+    """Parse ``argv``, plot, print the PNG path (and one warning line per file that could not be read)."""
     args = build_parser().parse_args(argv)
-    path = plot(run_ref(args), args.output, args.x_axis, args.window, args.title)
+    notes: list[str] = []
+    try:
+        path = plot(run_ref(args), args.output, args.x_axis, args.window, args.title, notes)
+    finally:
+        for note in notes:
+            print(f"python -m sbagents.plot: warning: {note}", file=sys.stderr)
     print(f"plot: {path}")
     return 0
 

@@ -14,7 +14,7 @@ from sbagents.visualize.video import record_video, sidecar_path
 def build_parser() -> ArgumentParser:
     """The ``record_video`` argument parser."""
     p = ArgumentParser(prog="python -m sbagents.record_video", description="Record an mp4 of a trained agent.")
-    add_run_arguments(p)
+    add_run_arguments(p, env_kwargs=True)
     p.add_argument("-n", "--n-steps", type=int, default=1000, help="steps to record (default 1000)")
     p.add_argument("-o", "--output-folder", default=None, help="video folder (default: <run dir>/videos)")
     p.add_argument("--seed", type=int, default=0, help="seed of the recording env")

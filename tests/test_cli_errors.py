@@ -52,7 +52,7 @@ TRAIN_CASES = [
     (["-params", "eval_env_kwargs:5"], "eval_env_kwargs must be a mapping, got 5"),
     (["--env-kwargs", "size:abc"], "cannot create sbagents/GridWorld-v0 with env kwargs size='abc': size must be"),
     (["--env-kwargs", "obstacles:5"], "obstacles must be a list of (row, col) cells, got 5"),
-    (["--env-kwargs", "max_steps:0"], "max_steps must be an integer >= 1, got 0"),
+    (["--env-kwargs", "max_steps:0"], "max_steps must be an integer in 1..1,000,000,000, got 0"),
     (["--env", "SmartHome-v0", "--algo", "ppo", "--env-kwargs", "preferred_temp:abc"],
      "cannot create sbagents/SmartHome-v0 with env kwargs preferred_temp='abc'"),
     (["--env", "treasure_hunt_v0", "--algo", "ppo", "--env-kwargs", "n_agents:-1"],

@@ -272,14 +272,24 @@ def test_train_cli_constraint_records_history_and_evaluates(tmp_path) -> None:  
                   "--seed", "0", "--constraint", "pid", "--cost-limit", "0.1", "--eval-freq", "0",
                   "--final-eval-episodes", "2", "-params", "n_envs:4", "n_steps:64", "batch_size:64")
     assert trained.returncode == 0, trained.stderr
-    assert "constraint (pid): cost limit 0.1, multiplier" in trained.stdout
+    line = next(x for x in trained.stdout.splitlines() if x.startswith("constraint (pid): cost limit 0.1 "))
     run_dir = tmp_path / "ppo" / "sbagents_HazardGridWorld-v0_1"
     safety = json.loads((run_dir / "safety.json").read_text())
     history = safety["constraint"]["history"]
     assert safety["cost_limit"] is None and not safety["stopped"]  # counted, never a stopping rule here
     assert [h["timesteps"] for h in history] == sorted(h["timesteps"] for h in history) and len(history) >= 2
     summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["constraint"]["method"] == "pid" and summary["constraint"]["multiplier"] == history[-1]["multiplier"]
+    item = summary["constraint"]
+    assert item["method"] == "pid" and item["multiplier"] == history[-1]["multiplier"]
+    recent = [h["ep_cost"] for h in history[-10:]]  # whether the limit held: in recent training episodes ...
+    assert item["train_ep_cost"] == pytest.approx(sum(recent) / len(recent))
+    assert item["held_in_training"] == (item["train_ep_cost"] <= 0.1)
+    assert item["eval_ep_cost"] == summary["eval"]["mean_cost"]  # ... and in the final evaluation
+    assert item["held_in_evaluation"] == (summary["eval"]["mean_cost"] <= 0.1)
+    verdicts = ["held" if item[k] else "missed" for k in ("held_in_training", "held_in_evaluation")]
+    assert line.startswith(f"constraint (pid): cost limit 0.1 {verdicts[0]} in training (recent episodes' mean cost "
+                           f"{item['train_ep_cost']:.3g}); {verdicts[1]} in the final evaluation (mean episode cost "
+                           f"{item['eval_ep_cost']:.3g}); multiplier")
     evaluated = cli("evaluate", "--algo", "ppo", "--env", "sbagents/HazardGridWorld-v0", "-f", str(tmp_path), "-n",
                     "2", "--json")
     assert evaluated.returncode == 0, evaluated.stderr

@@ -145,7 +145,7 @@ def test_users_own_masked_game_trains_and_is_measured(tmp_path: Path) -> None:
                "pile:7", "-params", "n_envs:4", "n_steps:128", "batch_size:256", "learning_rate:0.003",
                "self_play:{mix: {random: 0.5}}")
     assert done.returncode == 0, done.stderr
-    assert (tmp_path / "ppo_mask" / "nim_1" / "opponents" / "snapshot_0.zip").is_file()
+    assert (tmp_path / "ppo_mask" / "tests.user_envs.nim_game_nim_1" / "opponents" / "snapshot_0.zip").is_file()
     result = last_json(cli("evaluate", "--algo", "ppo_mask", "--env", "tests.user_envs.nim_game:nim", "-f",
                            str(tmp_path), "--opponent", "random", "-n", "200", "--json").stdout)
     first = result["per_seat"]["first"]  # type: ignore[index]

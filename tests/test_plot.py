@@ -82,3 +82,64 @@ def test_errors_are_one_line_exit_2(tmp_path: Path) -> None:
     assert missing.returncode == 2 and "does not exist" in missing.stderr
     bad_x = cli("plot", "-f", str(tmp_path), "--x", "hours")
     assert bad_x.returncode == 2 and bad_x.stderr.strip().count("\n") == 0
+
+
+def _fake_run(root: Path, k: int, eval_steps: list[int], eval_returns: list[float]) -> Path:
+    """A run dir with a monitor file of two episodes and the given periodic evaluations (two episodes each)."""
+    run_dir = root / "ppo" / f"{STEM}_{k}"
+    run_dir.mkdir(parents=True)
+    (run_dir / "0.monitor.csv").write_text('#{"t_start": 1.0, "env_id": "x"}\nr,l,t\n1.0,10,0.1\n2.0,10,0.2\n')
+    results = np.repeat(np.asarray(eval_returns, dtype=np.float64)[:, None], 2, axis=1)
+    np.savez(run_dir / "evaluations.npz", timesteps=np.asarray(eval_steps), results=results)
+    return run_dir
+
+
+def test_evaluations_are_aligned_by_timestep_not_by_index(tmp_path: Path) -> None:
+    """Three seeds that evaluated once each, at 5k, 53k and 2k: three points of one run each, not one mean point
+    at ~20k; seeds with the same schedule but different lengths: a mean where all three evaluated, counts beyond."""
+    from sbagents.visualize.curves import align_evaluations
+
+    odd = [load_run_curve(_fake_run(tmp_path / "a", k, [s], [r]), STEM)
+           for k, (s, r) in enumerate([(5000, 10.0), (53000, 50.0), (2000, 0.0)], start=1)]
+    grid, mean, low, high, counts = align_evaluations(odd)
+    assert grid.tolist() == [2000, 5000, 53000] and mean.tolist() == [0.0, 10.0, 50.0]
+    assert counts.tolist() == [1, 1, 1]
+    runs = [load_run_curve(_fake_run(tmp_path / "b", k, steps, rets), STEM) for k, (steps, rets) in enumerate([
+        ([1000, 2000, 3000], [0.0, 10.0, 20.0]), ([1000, 2000], [2.0, 4.0]), ([1500, 2500, 3500], [1.0, 3.0, 5.0])],
+        start=1)]
+    grid, mean, low, high, counts = align_evaluations(runs)
+    assert grid.tolist() == [1000, 1500, 2000, 2500, 3000, 3500]
+    assert counts.tolist() == [2, 3, 3, 2, 2, 1]  # each seed counts only inside its own evaluated range
+    np.testing.assert_allclose(mean[1:3], [(5.0 + 3.0 + 1.0) / 3, (10.0 + 4.0 + 2.0) / 3])  # interpolated at 1500
+    np.testing.assert_allclose([low[2], high[2]], [2.0, 10.0])
+    out = plot(RunRef("ppo", None, tmp_path / "b"), tmp_path / "b.png")
+    assert out.stat().st_size > 5000
+
+
+@pytest.mark.parametrize(("what", "content"), [
+    ("evaluations.npz", b"\x93NUMPY garbage \x00\xff" * 20),
+    ("evaluations.npz", None),  # an npz without the expected arrays
+    ("0.monitor.csv", bytes(range(256))),
+    ("0.monitor.csv", b'#{"t_start": null}\nr,l,t\n1,2,x\nnan,1,1\n1,-1,1\n'),
+])
+def test_garbage_files_are_warning_lines(tmp_path: Path, what: str, content: bytes | None) -> None:
+    run_dir = _fake_run(tmp_path, 1, [1000, 2000], [1.0, 2.0])
+    if content is None:
+        np.savez(run_dir / what, foo=np.zeros(3))
+    else:
+        (run_dir / what).write_bytes(content)
+    done = cli("plot", "-f", str(tmp_path), "-o", str(tmp_path / "c.png"))
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    warnings = done.stderr.strip().splitlines()
+    assert warnings and all(w.startswith("python -m sbagents.plot: warning: ") and what in w for w in warnings)
+    assert (tmp_path / "c.png").exists()
+
+
+def test_nothing_readable_is_one_error_line(tmp_path: Path) -> None:
+    run_dir = _fake_run(tmp_path, 1, [1000], [1.0])
+    (run_dir / "evaluations.npz").write_bytes(b"PK\x03\x04 not a zip")
+    (run_dir / "0.monitor.csv").write_text("r,l,t\ngar\x00bage\n")
+    done = cli("plot", "-f", str(tmp_path))
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert lines[-1].startswith("python -m sbagents.plot: error: the runs in") and len(lines) == 3, done.stderr

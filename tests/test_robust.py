@@ -236,14 +236,16 @@ def test_train_cli_robust_run_is_recorded_and_evaluates(tmp_path) -> None:  # ty
 @pytest.mark.parametrize(
     ("text", "algo", "cls", "kwargs"),
     [
-        ("sa:0.2", "td3", SATD3, {"sa_eps": 0.2}),
+        ("sa:0.2", "td3", SATD3, {"sa_eps": 0.2, "sa_kappa": 0.1, "sa_pgd_steps": 3}),  # the published recipe
         ("sa:0.3,kappa=2,steps=7,ramp=0", "ddpg", SADDPG,
          {"sa_eps": 0.3, "sa_kappa": 2.0, "sa_pgd_steps": 7, "sa_ramp_fraction": 0.0}),
-        ("sa:0.2,qdrop=1.5", "td3", SATD3, {"sa_eps": 0.2, "sa_critic_weight": 1.5}),
+        ("sa:0.2,qdrop=1.5", "td3", SATD3,
+         {"sa_eps": 0.2, "sa_kappa": 0.1, "sa_pgd_steps": 3, "sa_critic_weight": 1.5}),
         ("adv:0.2", "td3", AdvTD3, {"adv_eps": 0.2}),
         ("adv:0.1,attack=critic,share=0.3", "sac", AdvSAC, {"adv_eps": 0.1, "adv_attack": "critic", "adv_share": 0.3}),
         ("sa+adv:0.3,kappa=0.5,attack=fgsm,ramp=0.25", "ddpg", SAAdvDDPG,
-         {"sa_eps": 0.3, "sa_kappa": 0.5, "sa_ramp_fraction": 0.25, "adv_eps": 0.3, "adv_attack": "fgsm",
+         {"sa_eps": 0.3, "sa_kappa": 0.5, "sa_pgd_steps": 3, "sa_ramp_fraction": 0.25, "adv_eps": 0.3,
+          "adv_attack": "fgsm",
           "adv_ramp_fraction": 0.25}),
     ],
 )

@@ -187,7 +187,8 @@ TEAM_ERRORS = [
     (["--env", "tiny_marl_pkg.variants:steering_scout"],
      "the action spaces of scout_0, worker_0, worker_1 differ; use policies: per_group or per_agent"),
     (["--env", "tiny_marl_pkg.variants:steering_scout", "-params", "policies:per_group"],
-     "dqn cannot learn group scout of steering_scout (observation Box, action Box); algos that can:"),
+     "dqn cannot learn group scout of tiny_marl_pkg.variants:steering_scout (observation Box, action Box); algos "
+     "that can:"),
     (["--env", "tiny_marl_pkg.variants:stateless", "--algo", "ppo", "-params", "critic:centralized"],
      "critic: centralized needs the env's global state()"),
     (["--env", RELAY, "-params", "critic:centralized"], "critic: centralized is for ppo and a2c"),

@@ -13,6 +13,7 @@ from typing import Any, TypeAlias
 import gymnasium as gym
 import numpy as np
 
+from sbagents.envs.bounds import MAX_EPISODE_STEPS, check_int
 from sbagents.envs.kuka.robot import KukaIiwa
 from sbagents.envs.kuka.sim import BulletSim
 from sbagents.envs.kuka.tasks import SafetyZone, make_safety_zone
@@ -60,8 +61,7 @@ class KukaEnvBase(gym.Env[Any, np.ndarray]):
         """Check and keep the settings every Kuka env has (:class:`ValueError` naming what is accepted)."""
         if zone_mode not in ZONE_MODES:
             raise ValueError(f"zone_mode must be one of {ZONE_MODES}, got {zone_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        max_steps = check_int(max_steps, "max_steps", 1, MAX_EPISODE_STEPS)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.max_steps = max_steps

@@ -189,19 +189,37 @@ def check_unconstrained(algo: str, hyperparams: dict[str, Any], overrides: dict[
         raise UsageError(f"{CONFIG_KEY} applies to {', '.join(CONSTRAINED_ALGOS)} (with --constraint), not {algo}")
 
 
+#: Multiplier updates whose measured episode costs make "recent training episodes" (whether the limit held).
+RECENT_UPDATES = 10
+
+
 def record_constraint(run_dir: Path, model: Any) -> dict[str, Any]:
     """Add the constraint's history (timesteps, episode cost, multiplier per rollout) to ``safety.json`` and return
-    the summary items: ``constraint`` (method, cost limit, final multiplier, last episode cost)."""
+    the summary items: ``constraint`` (method, cost limit, final multiplier, last episode cost, and whether the limit
+    held in training: ``train_ep_cost``, the mean of the last :data:`RECENT_UPDATES` updates' episode costs, and
+    ``held_in_training``; :func:`judge_evaluation` adds the final evaluation's)."""
     multiplier = model.multiplier  # LagrangeMultiplier or PIDLagrangeMultiplier
     history = list(multiplier.history)
+    recent = [float(h["ep_cost"]) for h in history[-RECENT_UPDATES:]]
+    train_cost = sum(recent) / len(recent) if recent else None
     item = {
         "method": model.constraint,
         "cost_limit": float(model.cost_limit),
         "multiplier": float(multiplier.value),
         "last_ep_cost": history[-1]["ep_cost"] if history else None,
+        "train_ep_cost": train_cost,
+        "held_in_training": None if train_cost is None else bool(train_cost <= model.cost_limit),
     }
     path = run_dir / "safety.json"
     data = json.loads(path.read_text()) if path.exists() else {}
     data["constraint"] = {**item, "history": history}
     write_json(path, data)
     return {"constraint": item}
+
+
+def judge_evaluation(constraint: dict[str, Any], evaluation: dict[str, Any]) -> None:
+    """Add to a summary's ``constraint`` item whether the limit held in the final evaluation: ``eval_ep_cost`` (its
+    mean episode cost) and ``held_in_evaluation`` (None when the evaluation reported no cost)."""
+    cost = evaluation.get("mean_cost")
+    constraint["eval_ep_cost"] = cost
+    constraint["held_in_evaluation"] = None if cost is None else bool(cost <= constraint["cost_limit"])

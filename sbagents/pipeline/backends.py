@@ -83,6 +83,7 @@ def evaluate(run: RunRef, options: EvaluateOptions | None = None) -> dict[str, A
         given = [flag for name, flag in _RLLIB_UNSUPPORTED.items() if getattr(options, name)]
         given += ["--load-best"] if run.load_best else []
         given += ["--load-checkpoint"] if run.checkpoint is not None else []
+        given += ["--env-kwargs"] if run.env_kwargs else []
         if given:
             raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
         require_ray("evaluating an RLlib run")

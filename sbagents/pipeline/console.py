@@ -40,10 +40,14 @@ class ProgressReporter:
     :param bar: show the bar (None: only when stderr is a terminal).
     :param quiet: print nothing at all (``--verbose 0``).
     :param stream: where evaluation lines go.
+    :param start: the model's step count when the run starts (``-i`` continues a model): the bar and the evaluation
+        lines count this run's steps against this run's budget.
     """
 
-    def __init__(self, total: int, bar: bool | None = None, quiet: bool = False, stream: TextIO | None = None) -> None:
+    def __init__(self, total: int, bar: bool | None = None, quiet: bool = False, stream: TextIO | None = None,
+                 start: int = 0) -> None:
         self.total = int(total)
+        self.start = int(start)
         self.quiet = quiet
         self.stream = stream if stream is not None else sys.stdout
         show = (sys.stderr.isatty() if bar is None else bar) and not quiet
@@ -52,22 +56,34 @@ class ProgressReporter:
         self._start = time.perf_counter()
 
     def update(self, timesteps: int) -> None:
-        """Move the bar to ``timesteps`` env steps."""
+        """Move the bar to ``timesteps`` env steps (the model's count)."""
+        timesteps -= self.start
         if self._bar is not None and timesteps > self._done:
             self._bar.update(min(timesteps, self.total) - min(self._done, self.total))
         self._done = max(self._done, timesteps)
 
     def evaluation(self, timesteps: int, mean: float, std: float, success: float | None = None,
                    metrics: Mapping[str, float] | None = None) -> None:
-        """Report one evaluation: mean and std of its episode returns, success rate, scalar metrics."""
+        """Report one evaluation (at the model's ``timesteps``): mean and std of its episode returns, success rate,
+        scalar metrics."""
         if self.quiet:
             return
-        line = format_eval_line(timesteps, self.total, mean, std, success, metrics, time.perf_counter() - self._start)
+        line = format_eval_line(timesteps - self.start, self.total, mean, std, success, metrics,
+                                time.perf_counter() - self._start)
         if self._bar is not None:
             self._bar.set_postfix_str(f"eval {mean:.2f}", refresh=False)
             self._bar.write(line, file=self.stream)
         else:
             print(line, file=self.stream, flush=True)
+
+    def warn(self, message: str) -> None:
+        """One ``warning: ...`` line on stderr (above the bar), unless quiet."""
+        if self.quiet:
+            return
+        if self._bar is not None:
+            self._bar.write(f"warning: {message}", file=sys.stderr)
+        else:
+            print(f"warning: {message}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         """Close the bar (idempotent)."""
@@ -154,6 +170,24 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
     return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
 
 
+def _verdict(held: bool | None, cost: float | None, where: str, measure: str) -> str:
+    if held is None or cost is None:
+        return f"not measured {where}"
+    return f"{'held' if held else 'missed'} {where} ({measure} {cost:.3g})"
+
+
+def constraint_line(constraint: Mapping[str, Any]) -> str:
+    """``constraint (lagrangian): cost limit 0.5 missed in training (recent episodes' mean cost 0.93); missed in the
+    final evaluation (mean episode cost 1); multiplier 2.9``."""
+    parts = [_verdict(constraint.get("held_in_training"), constraint.get("train_ep_cost"), "in training",
+                      "recent episodes' mean cost")]
+    if "held_in_evaluation" in constraint:
+        parts.append(_verdict(constraint["held_in_evaluation"], constraint.get("eval_ep_cost"),
+                              "in the final evaluation", "mean episode cost"))
+    return (f"constraint ({constraint['method']}): cost limit {constraint['cost_limit']:g} {'; '.join(parts)}; "
+            f"multiplier {constraint['multiplier']:.3g}")
+
+
 def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: bool) -> list[str]:
     """The lines ``train`` ends with: where the run went, its speed and its final evaluation."""
     if interrupted:
@@ -178,9 +212,7 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         lines.append("replay buffer: " + "; ".join(parts))
     constraint = summary.get("constraint")
     if constraint:
-        last = "n/a" if constraint["last_ep_cost"] is None else f"{constraint['last_ep_cost']:.3g}"
-        lines.append(f"constraint ({constraint['method']}): cost limit {constraint['cost_limit']:g}, multiplier "
-                     f"{constraint['multiplier']:.3g}, last rollout's episode cost {last}")
+        lines.append(constraint_line(constraint))
     dp = summary.get("dp")
     if dp:
         stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""

@@ -41,7 +41,21 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
     entry_point = gym.spec(ref.env_id).entry_point
     if callable(entry_point):
         return entry_point
-    return gym.envs.registration.load_env_creator(str(entry_point))
+    try:
+        return gym.envs.registration.load_env_creator(str(entry_point))
+    except gym.error.DependencyNotInstalled as exc:
+        raise missing_dependency_error(ref, exc) from None
+
+
+class MissingDependencyError(UsageError):
+    """An env whose optional dependency is not installed (one line naming the package or extra to install)."""
+
+
+def missing_dependency_error(ref: EnvRef, exc: Exception) -> MissingDependencyError:
+    """The :class:`MissingDependencyError` of Gymnasium's ``DependencyNotInstalled`` (whose message names the
+    package or extra to install) for the env ``ref``."""
+    reason = " ".join(str(exc).split()) or type(exc).__name__
+    return MissingDependencyError(f"{ref.env_id} needs an optional dependency that is not installed: {reason}")
 
 
 def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
@@ -128,6 +142,8 @@ def make_team_vecs(
                  {"shared": _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, None)})
     except UsageError:
         raise
+    except gym.error.DependencyNotInstalled as exc:
+        raise missing_dependency_error(ref, exc) from None
     except (TypeError, ValueError, AssertionError) as exc:
         raise _env_kwargs_error(ref, kwargs, exc) from None
     return {name: _vec_wrappers(venv, exp) for name, venv in venvs.items()}
@@ -207,6 +223,8 @@ def make_vec(
         venv = _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, wrapper)
     except UsageError:
         raise
+    except gym.error.DependencyNotInstalled as exc:
+        raise missing_dependency_error(ref, exc) from None
     except (TypeError, ValueError, AssertionError) as exc:
         raise _env_kwargs_error(ref, kwargs, exc) from None
     return _vec_wrappers(venv, exp)

@@ -4,7 +4,9 @@ A PettingZoo env is named by its module (PettingZoo's convention: a module expos
 such as ``pettingzoo.sisl.pursuit_v5``, ``mpe2.simple_spread_v3`` or ``my_pkg.my_env_v0``), by
 ``module:callable`` (a function returning a ``ParallelEnv``), or by a short name registered with
 :func:`sbagents.registration.register_pettingzoo_env` (``treasure_hunt_v0``). Its run dirs and config entries use
-the env's name: the module's last component (``pursuit_v5``), or the callable's name.
+the env's name: the module's last component (``pursuit_v5``, also for ``module:parallel_env`` and a game's
+``module:env``), or module and callable (``my_pkg.envs:make_env``, run dirs ``my_pkg.envs_make_env_<k>``), so two
+modules' callables of the same name never share run dirs.
 """
 
 from __future__ import annotations
@@ -179,6 +181,14 @@ def _returns_aec_env(fn: Callable[..., Any]) -> bool:
     return is_aec
 
 
+def callable_env_id(module_name: str, attr: str) -> str:
+    """The name of the PettingZoo env ``module_name:attr``: the module's (as ``--env module``) for PettingZoo's own
+    entry points ``parallel_env`` and ``env``, else ``module_name:attr`` (any other callable: a name of its own)."""
+    if attr in ("parallel_env", "env"):
+        return module_name.rpartition(".")[2]
+    return f"{module_name}:{attr}"
+
+
 def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
     """Resolve ``name`` to an env, or raise :class:`UsageError` suggesting close ids.
 
@@ -201,9 +211,10 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
             if candidate in gym.registry:
                 return EnvRef(candidate, modules=(*modules, module_name))
         if callable(getattr(module, attr, None)):
+            env_id = callable_env_id(module_name, attr)
             if _returns_aec_env(getattr(module, attr)):
-                return EnvRef(attr, modules=modules, source=name, game=True)
-            return EnvRef(attr, multi_agent=True, modules=modules, source=name)
+                return EnvRef(env_id, modules=modules, source=name, game=True)
+            return EnvRef(env_id, multi_agent=True, modules=modules, source=name)
         raise UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
     atari = "NoFrameskip" in name or name.startswith("ALE/")
     if atari:
@@ -218,6 +229,11 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     known = list(gym.registry) + list(PETTINGZOO_ENVS)
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see python -m sbagents.train --list"
+    from sbagents.source_tree import shadowing_folder, shadowing_hint
+
+    shadow = shadowing_folder()
+    if shadow is not None:  # sbagents/__init__.py never ran: its ids are not registered
+        hint = f"; {shadowing_hint(shadow)}"
     raise UsageError(f"unknown env id {name!r}{hint}")
 
 

@@ -316,11 +316,18 @@ def _self_play(value: Any, source: str) -> Any:
     return SelfPlayOptions.from_mapping(value, source)
 
 
-def build_experiment(spec: TrainSpec, ref: EnvRef) -> Experiment:
+def build_experiment(spec: TrainSpec, ref: EnvRef, features: tuple[str, ...] = ()) -> Experiment:
     """The :class:`Experiment` of ``spec`` on the env ``ref``: its zoo entry (``zoo_configs/<algo>.yml`` or
     ``spec.conf_file``, looked up by :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`) with the overrides,
-    validated."""
+    validated.
+
+    :param features: enabled features whose entry overrides apply (``robust``, ``dp``:
+        :data:`~sbagents.pipeline.zoo_config.FEATURE_OVERRIDES`).
+    """
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
-    entry, where = spec_entry(spec, spec.algo, ref)
+    entry, where = spec_entry(spec, spec.algo, ref, features)
+    from sbagents.pipeline.image_obs import image_entry
+
+    entry = image_entry(spec, ref, entry)
     return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game, ref.trusted_modules())

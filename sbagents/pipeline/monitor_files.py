@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,8 +34,8 @@ class MonitorEpisodes:
 
 
 def read_monitor_files(run_dir: Path, notes: list[str] | None = None) -> MonitorEpisodes:
-    """Every ``*monitor.csv`` of ``run_dir``; unreadable files and malformed rows are skipped (and told in
-    ``notes`` when given)."""
+    """Every ``*monitor.csv`` of ``run_dir``; unreadable files (not text, too) and malformed rows (non-numbers,
+    non-finite values, negative lengths) are skipped (and told in ``notes`` when given)."""
     rows: list[tuple[float, float, float]] = []
     t0: float | None = None
     for path in sorted(run_dir.glob("*monitor.csv")):
@@ -43,6 +44,9 @@ def read_monitor_files(run_dir: Path, notes: list[str] | None = None) -> Monitor
         except OSError as exc:
             _note(notes, f"{path.name} could not be read ({exc.strerror})")
             continue
+        except UnicodeDecodeError:
+            _note(notes, f"{path.name} is not a monitor file (not text)")
+            continue
         lines = text.splitlines(keepends=True)
         if lines and not lines[-1].endswith("\n"):
             lines.pop()  # a row being written
@@ -50,21 +54,37 @@ def read_monitor_files(run_dir: Path, notes: list[str] | None = None) -> Monitor
         if lines and lines[0].startswith("#"):
             try:
                 t_start = float(json.loads(lines[0][1:]).get("t_start", 0.0))
-            except (ValueError, AttributeError):
+            except (ValueError, AttributeError, TypeError):
                 _note(notes, f"{path.name}: malformed first line")
             lines = lines[1:]
         t0 = t_start if t0 is None else min(t0, t_start)
-        bad = 0
-        for row in csv.DictReader(io.StringIO("".join(lines))):
-            try:
-                rows.append((t_start + float(row["t"]), float(row["r"]), float(row["l"])))
-            except (KeyError, TypeError, ValueError):
-                bad += 1
+        try:
+            bad = _read_rows(lines, t_start, rows)
+        except csv.Error as exc:
+            _note(notes, f"{path.name} is not a monitor file ({exc})")
+            continue
         if bad:
             _note(notes, f"{path.name}: {bad} malformed row(s) skipped")
     rows.sort()
     data = np.asarray(rows, dtype=np.float64).reshape(-1, 3)
     return MonitorEpisodes(data[:, 0], data[:, 1], data[:, 2], t0)
+
+
+def _read_rows(lines: list[str], t_start: float, rows: list[tuple[float, float, float]]) -> int:
+    """Append the ``(end time, return, length)`` of each well-formed CSV row to ``rows``; return how many rows were
+    malformed (:class:`csv.Error` for text that is no CSV at all, such as NUL bytes)."""
+    bad = 0
+    for row in csv.DictReader(io.StringIO("".join(lines))):
+        try:
+            values = (t_start + float(row["t"]), float(row["r"]), float(row["l"]))
+        except (KeyError, TypeError, ValueError):
+            bad += 1
+            continue
+        if all(math.isfinite(v) for v in values) and values[2] >= 0:
+            rows.append(values)
+        else:
+            bad += 1
+    return bad
 
 
 def _note(notes: list[str] | None, text: str) -> None:

@@ -206,6 +206,7 @@ class RunRef:
     :param load_best: the run's ``best_model.zip`` instead of its final model.
     :param gym_packages: packages to import that register the env.
     :param checkpoint: the checkpoint saved after this many timesteps (``--save-freq``) instead of the final model.
+    :param env_kwargs: env constructor arguments on top of the run's (``--env-kwargs``) when its env is built again.
     :param trust: the run's files come from a trusted source: load pickles in them as they are (``--trust-run``;
         by default nothing in a run dir can run code, see docs/security.md).
     """
@@ -217,6 +218,7 @@ class RunRef:
     load_best: bool = False
     gym_packages: tuple[str, ...] = ()
     checkpoint: int | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict, hash=False)
     trust: bool = False
 
     def __post_init__(self) -> None:
@@ -282,6 +284,15 @@ def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = F
     return path
 
 
+def with_env_kwargs(exp: Experiment, env_kwargs: dict[str, Any]) -> Experiment:
+    """``exp`` building its envs with ``env_kwargs`` on top of its own (its ``eval_env_kwargs`` no longer override
+    those keys)."""
+    if env_kwargs:
+        exp.env_kwargs = {**exp.env_kwargs, **env_kwargs}
+        exp.eval_env_kwargs = {k: v for k, v in exp.eval_env_kwargs.items() if k not in env_kwargs}
+    return exp
+
+
 def load_run(ref: RunRef) -> LoadedRun:
     """Find the run ``ref`` names and load its model(s) and experiment, without running code from its files
     (:mod:`sbagents.safe_load`; ``ref.trust`` loads them as they are)."""
@@ -293,7 +304,8 @@ def load_run(ref: RunRef) -> LoadedRun:
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
     trusted = env.trusted_modules()
-    exp = load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game, trusted)
+    exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game, trusted),
+                          ref.env_kwargs)
     cls: Any = ALGOS[ref.algo].cls
     if run_args(run_dir, env.env_id).get("constraint"):
         from sbagents.constrained.options import constrained_class  # its zip holds a cost critic PPO.load refuses

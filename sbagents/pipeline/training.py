@@ -27,6 +27,7 @@ from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCal
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
+from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
 from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
 from sbagents.pipeline.env_names import EnvRef, resolve_env
@@ -144,7 +145,8 @@ def train_sb3(
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
-    exp = build_experiment(spec, ref)
+    features = (("robust",) if spec.robust is not None else ()) + (("dp",) if privacy.enabled else ())
+    exp = build_experiment(spec, ref, features)
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     if privacy.enabled:
@@ -191,7 +193,9 @@ def train_sb3(
                            max(execution.verbose - 1, 0), agent_path, spec.robust, constraint, spec.trust_run)
         resumed_buffer = load_replay_buffer(model, agent_path, spec.trust_run) if agent_path is not None else None
         ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
-        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0)
+        steps_before = model.num_timesteps if agent_path is not None else 0
+        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0,
+                                    start=steps_before)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
         if output.save_replay_buffer and output.save_freq > 0:
             own.append(ReplayBufferCheckpoint(run_dir, ctx.calls(output.save_freq)))
@@ -205,7 +209,9 @@ def train_sb3(
     log_interval = execution.log_interval
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
-    steps_before = model.num_timesteps if agent_path is not None else 0
+    warnings = budget_warnings(model, spec.algo, exp.n_timesteps, steps_before)
+    for warning in warnings:
+        reporter.warn(warning)
     clock = LearningClock(graceful=True)
     try:
         with clock:
@@ -218,6 +224,8 @@ def train_sb3(
             save_replay_buffer(model, run_dir)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
+    if warnings:
+        summary["warnings"] = warnings
     if resumed_buffer is not None or output.save_replay_buffer:
         summary["replay_buffer"] = {"loaded_transitions": resumed_buffer, "saved": output.save_replay_buffer}
     if constraint is not None:
@@ -228,8 +236,13 @@ def train_sb3(
         summary.update(getattr(callback, "summary_items", dict)())
 
     def final_eval() -> dict[str, Any]:
-        return evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed),
-                              run_dir / VECNORMALIZE_FILE)
+        result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes,
+                                                                 seed=seed), run_dir / VECNORMALIZE_FILE)
+        if constraint is not None:  # did the limit hold for the greedy policy too
+            from sbagents.constrained.options import judge_evaluation
+
+            judge_evaluation(summary["constraint"], result)
+        return result
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
     return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))

@@ -41,8 +41,14 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "deterministic_eval",
         "self_play",
         "constraint_kwargs",
+        "robust_overrides",
+        "dp_overrides",
     }
 )
+#: Features whose entry key ``<feature>_overrides`` (hyperparameters) applies when the feature's flag is given:
+#: ``robust`` (``--robust``) and ``dp`` (``--dp-epsilon`` / ``--dp-noise``). The flag's defaults then carry the
+#: recipe the entry's results were measured with; ``-params`` and ``-n`` still win.
+FEATURE_OVERRIDES: dict[str, str] = {"robust": "robust_overrides", "dp": "dp_overrides"}
 #: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.
 MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
 #: The keys of :data:`ZOO_KEYS` that only turn-based games take.
@@ -91,25 +97,134 @@ def lookup_entry(path: str | Path, keys: str | tuple[str, ...], atari: bool = Fa
     """
     path = Path(path)
     names = (keys, *(("atari",) if atari else ())) if isinstance(keys, str) else tuple(keys)
-    data = load_yaml(path) if path.exists() else {}
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise UsageError(f"{path} must map env ids to hyperparameters, got a {type(data).__name__}")
-    for key in (*names, "default"):
-        if key in data:
-            entry = data[key] or {}
-            if not isinstance(entry, dict):
-                raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
-            return dict(entry)
+    data = _entries(path)
+    key = entry_name(path, names, data)
+    if key is not None:
+        entry = data[key] or {}
+        if not isinstance(entry, dict):
+            raise UsageError(f"{path}: entry {key!r} must be a mapping of hyperparameters")
+        return dict(entry)
     if not path.exists():
         return {}
     known = ", ".join(str(k) for k in data) or "none"
     raise UsageError(f"{path} has no entry for {names[0]!r} and no 'default' (entries: {known})")
 
 
+def _entries(path: Path) -> dict[Any, Any]:
+    """The entries of the zoo file ``path`` (a missing file has none)."""
+    data = load_yaml(path) if path.exists() else {}
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise UsageError(f"{path} must map env ids to hyperparameters, got a {type(data).__name__}")
+    return data
+
+
+def entry_name(path: str | Path, keys: tuple[str, ...], data: dict[Any, Any] | None = None) -> str | None:
+    """Which entry of the zoo file ``path`` :func:`lookup_entry` reads for ``keys``: the first of them the file
+    has, else ``default``, else None.
+
+    :param data: the file's entries, when already read.
+    """
+    data = _entries(Path(path)) if data is None else data
+    return next((key for key in (*keys, "default") if key in data), None)
+
+
+#: The longest value ``-params`` / ``--env-kwargs`` take (characters), and their deepest nesting of lists/mappings.
+MAX_OVERRIDE_CHARS = 10_000
+MAX_OVERRIDE_DEPTH = 32
+#: Integers a value may hold: numpy's and torch's int64 (no hyperparameter or env argument takes more).
+INT64_RANGE = (-(2**63), 2**63 - 1)
+_SCALARS = (str, bool, int, float, type(None))
+_YAML_KINDS = {"bytes": "!!binary", "date": "date", "datetime": "timestamp", "set": "!!set"}
+
+
+class OverrideLoader(ZooLoader):
+    """:class:`ZooLoader` for one command-line value: no aliases (``*name``: a value can then not expand into a
+    huge or self-referencing structure), at most :data:`MAX_OVERRIDE_DEPTH` levels of nesting, and integer
+    literals no longer than an int64's (so ``int()`` never meets a 100,000-digit string)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        """Refuse aliases and deep nesting before composing the node."""
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted here",
+                                              self.peek_event().start_mark)
+        if self._depth >= MAX_OVERRIDE_DEPTH:
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_OVERRIDE_DEPTH} levels",
+                                              self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_bounded_int(self, node: yaml.ScalarNode) -> Any:
+        """YAML's int, refused (a :class:`~yaml.constructor.ConstructorError`) when its literal is too long to
+        be an int64."""
+        if len(str(node.value).replace("_", "")) > 2 + 64:  # 0b + 64 binary digits is the longest int64
+            raise yaml.constructor.ConstructorError(None, None, "integer out of range", node.start_mark)
+        return self.construct_yaml_int(node)
+
+
+OverrideLoader.add_constructor("tag:yaml.org,2002:int", OverrideLoader.construct_bounded_int)
+
+
+def _shorten(text: str, limit: int = 60) -> str:
+    """``text`` for a one-line message: as is, or its start and its length."""
+    return repr(text) if len(text) <= limit else f"{text[:40]!r}... ({len(text):,} characters)"
+
+
+def _check_plain(value: Any, where: str, depth: int = 0) -> None:
+    """Raise :class:`UsageError` unless ``value`` is plain data: None, bool, str, float, an int64, and lists and
+    mappings (with scalar keys) of them."""
+    if isinstance(value, bool) or value is None or isinstance(value, str | float):
+        return
+    if isinstance(value, int):
+        if not INT64_RANGE[0] <= value <= INT64_RANGE[1]:
+            raise UsageError(f"{where}: integer {_shorten(str(value))} is outside the 64-bit range "
+                             "(-2**63 .. 2**63-1)")
+        return
+    if isinstance(value, list):
+        for item in value:
+            _check_plain(item, where, depth + 1)
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, _SCALARS):
+                raise UsageError(f"{where}: mapping keys must be plain names or numbers, got {_shorten(str(key))}")
+            _check_plain(key, where, depth + 1)
+            _check_plain(item, where, depth + 1)
+        return
+    kind = _YAML_KINDS.get(type(value).__name__, type(value).__name__)
+    raise UsageError(f"{where}: the value reads as a YAML {kind}; quote it to pass text (key:'...')")
+
+
+def parse_value(raw: str, where: str) -> Any:
+    """One ``key:value`` value read as a YAML scalar, list or mapping (never executed), checked to be plain data
+    (:func:`_check_plain`); :class:`UsageError` (one line naming ``where``) for anything else.
+
+    >>> parse_value("[64, 64]", "-params net_arch")
+    [64, 64]
+    """
+    if len(raw) > MAX_OVERRIDE_CHARS:
+        raise UsageError(f"{where}: value of {len(raw):,} characters is too long (at most {MAX_OVERRIDE_CHARS:,})")
+    if not raw.strip():
+        return None
+    try:
+        value = yaml.load(raw, Loader=OverrideLoader)  # noqa: S506 - a yaml.SafeLoader
+    except Exception as exc:  # the SafeLoader's constructors raise more than YAMLError on bad tagged values
+        problem = " ".join(str(getattr(exc, "problem", None) or "").split())
+        detail = f" ({problem[:100]})" if problem else ""
+        raise UsageError(f"{where}: value {_shorten(raw)} is not a YAML scalar, list or mapping{detail}") from None
+    _check_plain(value, where)
+    return value
+
+
 def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str, Any]:
-    """Parse ``key:value`` pairs; each value is read as a YAML scalar, list or mapping (never executed).
+    """Parse ``key:value`` pairs; each value is read as a YAML scalar, list or mapping, never executed
+    (:func:`parse_value`); keys are keyword names. Anything else is one :class:`UsageError` line.
 
     >>> parse_overrides(["learning_rate:3e-4", "policy_kwargs:{net_arch: [64, 64]}"])
     {'learning_rate': 0.0003, 'policy_kwargs': {'net_arch': [64, 64]}}
@@ -119,28 +234,43 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
         key, sep, raw = pair.partition(":")
         key = key.strip()
         if not sep or not key:
-            raise UsageError(f"{flag} expects key:value pairs, got {pair!r}")
-        try:
-            value = yaml.load(raw, Loader=ZooLoader) if raw.strip() else None  # noqa: S506 - a yaml.SafeLoader
-        except yaml.YAMLError:
-            raise UsageError(
-                f"{flag} {key}: value {raw!r} is not a YAML scalar, list or mapping"
-            ) from None
-        result[key] = value
+            raise UsageError(f"{flag} expects key:value pairs, got {_shorten(pair)}")
+        if not key.isidentifier() or len(key) > 100:
+            raise UsageError(f"{flag} key {_shorten(key)} is not a keyword name (letters, digits and _)")
+        result[key] = parse_value(raw, f"{flag} {key}")
     return result
 
 
-def spec_entry(spec: TrainSpec, config_name: str, ref: EnvRef) -> tuple[dict[str, Any], str]:
+def feature_overrides(entry: dict[str, Any], features: tuple[str, ...], source: str) -> dict[str, Any]:
+    """The hyperparameters the entry's ``<feature>_overrides`` (:data:`FEATURE_OVERRIDES`) set for the enabled
+    ``features``, merged in order; :class:`UsageError` for a value that is not a mapping."""
+    merged: dict[str, Any] = {}
+    for feature in features:
+        value = entry.get(FEATURE_OVERRIDES[feature])
+        if value is None:
+            continue
+        if not isinstance(value, dict):
+            raise UsageError(f"{FEATURE_OVERRIDES[feature]} must be a mapping of hyperparameters, got {value!r} "
+                             f"({source})")
+        merged.update(value)
+    return merged
+
+
+def spec_entry(spec: TrainSpec, config_name: str, ref: EnvRef, features: tuple[str, ...] = ()
+               ) -> tuple[dict[str, Any], str]:
     """The zoo entry of the env ``ref`` with the spec's overrides (``-params``, ``-n``, ``--env-kwargs``) applied,
     and where it came from (file and entry, for error messages). Shared by every backend's experiment builder.
 
     :param config_name: the shipped file to read when ``spec.conf_file`` is None (``zoo_configs/<name>.yml``).
+    :param features: the enabled features (keys of :data:`FEATURE_OVERRIDES`) whose ``<feature>_overrides`` apply
+        between the entry and ``-params``.
     """
     spec.validate()
     path = Path(spec.conf_file) if spec.conf_file is not None else default_config_path(config_name)
     if spec.conf_file is not None and not path.exists():
         raise UsageError(f"config file {path} does not exist")
     entry = lookup_entry(path, ref.config_keys)
+    entry.update(feature_overrides({**entry, **spec.hyperparams}, features, f"{path}, entry for {ref.env_id}"))
     entry.update(spec.hyperparams)
     if spec.n_timesteps is not None:
         entry["n_timesteps"] = spec.n_timesteps

@@ -3,7 +3,12 @@
 Runs of the same algo and env with different ``k`` (``<log-folder>/<algo>/<EnvId>_<k>/``) are seeds:
 each env gets one panel, each algo a colour; the solid line is the mean over seeds of the smoothed training
 episode returns (monitor files) and the band its spread (min to max over seeds); dashed lines with markers are
-the periodic evaluations (``evaluations.npz``, mean over seeds of the per-evaluation mean return).
+the periodic evaluations (``evaluations.npz``): seeds are aligned by timestep (each seed's evaluations interpolated
+onto the union of their timesteps, within that seed's own range), the line and band cover the points every seed
+reaches, and hollow markers the points fewer seeds reach, labelled with how many.
+
+Files that cannot be read (a garbage ``evaluations.npz``, a monitor CSV that is not text) are skipped and told in
+``notes``, one line each.
 
 Timesteps are the model's (``model.num_timesteps``, as in ``evaluations.npz``): monitor episode lengths are
 converted where one monitor step is not one timestep (AtariWrapper's frame skip: the monitor sits below it
@@ -43,10 +48,39 @@ class RunCurve:
     eval_returns: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def read_monitor(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Episode returns and lengths from every ``*monitor.csv`` of ``run_dir``, ordered by end time."""
-    episodes = read_monitor_files(run_dir)
+def read_monitor(run_dir: Path, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Episode returns and lengths from every ``*monitor.csv`` of ``run_dir``, ordered by end time (unreadable
+    files and rows are skipped and told in ``notes``)."""
+    own: list[str] = []
+    episodes = read_monitor_files(run_dir, own)
+    if notes is not None:
+        notes.extend(f"{run_dir}: {note}" for note in own)
     return episodes.returns, episodes.lengths
+
+
+def read_evaluations(path: Path, notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The timesteps and mean returns of an ``evaluations.npz`` (SB3's ``EvalCallback``), in timestep order;
+    None (told in ``notes``) when the file is not one: not an npz, pickled data, no ``timesteps``/``results``,
+    shapes that do not match, or values that are not finite."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            timesteps = np.asarray(data["timesteps"], dtype=np.float64).reshape(-1)
+            results = np.asarray(data["results"], dtype=np.float64)
+        results = results.reshape(len(timesteps), -1)
+    except Exception as exc:  # noqa: BLE001 - any unreadable file: zip, pickle, key, dtype and shape errors
+        reason = " ".join(str(exc).split())[:120] or type(exc).__name__
+        if notes is not None:
+            notes.append(f"{path} skipped: not an evaluations file ({reason})")
+        return None
+    if not results.size:  # an evaluation of zero episodes has nothing to draw
+        return None
+    means = results.mean(axis=1)
+    if not (np.all(np.isfinite(timesteps)) and np.all(np.isfinite(means))):
+        if notes is not None:
+            notes.append(f"{path} skipped: it holds values that are not finite numbers")
+        return None
+    order = np.argsort(timesteps, kind="stable")
+    return timesteps[order], means[order]
 
 
 def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:
@@ -74,18 +108,15 @@ def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:
     return 1.0
 
 
-def load_run_curve(run_dir: Path, stem: str) -> RunCurve:
-    """Read the monitor files and ``evaluations.npz`` of one run dir."""
-    returns, lengths = read_monitor(run_dir)
+def load_run_curve(run_dir: Path, stem: str, notes: list[str] | None = None) -> RunCurve:
+    """Read the monitor files and ``evaluations.npz`` of one run dir (what cannot be read is told in ``notes``)."""
+    returns, lengths = read_monitor(run_dir, notes)
     steps = np.cumsum(lengths) * timesteps_per_monitor_step(run_dir, stem) if len(lengths) else np.zeros(0)
     curve = RunCurve(run_dir, returns, steps)
     evals = run_dir / "evaluations.npz"
-    if evals.exists():
-        with np.load(evals) as data:
-            timesteps = np.asarray(data["timesteps"], dtype=np.float64)
-            results = np.asarray(data["results"], dtype=np.float64).reshape(len(timesteps), -1)
-        if results.size:  # an evaluation of zero episodes has nothing to draw
-            curve.eval_timesteps, curve.eval_returns = timesteps, results.mean(axis=1)
+    read = read_evaluations(evals, notes) if evals.exists() else None
+    if read is not None:
+        curve.eval_timesteps, curve.eval_returns = read
     return curve
 
 
@@ -144,12 +175,29 @@ def _mean_band(xs: list[np.ndarray], ys: list[np.ndarray], n_points: int = 200) 
     return grid, stacked.mean(axis=0), stacked.min(axis=0), stacked.max(axis=0)
 
 
+def align_evaluations(curves: list[RunCurve]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Seeds' evaluations aligned by timestep: the union of their timesteps, and at each the mean, min and max over
+    the seeds whose evaluations cover it (interpolated between a seed's own evaluations, never extrapolated) and how
+    many seeds that is.
+
+    :return: ``grid, mean, low, high, counts``, each of shape ``(n_points,)``.
+    """
+    grid = np.unique(np.concatenate([c.eval_timesteps for c in curves]))
+    values = np.full((len(curves), len(grid)), np.nan)
+    for i, c in enumerate(curves):
+        inside = (grid >= c.eval_timesteps[0]) & (grid <= c.eval_timesteps[-1])
+        values[i, inside] = np.interp(grid[inside], c.eval_timesteps, c.eval_returns)
+    counts = np.sum(~np.isnan(values), axis=0)
+    return grid, np.nanmean(values, axis=0), np.nanmin(values, axis=0), np.nanmax(values, axis=0), counts
+
+
 def plot(
     runs: RunRef,
     output: str | Path | None = None,
     x_axis: str = "timesteps",
     window: int = 0,
     title: str | None = None,
+    notes: list[str] | None = None,
 ) -> Path:
     """Plot the learning curves of the runs under ``runs.log_folder`` to a PNG and return its path.
 
@@ -158,6 +206,7 @@ def plot(
     :param x_axis: ``"timesteps"`` (model timesteps; evaluations are drawn too) or ``"episodes"``.
     :param window: moving-average window over training episodes (0: about 1/20 of the episodes, at least 1).
     :param title: figure title (default: none; each panel is titled with its env).
+    :param notes: collects one line per file that was skipped because it cannot be read (``plot`` prints them).
     """
     log_folder = runs.log_folder
     if x_axis not in ("timesteps", "episodes"):
@@ -177,13 +226,14 @@ def plot(
     drawn = 0
     for (algo_name, stem), run_dirs in groups.items():
         ax = axes[stems.index(stem), 0]
-        curves = [load_run_curve(d, stem) for d in run_dirs]
+        curves = [load_run_curve(d, stem, notes) for d in run_dirs]
         drawn += _draw_group(ax, algo_name, curves, x_axis, window, colours[algo_name])
         ax.set_title(stem)
         ax.set_xlabel("timesteps" if x_axis == "timesteps" else "training episodes")
         ax.set_ylabel("episode return")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        if ax.get_legend_handles_labels()[0]:  # a run whose files were all skipped draws nothing
+            ax.legend(fontsize=8, loc="best")
     if drawn == 0:
         plt.close(fig)
         raise UsageError(
@@ -225,20 +275,26 @@ def _draw_group(ax: Any, algo: str, curves: list[RunCurve], x_axis: str, window:
         drawn += 1
     evals = [c for c in curves if len(c.eval_timesteps) > 0]
     if evals and x_axis == "timesteps":
-        n = min(len(c.eval_timesteps) for c in evals)
-        steps = np.mean([c.eval_timesteps[:n] for c in evals], axis=0)
-        values = np.stack([c.eval_returns[:n] for c in evals])
-        ax.plot(
-            steps,
-            values.mean(axis=0),
-            "--o",
-            color=colour,
-            markersize=3,
-            label=f"{algo} evaluation ({_runs_label(len(evals))})",
-        )
-        if len(evals) > 1:
-            ax.fill_between(
-                steps, values.min(axis=0), values.max(axis=0), color=colour, alpha=0.1, linewidth=0
-            )
+        _draw_evaluations(ax, algo, evals, colour)
         drawn += 1
     return drawn
+
+
+def _draw_evaluations(ax: Any, algo: str, evals: list[RunCurve], colour: str) -> None:
+    """The seeds' evaluations aligned by timestep (:func:`align_evaluations`): a dashed line (and min-max band)
+    where every seed has evaluated, hollow markers where fewer have, each such stretch labelled with its count."""
+    grid, mean, low, high, counts = align_evaluations(evals)
+    n = len(evals)
+    full = counts == n
+    if full.any():
+        ax.plot(grid[full], mean[full], "--o", color=colour, markersize=3,
+                label=f"{algo} evaluation ({_runs_label(n)}, aligned by timestep)")
+        if n > 1:
+            ax.fill_between(grid[full], low[full], high[full], color=colour, alpha=0.1, linewidth=0)
+    if (~full).any():
+        ax.plot(grid[~full], mean[~full], "o", color=colour, markersize=4, markerfacecolor="none",
+                label=f"{algo} evaluation where fewer of the {n} runs evaluated (count beside)")
+        starts = np.flatnonzero(~full & np.r_[True, counts[1:] != counts[:-1]])
+        for i in starts:
+            ax.annotate(f"{counts[i]} of {n}", (grid[i], mean[i]), textcoords="offset points", xytext=(3, 4),
+                        fontsize=7, color=colour)

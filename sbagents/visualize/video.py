@@ -28,7 +28,7 @@ from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_team_vecs, make_vec, normalize_for_eval
+from sbagents.pipeline.env_factory import MissingDependencyError, make_team_vecs, make_vec, normalize_for_eval
 from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
 
 
@@ -212,6 +212,8 @@ def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
         if ref.multi_agent:
             return make_team_vecs(exp, ref, 1, seed, vec_env="dummy", env_kwargs=kwargs)
         return {"shared": make_vec(exp, ref, 1, seed, env_kwargs=kwargs)}
+    except MissingDependencyError:
+        raise
     except (TypeError, ValueError, AssertionError) as exc:
         raise UsageError(f"{ref.env_id} cannot be created with render_mode='rgb_array': {exc}") from None
 

@@ -165,15 +165,15 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
     def api_decisions(root: int, rel: str = "") -> Response:
         index = log_index(run_files(root, rel))
         count = min(int_arg("count", 50), MAX_PAGE_ROWS)
-        flt = row_filter()
+        start, cursor, flt = int_arg("start", 0), int_arg("cursor", 0), row_filter()
         try:
             index.refresh(time_budget=0.05)
             if not flt.is_empty():
-                page = index.query(flt, cursor=int_arg("cursor", 0), limit=count, time_budget=0.5)
+                page = index.query(flt, cursor=cursor, limit=count, time_budget=0.5)
             elif request.args.get("tail") == "1":
                 page = index.tail(count)
             else:
-                page = index.page(int_arg("start", 0), count)
+                page = index.page(start, count)
         except OSError:  # the log went away while it was read
             abort(404)
         return _json({**_page_json(page, index), "filtered": not flt.is_empty()})
@@ -194,7 +194,7 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         runs = []
         for run_id in request.args.getlist("run")[:50]:
             root_text, _, rel = run_id.partition("/")
-            if not (root_text.isascii() and root_text.isdigit()):
+            if not (root_text.isascii() and root_text.isdigit() and len(root_text) < 10):
                 abort(404)
             runs.append(curves(run_files(int(root_text), rel)))
         return _json({"runs": runs})

@@ -186,14 +186,15 @@ class RunFiles:
             except OSError:
                 return None
         if len(data) > limit:
-            raise FileTooLarge(f"{name} is over {_size(limit)}")
+            raise FileTooLarge(f"{name} is over {human_size(limit)}")
         return data
 
 
-def _size(n_bytes: int) -> str:
-    """``n_bytes`` as a short human size (``64 KiB``, ``1 MiB``)."""
+def human_size(n_bytes: int) -> str:
+    """``n_bytes`` as a short size: ``1000 B``, ``64 KiB``, ``1.5 MiB``."""
+    size, unit = float(n_bytes), "B"
     for unit in ("B", "KiB", "MiB", "GiB"):
-        if n_bytes < 1024 or unit == "GiB":
-            return f"{n_bytes:g} {unit}"
-        n_bytes //= 1024
-    return f"{n_bytes} B"
+        if size < 1024 or unit == "GiB":
+            break
+        size /= 1024
+    return f"{size:.3g} {unit}" if unit != "B" else f"{n_bytes} B"

@@ -220,7 +220,7 @@ class LogIndex:
             return
         if self._stale(st):
             self._reset()
-        elif self._complete and st.st_size > self._known_size():
+        elif self._complete and self.problem is None and st.st_size > self._known_size():
             self._complete = False
 
     def _ensure_rows(self, n: int, deadline: float | None = None) -> None:

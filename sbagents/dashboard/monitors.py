@@ -2,13 +2,14 @@
 file's size, and read incrementally across requests.
 
 A monitor file is ``#{"t_start": ...}``, then ``r,l,t`` (return, length, seconds since ``t_start`` at the episode's
-end) and one row per finished episode (the format :mod:`sbagents.pipeline.monitor_files` reads whole for the plots).
-Each file has one :class:`MonitorFile`, shared process-wide and continued on every request: a request reads at most
-:data:`READ_BYTES` more of it, :data:`CHUNK_BYTES` at a time (rows parsed by numpy, a chunk with a malformed row
-line by line). Totals (episodes, steps, latest end) are exact; the episodes themselves are kept decimated: every
-``stride``-th one (the stride doubles when more than :data:`MAX_KEPT` are kept), each with the steps since the
-previous kept one, so the cumulative timesteps stay right at every kept episode. A first line or row over
-:data:`MAX_LINE_BYTES` is skipped with a note; a file replaced by another (other inode, or smaller) is read again.
+end) and one row per finished episode (the format :mod:`sbagents.pipeline.monitor_files` reads whole for the plots);
+a row with a cell that is not a finite number is malformed. Each file has one :class:`MonitorFile`, shared
+process-wide and continued on every read: each reads at most :data:`READ_BYTES` more of it,
+:data:`CHUNK_BYTES` at a time (rows parsed by numpy, a chunk with a malformed row line by line). Totals (episodes,
+steps, latest end) are exact; the episodes themselves are kept decimated: every ``stride``-th one (the stride
+doubles when more than :data:`MAX_KEPT` are kept), each with the steps since the previous kept one, so the cumulative
+timesteps stay right at every kept episode. A first line or row over :data:`MAX_LINE_BYTES` is skipped with a note;
+a file replaced by another (other inode, or smaller) is read again.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import threading
 from pathlib import Path
@@ -71,8 +73,9 @@ class MonitorFile:
         self.size = 0
 
     # ------------------------------------------------------------------ reading
-    def update(self, read_bytes: int = READ_BYTES) -> None:
-        """Read up to ``read_bytes`` more of the file (from the start if it was replaced or truncated)."""
+    def update(self, read_bytes: int | None = None) -> None:
+        """Read up to ``read_bytes`` (default :data:`READ_BYTES`) more of the file (from the start if it was replaced
+        or truncated)."""
         with self._lock:
             try:
                 fh = open_regular(self.path)
@@ -84,7 +87,7 @@ class MonitorFile:
                     self._reset(st.st_ino)
                 self.size = st.st_size
                 fh.seek(self.offset)
-                left = read_bytes
+                left = READ_BYTES if read_bytes is None else read_bytes
                 while left > 0 and self.broken is None:
                     data = fh.read(min(CHUNK_BYTES, left))
                     if not data:
@@ -151,8 +154,12 @@ class MonitorFile:
                 self.bad_rows += 1
         return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
 
+    @np.errstate(invalid="ignore", over="ignore")  # sums of huge values become inf (sent as null)
     def _add(self, rows: np.ndarray) -> None:
         """Count ``rows`` and keep every ``stride``-th episode (with the steps since the previous kept one)."""
+        finite = np.isfinite(rows).all(axis=1)
+        self.bad_rows += int((~finite).sum())
+        rows = rows[finite]
         n = len(rows)
         if n == 0:
             return
@@ -161,9 +168,7 @@ class MonitorFile:
         index = np.arange(self.episodes, self.episodes + n)
         self.episodes += n
         self.steps += float(lengths.sum())
-        finite = ends[np.isfinite(ends)]
-        if finite.size:
-            self.last_end = max(self.last_end or -np.inf, float(finite.max()))
+        self.last_end = max(self.last_end or -np.inf, float(ends.max()))
         keep = np.flatnonzero(index % self.stride == 0)
         total = np.cumsum(lengths)
         if keep.size == 0:
@@ -208,7 +213,7 @@ class MonitorFile:
             out.append(f"{self.path.name}: {self.bad_rows} malformed row(s) skipped")
         if self.long_lines and not self.broken:
             out.append(f"{self.path.name}: {self.long_lines} line(s) over {MAX_LINE_BYTES:,} bytes skipped")
-        if self.broken is None and self.size - self.offset > MAX_LINE_BYTES:
+        if self.broken is None and self.size > self.offset:
             out.append(f"{self.path.name}: {100 * self.offset / self.size:.0f}% read; the rest comes with the next "
                        "refreshes")
         return out
@@ -223,17 +228,19 @@ def _t_start(text: str) -> float | None:
     """``t_start`` of a monitor file's first line (without its ``#``), None when it is malformed."""
     try:
         meta = json.loads(text)
-        return float(meta.get("t_start", 0.0)) if isinstance(meta, dict) else None
+        t_start = float(meta.get("t_start", 0.0)) if isinstance(meta, dict) else math.nan
     except (ValueError, TypeError, OverflowError, RecursionError):
         return None
+    return t_start if math.isfinite(t_start) else None
 
 
 _FILES: dict[Path, MonitorFile] = {}
 _FILES_LOCK = threading.Lock()
 
 
-def monitor_files(run: RunFiles, read_bytes: int = READ_BYTES) -> list[MonitorFile]:
-    """The run's monitor files, each read up to ``read_bytes`` further (one :class:`MonitorFile` per real path)."""
+def monitor_files(run: RunFiles, read_bytes: int | None = None) -> list[MonitorFile]:
+    """The run's monitor files, each read up to ``read_bytes`` (default :data:`READ_BYTES`) further (one
+    :class:`MonitorFile` per real path)."""
     out = []
     for name in run.glob("*monitor.csv"):
         path = run.file(name)
@@ -249,15 +256,17 @@ def monitor_files(run: RunFiles, read_bytes: int = READ_BYTES) -> list[MonitorFi
 def monitor_totals(run: RunFiles) -> tuple[int, float | None]:
     """Steps and latest episode end (seconds since the epoch) over the run's monitor files (as far as read)."""
     files = monitor_files(run)
-    ends = [f.last_end for f in files if f.last_end is not None]
-    return int(sum(f.steps for f in files)), max(ends) if ends else None
+    ends = [f.last_end for f in files if f.last_end is not None and math.isfinite(f.last_end)]
+    steps = sum(f.steps for f in files)
+    return int(steps) if math.isfinite(steps) else 0, max(ends) if ends else None
 
 
 def monitor_curve(run: RunFiles, notes: list[str], steps_per_env_step: float = 1.0,
-                  max_points: int = MAX_POINTS) -> dict[str, Any]:
+                  max_points: int | None = None) -> dict[str, Any]:
     """Training episodes of every monitor file, ordered by end time: ``timesteps`` (cumulative monitor steps times
     ``steps_per_env_step``), ``returns``, ``lengths``, ``time`` (seconds since the run began), at most
-    ``max_points`` of them, and ``episodes`` (how many there are in all)."""
+    ``max_points`` (default :data:`MAX_POINTS`) of them, and ``episodes`` (how many there are in all)."""
+    max_points = MAX_POINTS if max_points is None else max_points
     kept, starts = [], []
     episodes = 0
     for monitor in monitor_files(run):
@@ -270,13 +279,15 @@ def monitor_curve(run: RunFiles, notes: list[str], steps_per_env_step: float = 1
     merged = {k: np.concatenate([d[k] for d in kept]) if kept else np.empty(0) for k in _FIELDS}
     order = np.lexsort((merged["length"], merged["ret"], merged["end"]))
     merged = {k: v[order] for k, v in merged.items()}
-    timesteps = np.cumsum(merged["steps"]) * steps_per_env_step
     pick = np.unique(np.linspace(0, len(order) - 1, max_points).astype(np.int64)) if len(order) > max_points \
         else slice(None)
+    with np.errstate(over="ignore"):
+        timesteps = np.cumsum(merged["steps"]) * steps_per_env_step
+        time = merged["end"][pick] - (min(starts) if starts else 0.0)
     return {
         "timesteps": timesteps[pick].tolist(),
         "returns": merged["ret"][pick].tolist(),
         "lengths": merged["length"][pick].tolist(),
-        "time": (merged["end"][pick] - (min(starts) if starts else 0.0)).tolist(),
+        "time": time.tolist(),
         "episodes": episodes,
     }

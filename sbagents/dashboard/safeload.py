@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sbagents.dashboard.folders import FileTooLarge, RunFiles
+from sbagents.dashboard.folders import FileTooLarge, RunFiles, human_size
 
 #: Byte limit of a JSON, YAML or text file (``summary.json``, ``args.yml``, ``command.txt``, ``safety.json``).
 SMALL_FILE_BYTES = 1 << 20
@@ -86,9 +86,10 @@ def read_bytes(run: RunFiles, name: str, notes: list[str], limit: int) -> bytes 
         return None
 
 
-def read_text(run: RunFiles, name: str, notes: list[str], limit: int = SMALL_FILE_BYTES) -> str | None:
-    """``name`` as text (bytes that are not UTF-8 become U+FFFD, with a note)."""
-    data = read_bytes(run, name, notes, limit)
+def read_text(run: RunFiles, name: str, notes: list[str], limit: int | None = None) -> str | None:
+    """``name`` as text, at most ``limit`` bytes (default :data:`SMALL_FILE_BYTES`); bytes that are not UTF-8 become
+    U+FFFD, with a note."""
+    data = read_bytes(run, name, notes, SMALL_FILE_BYTES if limit is None else limit)
     if data is None:
         return None
     try:
@@ -155,7 +156,7 @@ def read_npz(run: RunFiles, name: str, keys: Sequence[str], notes: list[str]) ->
         with fh, zipfile.ZipFile(fh) as archive:
             infos = {i.filename.removesuffix(".npy"): i for i in archive.infolist()}
             if sum(i.file_size for i in infos.values()) > NPZ_BYTES:
-                raise FileTooLarge(f"over {NPZ_BYTES >> 20} MiB uncompressed")
+                raise FileTooLarge(f"over {human_size(NPZ_BYTES)} uncompressed")
             out = {}
             for key in keys:
                 if key in infos:

@@ -648,3 +648,16 @@ def test_monitor_lines_over_the_limit_are_skipped(tmp_path: Path, monkeypatch: p
     assert "1.monitor.csv: a first line over 100 bytes (not a monitor file)" in notes
     monitor = monitors._FILES[(run_dir / "1.monitor.csv").resolve()]
     assert monitor.offset <= 100 + 2 * 64
+
+
+def test_hostile_benchmark_runs_and_its_section_is_the_saved_result() -> None:
+    from benchmarks import dashboard_hostile
+
+    result = dashboard_hostile.run(2)
+    assert result["log"]["small_status"] == result["log"]["big_status"] == 200
+    assert result["monitor"]["episodes"] > 50_000 and result["monitor"]["points"] <= monitors.MAX_POINTS
+    root = Path(__file__).resolve().parents[1]
+    saved = json.loads((root / "benchmarks" / "results" / "dashboard_hostile.json").read_text())
+    text = (root / "docs" / "dashboard.md").read_text()
+    section = text.split("<!-- dashboard-hostile:start -->\n")[1].split("\n<!-- dashboard-hostile:end -->")[0]
+    assert section.strip() == dashboard_hostile.markdown(saved, "python -m benchmarks.dashboard_hostile").strip()

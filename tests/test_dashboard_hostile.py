@@ -661,3 +661,15 @@ def test_hostile_benchmark_runs_and_its_section_is_the_saved_result() -> None:
     text = (root / "docs" / "dashboard.md").read_text()
     section = text.split("<!-- dashboard-hostile:start -->\n")[1].split("\n<!-- dashboard-hostile:end -->")[0]
     assert section.strip() == dashboard_hostile.markdown(saved, "python -m benchmarks.dashboard_hostile").strip()
+
+
+def test_a_long_row_right_after_the_header_is_skipped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The header and the start of an over-long row arrive in one chunk: the header is read, the row skipped."""
+    monkeypatch.setattr(monitors, "MAX_LINE_BYTES", 100)
+    monkeypatch.setattr(monitors, "CHUNK_BYTES", 200)
+    logs = tmp_path / "logs"
+    run_dir = write_run(logs)
+    (run_dir / "0.monitor.csv").write_text('#{"t_start": 0}\nr,l,t\n' + "5" * 300 + ",1,1\n4,2,2\n")
+    curves = served(logs).test_client().get(f"/api/curves/0/{RUN}").get_json()
+    assert curves["train"]["returns"] == [4.0] and curves["train"]["timesteps"] == [2.0]
+    assert "0.monitor.csv: 1 line(s) over 100 bytes skipped" in " ".join(curves["notes"])

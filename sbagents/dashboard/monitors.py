@@ -105,13 +105,13 @@ class MonitorFile:
         data = self._carry + data
         cut = data.rfind(b"\n") + 1
         self._carry = data[cut:]
+        if cut:
+            self._lines(data[:cut])
         if len(self._carry) > MAX_LINE_BYTES:
             self._carry, self._skipping = b"", True
             self.long_lines += 1
-            if self.columns is None:
+            if self.columns is None and self.broken is None:
                 self.broken = f"{self.path.name}: a first line over {MAX_LINE_BYTES:,} bytes (not a monitor file)"
-        if cut:
-            self._lines(data[:cut])
 
     def _lines(self, block: bytes) -> None:
         """Parse complete lines: the ``#{...}`` line and the header first, then rows."""

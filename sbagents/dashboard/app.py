@@ -205,7 +205,10 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         path = folders.resolve(root, rel)
         if path is None or not path.is_file():
             abort(404)
-        return send_file(path, conditional=True, as_attachment=request.args.get("download") == "1")
+        try:
+            return send_file(path, conditional=True, as_attachment=request.args.get("download") == "1")
+        except OSError:  # unreadable, or gone since the check
+            abort(404)
 
     @app.get("/favicon.ico")
     def favicon() -> Response:

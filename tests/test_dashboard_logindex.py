@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from sbagents.dashboard import logindex, logsources
-from sbagents.dashboard.logindex import LogIndex, RowFilter, open_log
+from sbagents.dashboard.logindex import LogIndex, RowFilter
+from sbagents.dashboard.logregistry import open_log
 
 HEADER = ["env", "episode", "step", "obs_0", "action_0", "reward", "terminated", "truncated", "event", "violation",
           "cost"]

@@ -2,7 +2,7 @@
 
 A read-only Flask app over the run dirs that ``train`` writes: :func:`~sbagents.dashboard.app.create_app` for any
 WSGI server, :func:`~sbagents.dashboard.server.serve` for the CLI's own server, and
-:func:`~sbagents.dashboard.logindex.open_log` for paging transparency logs of any size from Python.
+:func:`~sbagents.dashboard.logregistry.open_log` for paging transparency logs of any size from Python.
 """
 
 from __future__ import annotations

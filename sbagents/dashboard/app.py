@@ -3,24 +3,26 @@
 Pages (HTML shells filled by ``static/dashboard.js``): ``/`` runs, ``/run/<folder>/<run>`` one run,
 ``/decisions/<folder>/<run>`` its transparency logs, ``/trust/<folder>/<run>`` safety, attacks and fairness,
 ``/compare?run=<id>&run=<id>`` several runs' curves. JSON under ``/api/``; files under ``/file/<folder>/<path>``.
-Every path goes through :class:`~sbagents.dashboard.folders.ServedFolders` (404 outside the folders).
+Every path goes through :class:`~sbagents.dashboard.folders.ServedFolders` (404 outside the folders), every file a
+run's readers open through :class:`~sbagents.dashboard.folders.RunFiles`. A malformed file gives a note in the JSON,
+a bad query value a 400 (:mod:`sbagents.dashboard.queryargs`); no route answers 5xx for either.
 """
 
 from __future__ import annotations
 
 import hmac
 import math
-import threading
-from pathlib import Path
 from typing import Any
 
 from flask import Flask, Response, abort, jsonify, render_template, request, send_file
 
 from sbagents.dashboard import readers
 from sbagents.dashboard.episode_costs import episode_costs
-from sbagents.dashboard.folders import ServedFolders
-from sbagents.dashboard.logindex import LogIndex, RowFilter, open_log
-from sbagents.dashboard.runs import RUN_MARKERS, RunCatalog, summarize_run
+from sbagents.dashboard.folders import RunFiles, ServedFolders
+from sbagents.dashboard.logindex import LogIndex, Page
+from sbagents.dashboard.logregistry import index_in_background, open_log
+from sbagents.dashboard.queryargs import int_arg, optional_int, row_filter
+from sbagents.dashboard.runs import RunCatalog, is_run_dir, summarize_run
 
 #: Cookie that carries the token after the first request that had it in the URL.
 TOKEN_COOKIE = "sbagents_dashboard_token"
@@ -68,14 +70,14 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
             response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="Strict")
         return response
 
-    def run_dir(root: int, rel: str) -> Path:
-        path = folders.resolve(root, rel)
-        if path is None or not path.is_dir() or not any((path / m).exists() for m in RUN_MARKERS):
+    def run_files(root: int, rel: str) -> RunFiles:
+        run = folders.run(root, rel)
+        if run is None or not is_run_dir(run):
             abort(404)
-        return path
+        return run
 
     def page_context(root: int, rel: str) -> dict[str, Any]:
-        row = summarize_run(folders, root, rel)
+        row = summarize_run(run_files(root, rel))
         return {"run": row, "run_id": row.id, "folders": folders}
 
     # ---- pages -------------------------------------------------------------------------------------------------
@@ -89,7 +91,6 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
 
     for view in ("run", "decisions", "trust"):
         def page(root: int, rel: str = "", _view: str = view) -> str:
-            run_dir(root, rel)
             return render_template(f"{_view}.html", **page_context(root, rel))
 
         app.add_url_rule(f"/{view}/<int:root>/", f"{view}_page_root", page)
@@ -107,97 +108,95 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
             return fn
         return register
 
+    def curves(run: RunFiles) -> dict[str, Any]:
+        notes: list[str] = []
+        return {
+            "run": summarize_run(run).as_json(),
+            "train": readers.read_monitor_episodes(run, notes),
+            "eval": readers.read_evaluations(run, notes),
+            "notes": notes,
+        }
+
     @api_route("curves")
     def api_curves(root: int, rel: str = "") -> Response:
-        path = run_dir(root, rel)
-        notes: list[str] = []
-        return _json({
-            "run": summarize_run(folders, root, rel).as_json(),
-            "train": readers.read_monitor_episodes(path, notes),
-            "eval": readers.read_evaluations(path, notes),
-            "notes": notes,
-        })
+        return _json(curves(run_files(root, rel)))
 
     @api_route("settings")
     def api_settings(root: int, rel: str = "") -> Response:
-        path = run_dir(root, rel)
+        run = run_files(root, rel)
         notes: list[str] = []
-        settings = readers.read_settings(path, notes)
+        settings = readers.read_settings(run, notes)
         return _json({
-            **settings, "files": readers.list_files(path), "logs": readers.list_logs(path),
-            "action_count": readers.action_count(path), "notes": notes,
+            **settings, "files": readers.list_files(run), "logs": readers.list_logs(run),
+            "action_count": readers.action_count(run), "notes": notes,
         })
 
     @api_route("trust")
     def api_trust(root: int, rel: str = "") -> Response:
-        path = run_dir(root, rel)
+        run = run_files(root, rel)
         notes: list[str] = []
-        logs = [p for p in readers.list_logs(path) if not p.startswith("videos/")]
-        costs = episode_costs(path / logs[0]) if logs else None
+        logs = [name for name in readers.list_logs(run) if not name.startswith("videos/")]
+        path = run.file(logs[0]) if logs else None
+        costs = episode_costs(path) if path is not None else None
+        if costs is not None and costs["problem"]:
+            notes.append(costs["problem"])
         return _json({
-            "safety": readers.read_safety(path, notes),
+            "safety": readers.read_safety(run, notes),
             "ep_cost": costs,
-            "ep_cost_log": logs[0] if logs else None,
-            "adversarial": readers.read_adversarial(path, notes),
-            "fairness": readers.read_fairness(path, notes),
+            "ep_cost_log": logs[0] if costs is not None else None,
+            "adversarial": readers.read_adversarial(run, notes),
+            "fairness": readers.read_fairness(run, notes),
             "notes": notes,
         })
 
-    def log_index(path: Path) -> LogIndex:
+    def log_index(run: RunFiles) -> LogIndex:
         log = request.args.get("log", "")
-        if log not in readers.list_logs(path):
+        path = run.file(log) if log in readers.list_logs(run) else None
+        if path is None:
             abort(404)
-        index = open_log(path / log)
-        _index_in_background(index)
+        try:
+            index = open_log(path)
+        except OSError:  # gone, or no longer a regular file
+            abort(404)
+        index_in_background(index)
         return index
 
     @api_route("decisions")
     def api_decisions(root: int, rel: str = "") -> Response:
-        index = log_index(run_dir(root, rel))
-        count = min(_int_arg("count", 50), MAX_PAGE_ROWS)
-        flt = _row_filter()
-        index.refresh(time_budget=0.05)
-        if not flt.is_empty():
-            page = index.query(flt, cursor=_int_arg("cursor", 0), limit=count, time_budget=0.5)
-        elif request.args.get("tail") == "1":
-            page = index.tail(count)
-        else:
-            page = index.page(_int_arg("start", 0), count)
-        return _json({**_page_json(page), "filtered": not flt.is_empty()})
+        index = log_index(run_files(root, rel))
+        count = min(int_arg("count", 50), MAX_PAGE_ROWS)
+        start, cursor, flt = int_arg("start", 0), int_arg("cursor", 0), row_filter()
+        try:
+            index.refresh(time_budget=0.05)
+            if not flt.is_empty():
+                page = index.query(flt, cursor=cursor, limit=count, time_budget=0.5)
+            elif request.args.get("tail") == "1":
+                page = index.tail(count)
+            else:
+                page = index.page(start, count)
+        except OSError:  # the log went away while it was read
+            abort(404)
+        return _json({**_page_json(page, index), "filtered": not flt.is_empty()})
 
     @api_route("episode")
     def api_episode(root: int, rel: str = "") -> Response:
-        path = run_dir(root, rel)
-        index = log_index(path)
-        env = request.args.get("env")
-        page = index.episode_rows(
-            _int_arg("episode", 0), env=int(env) if env not in (None, "") else None,
-            agent=request.args.get("agent") or None,
-        )
-        log = request.args.get("log", "")
-        video = None
-        if log.startswith("videos/"):
-            for suffix in readers.VIDEO_SUFFIXES:
-                candidate = (path / log).with_suffix(suffix)
-                if candidate.exists():
-                    video = candidate.relative_to(path).as_posix()
-        return _json({**_page_json(page), "video": video})
+        run = run_files(root, rel)
+        index = log_index(run)
+        episode, env = int_arg("episode", 0), optional_int("env")
+        try:
+            page = index.episode_rows(episode, env=env, agent=request.args.get("agent") or None)
+        except OSError:
+            abort(404)
+        return _json({**_page_json(page, index), "video": readers.video_of(run, request.args.get("log", ""))})
 
     @app.get("/api/compare")
     def api_compare() -> Response:
         runs = []
         for run_id in request.args.getlist("run")[:50]:
             root_text, _, rel = run_id.partition("/")
-            if not root_text.isdigit():
+            if not (root_text.isascii() and root_text.isdigit() and len(root_text) < 10):
                 abort(404)
-            path = run_dir(int(root_text), rel)
-            notes: list[str] = []
-            runs.append({
-                "run": summarize_run(folders, int(root_text), rel).as_json(),
-                "train": readers.read_monitor_episodes(path, notes),
-                "eval": readers.read_evaluations(path, notes),
-                "notes": notes,
-            })
+            runs.append(curves(run_files(int(root_text), rel)))
         return _json({"runs": runs})
 
     # ---- files -------------------------------------------------------------------------------------------------
@@ -206,7 +205,10 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         path = folders.resolve(root, rel)
         if path is None or not path.is_file():
             abort(404)
-        return send_file(path, conditional=True, as_attachment=request.args.get("download") == "1")
+        try:
+            return send_file(path, conditional=True, as_attachment=request.args.get("download") == "1")
+        except OSError:  # unreadable, or gone since the check
+            abort(404)
 
     @app.get("/favicon.ico")
     def favicon() -> Response:
@@ -231,55 +233,11 @@ def _plotly_js() -> str:
     return _PLOTLY[0]
 
 
-_INDEXING: set[int] = set()
-_INDEXING_LOCK = threading.Lock()
-
-
-def _index_in_background(index: LogIndex) -> None:
-    """Index the whole log once in a daemon thread (pages asked for meanwhile are served from what is indexed)."""
-    with _INDEXING_LOCK:
-        if id(index) in _INDEXING:
-            return
-        _INDEXING.add(id(index))
-    threading.Thread(target=index.refresh, name="sbagents-log-index", daemon=True).start()
-
-
-def _int_arg(name: str, default: int) -> int:
-    value = request.args.get(name, "")
-    try:
-        return max(int(value), 0) if value != "" else default
-    except ValueError:
-        abort(400, f"{name} must be an integer, got {value!r}")
-
-
-def _float_arg(name: str) -> float | None:
-    value = request.args.get(name, "")
-    try:
-        return float(value) if value != "" else None
-    except ValueError:
-        abort(400, f"{name} must be a number, got {value!r}")
-
-
-def _row_filter() -> RowFilter:
-    episode, env = request.args.get("episode", ""), request.args.get("env", "")
-    step_min, step_max = _float_arg("step_min"), _float_arg("step_max")
-    return RowFilter(
-        episode=_int_arg("episode", 0) if episode != "" else None,
-        env=_int_arg("env", 0) if env != "" else None,
-        agent=request.args.get("agent") or None,
-        step_min=int(step_min) if step_min is not None else None,
-        step_max=int(step_max) if step_max is not None else None,
-        reward_min=_float_arg("reward_min"),
-        reward_max=_float_arg("reward_max"),
-        violations_only=request.args.get("violations") == "1",
-    )
-
-
-def _page_json(page: Any) -> dict[str, Any]:
+def _page_json(page: Page, index: LogIndex) -> dict[str, Any]:
     return {
         "columns": page.columns, "rows": page.rows, "row_numbers": page.row_numbers,
         "total_rows": page.total_rows, "complete": page.complete, "next_cursor": page.next_cursor,
-        "scanned_to": page.scanned_to,
+        "scanned_to": page.scanned_to, "notes": [index.problem] if index.problem else [],
     }
 
 

@@ -8,15 +8,22 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import os
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from sbagents.dashboard.folders import open_regular
 from sbagents.dashboard.logsources import GzCheckpoint, GzCursor
 
 #: Bytes read per call (plain CSV) or compressed bytes (gzip).
 BYTE_BUDGET = 32 << 20
+#: A line longer than this is skipped (a header this long: the file is not a log, and is not read further).
+MAX_LINE_BYTES = 1 << 20
+#: Episodes unfinished at once beyond which the file is not read further (a log has one per env and agent).
+MAX_OPEN_EPISODES = 1 << 16
 
 
 @dataclass
@@ -24,7 +31,6 @@ class _Episode:
     cost: float = 0.0
     violations: int = 0
     steps: int = 0
-    ended: bool = False
 
 
 @dataclass
@@ -36,28 +42,39 @@ class EpisodeCosts:
     header: list[str] | None = None
     carry: bytes = b""
     episodes: dict[tuple[str, str], _Episode] = field(default_factory=dict)
-    finished: list[tuple[str, str]] = field(default_factory=list)
+    finished: list[_Episode] = field(default_factory=list)
     _gz: GzCursor | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    inode: int | None = None
+    skipping: bool = False  #: inside a line over :data:`MAX_LINE_BYTES`
+    problem: str | None = None  #: why the log is not read (further)
 
     def update(self, byte_budget: int = BYTE_BUDGET) -> dict[str, Any]:
         """Read up to ``byte_budget`` new bytes; return ``episodes`` (index of each finished episode in order of
-        ending), ``ep_cost``, ``violations``, ``lengths``, ``has_cost`` and ``progress`` (share of the file read)."""
+        ending), ``ep_cost``, ``violations``, ``lengths``, ``has_cost``, ``progress`` (share of the file read) and
+        ``problem`` (None, or why the log is not read)."""
         with self._lock:
             try:
-                size = self.path.stat().st_size
-                if size < self.offset:  # replaced by a shorter file: start over
-                    self._reset()
-                with self.path.open("rb") as fh:
-                    data = self._read_gz(fh, byte_budget) if self.path.suffix == ".gz" else self._read(fh, byte_budget)
+                with open_regular(self.path) as fh:
+                    st = os.fstat(fh.fileno())
+                    size = st.st_size
+                    if size < self.offset or st.st_ino != self.inode:  # replaced: start over
+                        self._reset()
+                        self.inode = st.st_ino
+                    if self.problem is not None:
+                        data = b""
+                    else:
+                        gz = self.path.suffix == ".gz"
+                        data = self._read_gz(fh, byte_budget) if gz else self._read(fh, byte_budget)
             except OSError:
                 data, size = b"", max(self.offset, 1)
             self._consume(data)
-            return self._result(self.offset / max(size, 1))
+            return self._result(1.0 if self.problem else self.offset / max(size, 1))
 
     def _reset(self) -> None:
         self.offset, self.header, self.carry, self._gz = 0, None, b"", None
         self.episodes, self.finished = {}, []
+        self.skipping, self.problem = False, None
 
     def _read(self, fh: IO[bytes], byte_budget: int) -> bytes:
         fh.seek(self.offset)
@@ -76,13 +93,22 @@ class EpisodeCosts:
         return b"".join(out)
 
     def _consume(self, data: bytes) -> None:
+        if self.skipping:  # inside a line over the limit: drop it up to its newline
+            nl = data.find(b"\n")
+            if nl < 0:
+                return
+            data, self.skipping = data[nl + 1 :], False
         data = self.carry + data
         cut = data.rfind(b"\n") + 1
         self.carry = data[cut:]
-        lines = data[:cut].decode("utf-8", errors="replace").splitlines()
+        if len(self.carry) > MAX_LINE_BYTES:
+            self.carry, self.skipping = b"", True
+            if self.header is None:
+                self.problem = f"{self.path.name}: its first line is over {MAX_LINE_BYTES:,} bytes (not a log)"
+        lines = data[:cut].decode("utf-8", errors="replace").replace("\x00", "").splitlines()
         if not lines:
             return
-        reader = csv.reader(lines)
+        reader = _tolerant_rows(lines)
         if self.header is None:
             self.header = next(reader, None)
         cols = {name.lower(): i for i, name in enumerate(self.header or [])}
@@ -97,19 +123,22 @@ class EpisodeCosts:
             key = (row[env_i] if env_i is not None else "0", row[ep_i])
             episode = self.episodes.get(key)
             if episode is None:
+                if len(self.episodes) >= MAX_OPEN_EPISODES:
+                    self.problem = (f"{self.path.name}: over {MAX_OPEN_EPISODES:,} episodes unfinished at once "
+                                    "(not a transparency log?); read no further")
+                    return
                 episode = self.episodes[key] = _Episode()
             episode.steps += 1
             violated = bool(viol_i is not None and row[viol_i])
             episode.violations += violated
             with contextlib.suppress(ValueError):
                 episode.cost += float(row[cost_i]) if cost_i is not None and row[cost_i] else float(violated)
-            if not episode.ended and any(row[i] in ("True", "true", "1") for i in done_i):
-                episode.ended = True
-                self.finished.append(key)
+            if any(row[i] in ("True", "true", "1") for i in done_i):
+                self.finished.append(self.episodes.pop(key))
 
     def _result(self, progress: float) -> dict[str, Any]:
         cols = {name.lower() for name in self.header or []}
-        eps = [self.episodes[k] for k in self.finished]
+        eps = self.finished
         return {
             "episodes": list(range(len(eps))),
             "ep_cost": [e.cost for e in eps],
@@ -117,7 +146,17 @@ class EpisodeCosts:
             "lengths": [e.steps for e in eps],
             "has_cost": bool({"cost", "violation"} & cols),
             "progress": min(progress, 1.0),
+            "problem": self.problem,
         }
+
+
+def _tolerant_rows(lines: list[str]) -> Iterator[list[str]]:
+    """``csv.reader`` rows of ``lines``, a line it rejects (an over-long quoted field) split at commas."""
+    for line in lines:
+        try:
+            yield from csv.reader([line])
+        except csv.Error:
+            yield line.split(",")
 
 
 _CACHE: dict[Path, EpisodeCosts] = {}
@@ -125,7 +164,8 @@ _CACHE_LOCK = threading.Lock()
 
 
 def episode_costs(path: Path) -> dict[str, Any]:
-    """The EpCost series of the log at ``path`` (one reader per file and process, continued on every call)."""
+    """The EpCost series of the log at ``path`` (a real path under a served folder; one reader per file and
+    process, continued on every call)."""
     with _CACHE_LOCK:
         reader = _CACHE.setdefault(path, EpisodeCosts(path))
     return reader.update()

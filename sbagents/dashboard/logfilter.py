@@ -76,13 +76,24 @@ def _parse_lines(data: bytes, n_cols: int) -> list[list[str]]:
     if b'"' not in data and b"\r" not in data:
         rows = [line.split(",") for line in text]
     else:
-        rows = list(csv.reader(text))
-        if len(rows) != len(text):  # an unclosed quote joined lines: parse them one by one
-            rows = [next(csv.reader([t]), []) for t in text]
+        try:
+            rows = list(csv.reader(text))
+        except csv.Error:  # a stray carriage return, an over-long quoted field: line by line below
+            rows = []
+        if len(rows) != len(text):  # an unclosed quote joined lines (or csv failed): parse them one by one
+            rows = [_parse_line(t) for t in text]
     for r in rows:
         if len(r) < n_cols:
             r.extend([""] * (n_cols - len(r)))
     return rows
+
+
+def _parse_line(line: str) -> list[str]:
+    """One line's cells as ``csv.reader`` parses it; split at commas when it refuses the line."""
+    try:
+        return next(csv.reader([line.replace("\x00", "")]), [])
+    except csv.Error:
+        return line.split(",")
 
 
 def _numbers(cells: list[str]) -> np.ndarray:

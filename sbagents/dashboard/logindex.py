@@ -16,12 +16,13 @@ index (all of it, or for a time budget, from a background thread); every public 
 
 Limitations: rows are split at newline bytes. The writer quotes a field with a newline (info strings), which
 essentially never happens; such a row shows as two rows, each parsed on its own. A file that replaced the log
-(smaller, or another inode) is re-indexed from scratch by :func:`open_log` and :meth:`LogIndex.refresh`.
+(smaller, or another inode) is re-indexed from scratch by :meth:`LogIndex.refresh` (and by
+:func:`sbagents.dashboard.logregistry.open_log`, which shares one index per file). A first line over
+:data:`MAX_HEADER_BYTES` makes the file no log (:attr:`LogIndex.problem`): no more of it is read.
 """
 
 from __future__ import annotations
 
-import csv
 import os
 import threading
 import time
@@ -30,10 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sbagents.dashboard.folders import open_regular
 from sbagents.dashboard.logfilter import (
     RowFilter,
     _block_match,
     _missing_column,
+    _parse_line,
     _parse_lines,
     _ParsedBlock,
     _skippable,
@@ -55,6 +58,8 @@ CHUNK_BYTES = 16 << 20
 FIRST_STEP_BYTES = 1 << 20
 #: Seconds between two writes of the on-disk cache while a growing file is re-indexed.
 CACHE_SAVE_INTERVAL = 5.0
+#: A first line (the header) longer than this: the file is not a log, and nothing more of it is read.
+MAX_HEADER_BYTES = 1 << 20
 
 
 @dataclass
@@ -113,6 +118,8 @@ class LogIndex:
         self._complete = False
         self._step_bytes = FIRST_STEP_BYTES
         self._summaries: dict[int, _Summary] = {}
+        #: why the file is not read as a log (its first line is over :data:`MAX_HEADER_BYTES`), None when it is one
+        self.problem: str | None = None
         self._gz: _GzScanner | None = _GzScanner() if self.gzip else None
         #: where a ``.gz`` log can be decompressed from (the scanner's list: it appends to it)
         self._checkpoints: list[GzCheckpoint] = self._gz.checkpoints if self._gz is not None else []
@@ -137,7 +144,7 @@ class LogIndex:
 
     def _set_header(self, line: bytes) -> None:
         text = line.decode("utf-8", "replace").rstrip("\r\n")
-        self.columns = next(csv.reader([text]), [])
+        self.columns = _parse_line(text)
         self._col = {}
         for i, name in enumerate(self.columns):
             self._col.setdefault(name, i)
@@ -154,9 +161,13 @@ class LogIndex:
         """Index ``data``, the uncompressed bytes at offset ``base`` that follow everything consumed so far."""
         self.bytes_scanned += len(data)
         if self._header_end is None:
-            self._head += data
-            cut = self._head.find(b"\n")
+            searched = len(self._head)
+            self._head += data[: MAX_HEADER_BYTES + 1 - searched]
+            cut = self._head.find(b"\n", searched)
             if cut < 0:
+                if len(self._head) > MAX_HEADER_BYTES:
+                    self.problem = f"{self.path.name}: its first line is over {MAX_HEADER_BYTES:,} bytes (not a log)"
+                    self._head = b""
                 return
             self._set_header(self._head[:cut])
             self._header_end = self._row_end = cut + 1
@@ -177,6 +188,9 @@ class LogIndex:
 
     def _scan_step(self) -> bool:
         """Index one more chunk (call with the lock held); False when the file has nothing more now."""
+        if self.problem is not None:
+            self._complete = True
+            return False
         if self._gz is not None:
             produced, ended = self._gz.scan(self.path, self._step_bytes, CHUNK_BYTES, self._consume)
             if ended:
@@ -185,7 +199,7 @@ class LogIndex:
             self._step_bytes = min(self._step_bytes * 2, CHUNK_BYTES)
             self._complete = False
             return True
-        with open(self.path, "rb") as fh:
+        with open_regular(self.path) as fh:
             fh.seek(self._read_pos)
             data = fh.read(self._step_bytes)
         self._step_bytes = min(self._step_bytes * 2, CHUNK_BYTES)
@@ -206,7 +220,7 @@ class LogIndex:
             return
         if self._stale(st):
             self._reset()
-        elif self._complete and st.st_size > self._known_size():
+        elif self._complete and self.problem is None and st.st_size > self._known_size():
             self._complete = False
 
     def _ensure_rows(self, n: int, deadline: float | None = None) -> None:
@@ -433,22 +447,4 @@ class LogIndex:
         return self._scan(flt, 0, max(int(max_rows), 1), None, episode_stop=True)
 
 
-_LOGS: dict[Path, LogIndex] = {}
-_LOGS_LOCK = threading.Lock()
-
-
-def open_log(path: Path) -> LogIndex:
-    """The :class:`LogIndex` of ``path``, shared process-wide (keyed by the resolved path; thread-safe).
-
-    A file that was replaced or truncated since it was indexed (another inode, or smaller) gets a new index.
-    The returned index may be incomplete: call :meth:`LogIndex.refresh` (e.g. from a background thread).
-    """
-    key = Path(path).resolve()
-    with _LOGS_LOCK:
-        index = _LOGS.get(key)
-        if index is None or index.is_stale():
-            index = _LOGS[key] = LogIndex(key)
-        return index
-
-
-__all__ = ["LogIndex", "Page", "RowFilter", "open_log"]
+__all__ = ["LogIndex", "Page", "RowFilter"]

@@ -33,6 +33,7 @@ from typing import IO, Any
 import numpy as np
 
 from sbagents.cache import cache_dir
+from sbagents.dashboard.folders import open_regular
 
 #: Compressed bytes read per step of a ``.gz`` scan; each decompress call outputs at most :data:`GZ_MAX_OUT`.
 GZ_READ_BYTES = 1 << 20
@@ -122,7 +123,7 @@ class _GzScanner:
         and its uncompressed offset to ``consume``; returns the bytes produced and whether the file (as it is now)
         has nothing more to decompress."""
         cur = self.cursor
-        with open(path, "rb") as fh:
+        with open_regular(path) as fh:
             produced = 0
             while produced < max_bytes:
                 base = cur.upos
@@ -146,7 +147,7 @@ class _RangeReader:
     """Reads uncompressed byte ranges of a log; sequential reads of a ``.gz`` log continue one decompressor."""
 
     def __init__(self, path: Path, checkpoints: list[GzCheckpoint] | None) -> None:
-        self.fh: IO[bytes] = open(path, "rb")  # noqa: SIM115  (closed by close())
+        self.fh: IO[bytes] = open_regular(path)  # closed by close()
         self.checkpoints = checkpoints  # None: plain file
         self.cursor: GzCursor | None = None
         self.buf = b""
@@ -237,7 +238,7 @@ def _load_index_cache(cache_file: Path, path: Path, block_rows: int) -> _CachedI
             or meta["path"] != str(path.resolve())
         ):
             return None
-        with open(path, "rb") as fh:
+        with open_regular(path) as fh:
             if list(_file_hashes(fh, meta["scan_pos"])) != [meta["head_sha"], meta["tail_sha"]]:
                 return None
             fh.seek(0)
@@ -253,7 +254,7 @@ def _save_index_cache(cache_file: Path, path: Path, block_rows: int, offsets: li
     """Write the index of ``path`` (rows and offsets up to byte ``scan_pos``) to ``cache_file``; False on error."""
     try:
         st = os.stat(path)
-        with open(path, "rb") as fh:
+        with open_regular(path) as fh:
             head, tail = _file_hashes(fh, scan_pos)
         meta = {"version": CACHE_VERSION, "path": str(path.resolve()), "size": st.st_size,
                 "mtime_ns": st.st_mtime_ns, "inode": st.st_ino, "block_rows": block_rows,

@@ -7,19 +7,17 @@ hundreds of runs every few seconds reads a handful of ``stat`` results per run.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import threading
 import time
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
-import yaml
-
-from sbagents.dashboard.folders import ServedFolders
-from sbagents.pipeline.monitor_files import read_monitor_files
+from sbagents.dashboard.folders import RunFiles, ServedFolders
+from sbagents.dashboard.monitors import monitor_totals
+from sbagents.dashboard.safeload import read_mapping
 
 _RUN_DIR = re.compile(r"^(?P<stem>.+)_(?P<k>\d+)$")
 #: Files whose presence marks a run dir.
@@ -61,28 +59,6 @@ class RunRow:
         return asdict(self)
 
 
-def read_json(path: Path, notes: list[str]) -> Any:
-    """``path``'s JSON, or None (with a note) when it is missing, truncated or malformed."""
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError) as exc:
-        notes.append(f"{path.name} could not be read ({type(exc).__name__}: {str(exc)[:80]}); showing the rest")
-        return None
-
-
-def read_yaml(path: Path, notes: list[str]) -> Any:
-    """``path``'s YAML (safe loader), or None (with a note) when it is missing or malformed."""
-    try:
-        return yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        return None
-    except (OSError, yaml.YAMLError) as exc:
-        notes.append(f"{path.name} could not be read ({type(exc).__name__}); showing the rest")
-        return None
-
-
 def find_run_dirs(folders: ServedFolders) -> list[tuple[int, str]]:
     """``(folder index, relative path)`` of every run dir at depth 0-2 of each served folder, in folder order."""
     found: list[tuple[int, str]] = []
@@ -101,62 +77,64 @@ def find_run_dirs(folders: ServedFolders) -> list[tuple[int, str]]:
                     found.append((root_index, rel))
                 continue
             if depth < 2:
-                pending.extend((Path(e.path), depth + 1) for e in entries if e.is_dir() and not e.name.startswith("."))
+                for entry in entries:
+                    if entry.is_dir() and not entry.name.startswith("."):
+                        path = Path(entry.path)
+                        if folders.resolve(root_index, folders.relative(root_index, path)) is not None:
+                            pending.append((path, depth + 1))
     return sorted(found)
 
 
-def _signature(run_dir: Path) -> tuple[Any, ...]:
-    """What a row depends on: names, sizes and mtimes of the run's top-level files and its config folder."""
+def _signature(run: RunFiles) -> tuple[Any, ...]:
+    """What a row depends on: names, sizes and mtimes of the run's top-level files and its config folder (files
+    whose real path leaves the served folder are left out)."""
     sig = []
     try:
-        for entry in os.scandir(run_dir):
-            if entry.is_file() and (entry.name.endswith((".json", ".csv", ".npz", ".txt")) or entry.name == "args.yml"):
-                st = entry.stat()
-                sig.append((entry.name, st.st_size, st.st_mtime_ns))
-            elif entry.is_dir() and not entry.name.startswith(".") and (Path(entry.path) / "args.yml").exists():
-                st = (Path(entry.path) / "args.yml").stat()
-                sig.append((entry.name + "/args.yml", st.st_size, st.st_mtime_ns))
+        entries = list(os.scandir(run.path))
     except OSError:
         return ()
+    for entry in entries:
+        if entry.name.endswith((".json", ".csv", ".npz", ".txt")) or entry.name == "args.yml":
+            name = entry.name
+        elif entry.is_dir() and not entry.name.startswith("."):
+            name = f"{entry.name}/args.yml"
+        else:
+            continue
+        st = run.stat(name)
+        if st is not None:
+            sig.append((name, st.st_size, st.st_mtime_ns))
     return tuple(sorted(sig))
 
 
-def monitor_totals(run_dir: Path) -> tuple[int, float | None]:
-    """Steps and latest end time (seconds since the epoch) over the run's monitor files."""
-    episodes = read_monitor_files(run_dir)
-    latest = float(episodes.end_times.max()) if len(episodes.end_times) else None
-    return int(episodes.lengths.sum()), latest
-
-
-def config_dir(run_dir: Path) -> Path | None:
-    """The run's ``<EnvStem>/`` folder with ``config.yml`` / ``args.yml``."""
-    for child in sorted(run_dir.iterdir()) if run_dir.is_dir() else []:
-        if child.is_dir() and ((child / "args.yml").exists() or (child / "config.yml").exists()):
+def config_dir(run: RunFiles) -> str | None:
+    """The name of the run's ``<EnvStem>/`` folder with ``config.yml`` / ``args.yml``."""
+    for child in run.folders_here():
+        if run.file(f"{child}/args.yml") is not None or run.file(f"{child}/config.yml") is not None:
             return child
     return None
 
 
-def summarize_run(folders: ServedFolders, root: int, rel: str) -> RunRow:
+def is_run_dir(run: RunFiles) -> bool:
+    """Whether ``run`` holds one of :data:`RUN_MARKERS` (under the served folder)."""
+    return any(run.file(marker) is not None for marker in RUN_MARKERS)
+
+
+def summarize_run(run: RunFiles) -> RunRow:
     """Read one run dir into a :class:`RunRow` (never raises on a malformed file: notes say what was skipped)."""
-    run_dir = folders.roots[root].joinpath(*Path(rel).parts) if rel else folders.roots[root]
-    parts = Path(rel).parts
-    match = _RUN_DIR.match(run_dir.name)
+    parts = PurePosixPath(run.rel).parts
+    name = parts[-1] if parts else run.path.name
+    match = _RUN_DIR.match(name)
     notes: list[str] = []
-    summary = read_json(run_dir / "summary.json", notes) or {}
-    cfg = config_dir(run_dir)
-    args = (read_yaml(cfg / "args.yml", notes) if cfg else None) or {}
-    if not isinstance(summary, dict):
-        notes.append("summary.json is not a JSON object")
-        summary = {}
-    if not isinstance(args, dict):
-        args = {}
+    summary = read_mapping(run, "summary.json", notes) or {}
+    cfg = config_dir(run)
+    args = (read_mapping(run, f"{cfg}/args.yml", notes) if cfg else None) or {}
     algo = str(summary.get("algo") or args.get("algo") or (parts[-2] if len(parts) >= 2 else "?"))
-    env = str(summary.get("env") or args.get("env") or (match["stem"] if match else run_dir.name))
+    env = str(summary.get("env") or args.get("env") or (match["stem"] if match else name))
     evaluation: dict[str, Any] = summary["eval"] if isinstance(summary.get("eval"), dict) else {}
-    steps, last_episode = monitor_totals(run_dir) if not summary else (0, None)  # a summary has the steps
-    command = run_dir / "command.txt"
-    started = command.stat().st_mtime if command.exists() else None
-    sig = _signature(run_dir)
+    steps, last_episode = monitor_totals(run) if not summary else (0, None)  # a summary has the steps
+    command = run.stat("command.txt")
+    started = command.st_mtime if command is not None else None
+    sig = _signature(run)
     updated = max((s[2] for s in sig), default=0) / 1e9 or None
     if summary:
         status = "interrupted" if summary.get("interrupted") else "finished"
@@ -165,8 +143,8 @@ def summarize_run(folders: ServedFolders, root: int, rel: str) -> RunRow:
     else:
         status = "incomplete"
     return RunRow(
-        id=f"{root}/{rel}" if rel else f"{root}",
-        folder=folders.label(root),
+        id=f"{run.root}/{run.rel}" if run.rel else f"{run.root}",
+        folder=run.folders.label(run.root),
         algo=algo,
         env=env,
         k=int(match["k"]) if match else None,
@@ -178,7 +156,7 @@ def summarize_run(folders: ServedFolders, root: int, rel: str) -> RunRow:
         eval_return=_num(evaluation.get("mean_return"), float),
         eval_std=_num(evaluation.get("std_return"), float),
         success_rate=_num(evaluation.get("success_rate"), float),
-        interrupted=summary.get("interrupted") if summary else None,
+        interrupted=bool(summary.get("interrupted")) if summary else None,
         backend=str(summary.get("backend") or args.get("backend") or "sb3"),
         started=started,
         updated=updated,
@@ -187,9 +165,10 @@ def summarize_run(folders: ServedFolders, root: int, rel: str) -> RunRow:
 
 
 def _num(value: Any, kind: type) -> Any:
+    """``value`` as ``kind`` (int or float), None when it is missing, a bool, not a number or not finite."""
     try:
         return None if value is None or isinstance(value, bool) else kind(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return None
 
 
@@ -205,13 +184,15 @@ class RunCatalog:
         """Every run under the served folders, newest first."""
         result = []
         for root, rel in find_run_dirs(self.folders):
-            run_dir = self.folders.roots[root].joinpath(*Path(rel).parts)
-            sig = _signature(run_dir)
+            run = self.folders.run(root, rel)
+            if run is None:  # removed (or replaced by a symlink that leads out) since it was found
+                continue
+            sig = _signature(run)
             with self._lock:
                 cached = self._rows.get((root, rel))
             # A running run's status depends on the clock, not only on its files: re-read those.
             if cached is None or cached[0] != sig or cached[1].status == "running":
-                row = summarize_run(self.folders, root, rel)
+                row = summarize_run(run)
                 with self._lock:
                     self._rows[(root, rel)] = (sig, row)
             else:

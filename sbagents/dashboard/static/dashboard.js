@@ -147,14 +147,15 @@ function runPage() {
     $("#status").textContent = run.status;
     $("#status").className = `status ${run.status}`;
     $("#facts").replaceChildren(...[
-      ["steps", fmt(run.steps)], ["episodes", fmt(train.returns.length)], ["fps", fmt(run.fps, 0)],
+      ["steps", fmt(run.steps)], ["episodes", fmt(train.episodes ?? train.returns.length)], ["fps", fmt(run.fps, 0)],
       ["train time", run.train_seconds === null ? "" : `${fmt(run.train_seconds, 1)} s`],
       ["final eval", run.eval_return === null ? "" : `${fmt(run.eval_return)} ± ${fmt(run.eval_std)}`],
       ["success", fmt(run.success_rate)], ["seed", fmt(run.seed)], ["backend", run.backend],
     ].filter(([, v]) => v !== "").map(([k, v]) => el("span", {}, `${k} `, el("b", {}, v))));
     const window = Math.max(1, Math.floor(train.returns.length / 20));
     const traces = [
-      { x: train.timesteps, y: train.returns, mode: "markers", marker: { size: 3, color: "#8c959f" }, name: "training episodes" },
+      { x: train.timesteps, y: train.returns, mode: "markers", marker: { size: 3, color: "#8c959f" },
+        name: train.episodes > train.returns.length ? `training episodes (${fmt(train.returns.length)} of ${fmt(train.episodes)})` : "training episodes" },
       { x: train.timesteps, y: smooth(train.returns, window), mode: "lines", line: { color: COLORS[0] },
         name: `training (moving mean of ${window})` },
       ...evalTraces(ev, "", COLORS[1]),
@@ -194,7 +195,7 @@ function runPage() {
 function decisionsPage() {
   const params = new URLSearchParams(location.search);
   const form = $("#filters");
-  const state = { start: 0, cursors: [0], count: 50, columns: [], actionCount: null, last: null, loadId: 0 };
+  const state = { start: 0, cursors: [0], count: 50, columns: [], actionCount: null, last: null, loadId: 0, notes: [] };
   const query = () => {
     const q = new URLSearchParams();
     for (const [k, v] of new FormData(form).entries()) if (v !== "") q.set(k, v);
@@ -208,6 +209,7 @@ function decisionsPage() {
   const render = (page, scanning = false) => {
     state.last = page;
     state.columns = page.columns;
+    showNotes([...state.notes, ...(page.notes || [])]);
     $("#decisions thead").replaceChildren(el("tr", {}, el("th", {}, "row"), ...page.columns.map((c) => el("th", {}, c))));
     const epCol = page.columns.findIndex((c) => c.toLowerCase() === "episode");
     const envCol = page.columns.indexOf("env"), agentCol = page.columns.indexOf("agent");
@@ -331,6 +333,7 @@ function decisionsPage() {
   (async () => {
     const settings = await getJSON(`/api/settings/${RUN}`);
     state.actionCount = settings.action_count;
+    state.notes = settings.notes;
     showNotes(settings.notes);
     if (!settings.logs.length) {
       $("#position").textContent = "This run has no transparency log (train with --transparency-log).";

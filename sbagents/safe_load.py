@@ -300,7 +300,7 @@ def read_model_data(path: str | Path) -> dict[str, Any]:
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, RuntimeError) as exc:
         if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
             raise
-        raise UsageError(f"{path} is not a complete SB3 model file (empty, truncated or not a zip: "
+        raise UsageError(f"{path} is not an SB3 model file, or not a complete one (empty, truncated or not a zip: "
                          f"{_short(exc)})") from None
     try:
         data = json.loads(raw)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import base64
 import binascii
 import collections
+import enum
 import importlib
 import io
 import json
@@ -120,12 +121,25 @@ def _numpy_functions() -> dict[tuple[str, str], Any]:
     return table
 
 
+def _sized_refused(kind: type) -> Callable[..., Any]:
+    """``bytes``/``bytearray`` from data, never from a size (``bytes(10**11)`` would fill memory)."""
+
+    def build(*args: Any) -> Any:
+        if args and isinstance(args[0], int):
+            raise _Refused(f"{kind.__name__}() of a size")
+        return kind(*args)
+
+    return build
+
+
 def _builtin_constructors() -> dict[tuple[str, str], Any]:
     import builtins
     import codecs
 
     table: dict[tuple[str, str], Any] = {("builtins", n): getattr(builtins, n)
-                                         for n in ("set", "frozenset", "slice", "complex", "bytearray", "bytes")}
+                                         for n in ("set", "frozenset", "slice", "complex")}
+    table[("builtins", "bytes")] = _sized_refused(bytes)
+    table[("builtins", "bytearray")] = _sized_refused(bytearray)
     table[("_codecs", "encode")] = codecs.encode  # how protocols 0-2 spell bytes
     table[("collections", "OrderedDict")] = collections.OrderedDict
     table[("collections", "deque")] = collections.deque
@@ -188,6 +202,7 @@ class PlainDataUnpickler(_PyUnpickler):  # type: ignore[misc]
         super().__init__(io.BytesIO(data))
         self._prefixes = (*REFERENCE_PREFIXES, *trusted_modules)
         self._functions = {**_numpy_functions(), **_builtin_constructors()}
+        self._calls = set(self._functions.values())
         self._constructible = _constructible()
         self._made: set[int] = set()
 
@@ -218,8 +233,16 @@ class PlainDataUnpickler(_PyUnpickler):  # type: ignore[misc]
         raise _Refused("a persistent reference")
 
     # --- what may be called ---------------------------------------------------------------------------------
-    def _check_callable(self, fn: Any) -> None:
-        if not (fn in self._constructible or _is_space_class(fn) or _is_numpy_scalar_type(fn)):
+    def _check_new(self, cls: Any) -> None:
+        """``NEWOBJ``: ``cls.__new__`` without ``__init__``, for the constructible classes."""
+        if not (cls in self._constructible or _is_space_class(cls) or _is_numpy_scalar_type(cls)):
+            raise _Refused(f"an instance of {getattr(cls, '__qualname__', type(cls).__name__)}")
+
+    def _check_call(self, fn: Any) -> None:
+        """``REDUCE``: a call with the pickle's arguments, for the plain-data helpers only (numpy's, containers,
+        enums); never a class whose ``__init__`` would allocate from its arguments (a space, a buffer)."""
+        if not (fn in self._calls or _is_numpy_scalar_type(fn)
+                or (isinstance(fn, type) and issubclass(fn, enum.Enum) and fn in self._constructible)):
             raise _Refused(f"a call to {getattr(fn, '__qualname__', type(fn).__name__)}")
 
     def _remember(self, obj: Any) -> Any:
@@ -230,20 +253,20 @@ class PlainDataUnpickler(_PyUnpickler):  # type: ignore[misc]
         stack = self.stack
         args = stack.pop()
         fn = stack[-1]
-        self._check_callable(fn)
+        self._check_call(fn)
         stack[-1] = self._remember(fn(*args))
 
     def load_newobj(self) -> None:
         args = self.stack.pop()
         cls = self.stack.pop()
-        self._check_callable(cls)
+        self._check_new(cls)
         self.append(self._remember(cls.__new__(cls, *args)))
 
     def load_newobj_ex(self) -> None:
         kwargs = self.stack.pop()
         args = self.stack.pop()
         cls = self.stack.pop()
-        self._check_callable(cls)
+        self._check_new(cls)
         self.append(self._remember(cls.__new__(cls, *args, **kwargs)))
 
     def load_build(self) -> None:

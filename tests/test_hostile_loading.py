@@ -315,3 +315,20 @@ def test_callables_outside_plain_data_are_refused(fn: Any, arg: bytes) -> None:
 
     with pytest.raises(UntrustedContentError):
         plain_loads(pickle.dumps(Call()), "fuzz")
+
+
+@pytest.mark.parametrize("call", [
+    (bytes, (10**12,)),  # would fill memory
+    (bytearray, (10**12,)),
+    (__import__("gymnasium").spaces.Box, (0.0, 1.0, (10**6, 10**6))),  # a space is rebuilt from state, never called
+    (__import__("collections").OrderedDict.fromkeys, (range(3),)),
+])
+def test_calls_that_would_allocate_or_escape_are_refused(call: tuple[Any, tuple[Any, ...]]) -> None:
+    fn, args = call
+
+    class Call:
+        def __reduce__(self) -> tuple[Any, ...]:
+            return fn, args
+
+    with pytest.raises(UntrustedContentError):
+        plain_loads(pickle.dumps(Call(), protocol=4), "fuzz")

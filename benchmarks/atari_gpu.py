@@ -56,34 +56,46 @@ EVAL_RESERVE_S = 45.0  # kept for phase 3 and the files (GPU sizes; the CPU smok
 
 
 class GpuSampler:
-    """GPU utilisation (%) and memory (MiB) every ``interval_ms``, from ``nvidia-smi`` (else torch) in a thread."""
+    """GPU utilisation (%) and memory (MiB) every ``interval_ms`` from ``nvidia-smi`` (else torch), in a thread.
+
+    nvidia-smi stamps each sample itself (its output may reach us in buffered chunks), so measurements register
+    their time spans with :meth:`track` and get their figures from :meth:`summary` after :meth:`close`.
+    """
 
     def __init__(self, interval_ms: int = 500) -> None:
         self.samples: list[tuple[float, float, float]] = []  # (perf_counter, util %, memory MiB)
         self.source: str | None = None
+        self.spans: dict[str, tuple[float, float]] = {}
+        self._offset = time.time() - time.perf_counter()
         self._stop = threading.Event()
         self._proc: subprocess.Popen[str] | None = None
+        self._reader: threading.Thread | None = None
         exe = shutil.which("nvidia-smi")
         if exe is not None:
             self._proc = subprocess.Popen(
-                [exe, "--query-gpu=utilization.gpu,memory.used", "--format=csv,noheader,nounits", "-lms",
-                 str(interval_ms)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                [exe, "--query-gpu=timestamp,utilization.gpu,memory.used", "--format=csv,noheader,nounits",
+                 "-lms", str(interval_ms)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             self.source = "nvidia-smi"
-            threading.Thread(target=self._read_smi, daemon=True).start()
+            self._reader = threading.Thread(target=self._read_smi, daemon=True)
         elif torch.cuda.is_available():
             try:
                 torch.cuda.utilization()
             except Exception:  # noqa: BLE001 - pynvml missing: no source
                 return
             self.source = "torch.cuda.utilization"
-            threading.Thread(target=self._poll_torch, args=(interval_ms / 1000,), daemon=True).start()
+            self._reader = threading.Thread(target=self._poll_torch, args=(interval_ms / 1000,), daemon=True)
+        if self._reader is not None:
+            self._reader.start()
 
     def _read_smi(self) -> None:
+        from datetime import datetime
+
         assert self._proc is not None and self._proc.stdout is not None
         for line in self._proc.stdout:
             parts = [p.strip() for p in line.split(",")]
             try:
-                self.samples.append((time.perf_counter(), float(parts[0]), float(parts[1])))
+                stamp = datetime.strptime(parts[0], "%Y/%m/%d %H:%M:%S.%f").timestamp() - self._offset
+                self.samples.append((stamp, float(parts[1]), float(parts[2])))
             except (ValueError, IndexError):
                 continue
 
@@ -92,10 +104,13 @@ class GpuSampler:
             self.samples.append((time.perf_counter(), float(torch.cuda.utilization()),
                                  torch.cuda.memory_reserved() / 2**20))
 
-    def window(self, t0: float | None, t1: float | None) -> dict[str, float] | None:
+    def track(self, name: str, t0: float | None, t1: float | None) -> None:
+        """Register the span ``t0..t1`` (``time.perf_counter``) of measurement ``name``."""
+        if t0 is not None and t1 is not None:
+            self.spans[name] = (t0, t1)
+
+    def window(self, t0: float, t1: float) -> dict[str, float] | None:
         """Mean / max utilisation and max memory of the samples between ``t0`` and ``t1`` (None: no samples)."""
-        if t0 is None or t1 is None:
-            return None
         inside = [(u, m) for t, u, m in list(self.samples) if t0 <= t <= t1]
         if not inside:
             return None
@@ -103,12 +118,18 @@ class GpuSampler:
         return {"util_mean": round(float(util.mean()), 1), "util_max": float(util.max()),
                 "memory_max_mib": float(max(m for _, m in inside)), "samples": len(inside)}
 
+    def summary(self) -> dict[str, dict[str, float] | None]:
+        """The figures of every tracked span (after :meth:`close`, every sample has arrived)."""
+        return {name: self.window(t0, t1) for name, (t0, t1) in self.spans.items()}
+
     def close(self) -> None:
-        """Stop sampling."""
+        """Stop sampling and wait for the samples still on their way."""
         self._stop.set()
         if self._proc is not None:
             self._proc.terminate()
             self._proc.wait(timeout=5)
+        if self._reader is not None:
+            self._reader.join(timeout=5)
 
 
 class Deadline(BaseCallback):
@@ -128,6 +149,32 @@ class Deadline(BaseCallback):
 
     def _on_training_end(self) -> None:
         self.t1 = time.perf_counter()
+
+
+class Progress(BaseCallback):
+    """Every ``every_s`` seconds: steps, fps and the mean score of SB3's last 100 games, printed and kept in
+    ``log`` (which the phase saves into the results), so a run cut short still shows how far it got."""
+
+    def __init__(self, every_s: float, log: list[dict[str, Any]], save: Callable[[], None]) -> None:
+        super().__init__()
+        self.every_s, self.log, self.save = every_s, log, save
+        self.start = self.last = 0.0
+
+    def _on_training_start(self) -> None:
+        self.start = self.last = time.perf_counter()
+
+    def _on_step(self) -> bool:
+        now = time.perf_counter()
+        if now - self.last >= self.every_s:
+            self.last = now
+            games = [float(e["r"]) for e in self.model.ep_info_buffer or []]
+            row = {"seconds": round(now - self.start, 1), "steps": int(self.num_timesteps),
+                   "fps": round(self.num_timesteps / max(now - self.start, 1e-9)),
+                   "mean_last_100_games": round(float(np.mean(games)), 2) if games else None}
+            self.log.append(row)
+            print(f"learn: {row}", flush=True)
+            self.save()
+        return True
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -168,7 +215,7 @@ def compare(results: Results, sampler: GpuSampler, device: str, tiny: bool, unti
     PPO runs that would start after ``until`` (``time.perf_counter``) are left out."""
     n_envs, big = (4, 8) if tiny else (16, 32)
     env_steps, rollouts, n_steps = (500, 1, 32) if tiny else (8000, 4, 128)
-    out: dict[str, Any] = {"n_envs": n_envs, "env": {}, "ppo": {}, "gpu": {}}
+    out: dict[str, Any] = {"n_envs": n_envs, "env": {}, "ppo": {}}
     results.data["compare"] = out
     for kind in ("dummy", "subproc", "envpool"):
         out["env"][kind] = round(env_rate(kind, n_envs, env_steps))
@@ -182,9 +229,9 @@ def compare(results: Results, sampler: GpuSampler, device: str, tiny: bool, unti
         rollout = params["n_envs"] * params["n_steps"]
         clock = train_clock("ppo", kind, params, rollout, rollouts * rollout, device)
         out["ppo"][name] = {"fps": round(clock.fps), **{k: params[k] for k in ("n_envs", "batch_size")}}
-        out["gpu"][name] = sampler.window(clock.t0, clock.t1)
-        print(f"PPO {name}: {clock.fps:,.0f} steps/s (n_envs {params['n_envs']}, batch {params['batch_size']}), "
-              f"GPU {out['gpu'][name]}", flush=True)
+        sampler.track(f"ppo_{name}", clock.t0, clock.t1)
+        print(f"PPO {name}: {clock.fps:,.0f} steps/s (n_envs {params['n_envs']}, batch {params['batch_size']})",
+              flush=True)
         results.save()
     ratios = {"env_envpool/dummy": (out["env"], "envpool", "dummy"),
               "env_envpool/subproc": (out["env"], "envpool", "subproc"),
@@ -237,15 +284,17 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
     results.save()
     print(f"PPO {params} for {n_timesteps:,} steps or until the deadline ({seconds:.0f} s)", flush=True)
     stop = Deadline(deadline)
+    progress = Progress(5.0 if tiny else 30.0, info.setdefault("progress", []), results.save)
     result = train_sb3(TrainSpec("ppo", ENV_ID, n_timesteps=n_timesteps, hyperparams=params),
                        OutputOptions(log_folder=str(work)),
                        EvalOptions(eval_freq=0, final_eval_episodes=1 if tiny else 2),
                        ExecOptions(seed=seed, vec_env="envpool", device=device, num_threads=1, progress=False,
                                    verbose=1, log_interval=10),
-                       callbacks=[stop])
+                       callbacks=[stop, progress])
     wall = (stop.t1 or time.perf_counter()) - (stop.t0 or time.perf_counter())
+    sampler.track("learn", stop.t0, stop.t1)
     info.update(steps=int(result.model.num_timesteps), seconds=round(wall, 1),
-                fps=round(result.model.num_timesteps / max(wall, 1e-9)), gpu=sampler.window(stop.t0, stop.t1),
+                fps=round(result.model.num_timesteps / max(wall, 1e-9)),
                 curve=curve_points(result.run_dir),
                 final_eval_ale=result.summary.get("eval"))
     info.update(curve_stats(info["curve"]))
@@ -375,6 +424,7 @@ def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool) -> dict[
                    f" ({results.data['machine']['gpu'] or device})")
     finally:
         sampler.close()
+        results.data["gpu"] = sampler.summary()
         shutil.rmtree(work, ignore_errors=True)
         results.data["seconds"] = round(time.perf_counter() - start, 1)
         results.data["machine"]["load_after"] = round(os.getloadavg()[0], 2)
@@ -396,7 +446,7 @@ def markdown(data: dict[str, Any], device_command: str) -> str:
              f"SB3 {m['stable_baselines3']}; {m['date']}; {data['seconds']:.0f} s in all "
              f"(budget {data['budget_s']:.0f} s); GPU utilisation from {data.get('gpu_source') or 'nothing'}. "
              "Rendered by `python -m benchmarks.atari_gpu --render <atari_gpu.json>`.", ""]
-    comp = data.get("compare") or {}
+    comp, gpu = data.get("compare") or {}, data.get("gpu") or {}
     if comp.get("ppo"):
         n = comp["n_envs"]
         lines += [f"Side by side ({n} envs; env-only: random actions, same preprocessing; PPO: the "
@@ -407,7 +457,7 @@ def markdown(data: dict[str, Any], device_command: str) -> str:
             kind = name if name in comp["env"] else None
             env = f"{comp['env'][kind]:,}" if kind else "-"
             label = name if kind else f"envpool, {row['n_envs']} envs, batch {row['batch_size']}"
-            lines.append(f"| {label} | {env} | {row['fps']:,} | {_fmt_gpu(comp['gpu'].get(name))} |")
+            lines.append(f"| {label} | {env} | {row['fps']:,} | {_fmt_gpu(gpu.get(f'ppo_{name}'))} |")
         if comp.get("ratios"):
             lines += ["", "Ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in comp["ratios"].items()) + "."]
     choice = data.get("choice") or {}
@@ -419,7 +469,7 @@ def markdown(data: dict[str, Any], device_command: str) -> str:
                    f"the mean of {learned.get('rolling_games', 0)} training games did not reach +{TARGET:g}")
         lines += ["", f"Learning: {choice.get('reason', '')}. PPO {learned['params']} trained {learned['steps']:,} "
                   f"steps in {learned['seconds']:.0f} s ({learned['fps']:,} steps/s overall, GPU "
-                  f"{_fmt_gpu(learned.get('gpu'))}); {learned['games']} games; {verdict}; rolling mean at the end "
+                  f"{_fmt_gpu(gpu.get('learn'))}); {learned['games']} games; {verdict}; rolling mean at the end "
                   f"{learned.get('final_rolling_mean')}, best {learned.get('best_rolling_mean')}. "
                   f"At {learned['fps']:,} steps/s, RL Zoo's 10M-step budget would take "
                   f"{10_000_000 / learned['fps'] / 60:.0f} min."]

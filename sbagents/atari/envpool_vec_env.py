@@ -165,9 +165,13 @@ class EnvPoolAtariVecEnv(VecEnv):
         return int(seed) % _SEED_MODULUS
 
     def _make_pool(self, seed: int) -> Any:
+        threads = self.num_threads
+        if threads <= 0:  # one per env, at most one per CPU this process may use (EnvPool would count the host's)
+            cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+            threads = max(min(self._n, cpus), 1)
         return self._envpool.make(
             envpool_task_id(self.settings.game), env_type="gymnasium", num_envs=self._n, batch_size=self._n,
-            seed=seed, num_threads=self.num_threads, **self.settings.envpool_kwargs())
+            seed=seed, num_threads=threads, **self.settings.envpool_kwargs())
 
     def _in_order(self, ids: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
         """``arrays`` reordered by env id (EnvPool returns a batch in the order its envs finished)."""

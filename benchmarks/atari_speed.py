@@ -13,7 +13,7 @@ the medians and the ratios against DummyVecEnv (the default vec env before EnvPo
 average. Sized for the project's 2-core machines by default; on a many-core GPU machine, where the env side is the
 bottleneck::
 
-    python -m benchmarks.atari_speed                                     # 2 cores: 8 envs, ~6-8 min
+    python -m benchmarks.atari_speed                                     # 2 cores: 8 envs, ~10-12 min
     python -m benchmarks.atari_speed --n-envs 16 --device cuda --rounds 1 --ppo-rollouts 4 --dqn-steps 4000
     python -m benchmarks.atari_speed --quick --output '' --json ''       # smoke run
 
@@ -49,15 +49,22 @@ class StepClock(BaseCallback):
         self.start_step = start_step
         self.t0: float | None = None
         self.n0 = self.n1 = 0
-        self.t1 = 0.0
+        self.t1 = self.c0 = self.c1 = 0.0
 
     def _on_step(self) -> bool:
         if self.t0 is None and self.num_timesteps >= self.start_step:
-            self.t0, self.n0 = time.perf_counter(), self.num_timesteps
+            self.t0, self.n0, self.c0 = time.perf_counter(), self.num_timesteps, time.process_time()
         return True
 
     def _on_training_end(self) -> None:
-        self.t1, self.n1 = time.perf_counter(), self.num_timesteps
+        self.t1, self.n1, self.c1 = time.perf_counter(), self.num_timesteps, time.process_time()
+
+    @property
+    def cpu_fps(self) -> float:
+        """Steps per second of this process's CPU time (all its threads) over the same span."""
+        if self.t0 is None or self.n1 <= self.n0:
+            return float("nan")
+        return (self.n1 - self.n0) / max(self.c1 - self.c0, 1e-9)
 
     @property
     def fps(self) -> float:
@@ -75,6 +82,12 @@ def ppo_params(n_envs: int, n_steps: int = 128, minibatches: int = 8) -> dict[st
 def env_rate(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> float:
     """Env transitions/s of ``n_envs`` copies of the Pong entry's env on ``kind``, random actions, resets included
     (``n_steps`` transitions, after a few untimed steps; worker start-up excluded)."""
+    return env_rates(kind, n_envs, n_steps, seed)[0]
+
+
+def env_rates(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> tuple[float, float]:
+    """:func:`env_rate` and the same transitions per second of this process's CPU time (all its threads, EnvPool's
+    included; not SubprocVecEnv's worker processes): what one free core would give, whatever the load."""
     from sbagents.pipeline.env_factory import make_vec
     from sbagents.pipeline.env_names import resolve_env
     from sbagents.pipeline.experiment import build_experiment
@@ -90,12 +103,12 @@ def env_rate(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> float:
         venv.step(rng.integers(n_actions, size=n_envs))
     vector_steps = max(n_steps // n_envs, 1)
     actions = rng.integers(n_actions, size=(vector_steps, n_envs))
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     for a in actions:
         venv.step(a)
-    seconds = time.perf_counter() - start
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     venv.close()
-    return vector_steps * n_envs / seconds
+    return vector_steps * n_envs / seconds, vector_steps * n_envs / max(cpu_seconds, 1e-9)
 
 
 def train_clock(algo: str, kind: str, params: dict[str, Any], warmup: int, timed: int, device: str = "cpu",
@@ -107,10 +120,13 @@ def train_clock(algo: str, kind: str, params: dict[str, Any], warmup: int, timed
 
     clock = StepClock(warmup)
     with tempfile.TemporaryDirectory() as logs:
-        train_sb3(TrainSpec(algo, ENV_ID, n_timesteps=warmup + timed, hyperparams=dict(params)),
-                  OutputOptions(log_folder=logs), EvalOptions(eval_freq=0, final_eval_episodes=0),
-                  ExecOptions(seed=seed, vec_env=kind, device=device, num_threads=1, progress=False, verbose=0),
-                  callbacks=[clock])
+        result = train_sb3(TrainSpec(algo, ENV_ID, n_timesteps=warmup + timed, hyperparams=dict(params)),
+                           OutputOptions(log_folder=logs), EvalOptions(eval_freq=0, final_eval_episodes=0),
+                           ExecOptions(seed=seed, vec_env=kind, device=device, num_threads=1, progress=False,
+                                       verbose=0), callbacks=[clock])
+        env = result.model.get_env() if result.model is not None else None
+        if env is not None:
+            env.close()  # SubprocVecEnv's workers end now, not when the pipes are collected
     return clock
 
 
@@ -126,20 +142,44 @@ def dqn_params(learning_starts: int) -> dict[str, Any]:
 
 
 def measure(kinds: Sequence[str], n_envs: int, rounds: int, env_steps: int, ppo_rollouts: int, dqn_steps: int,
-            device: str = "cpu", on_result: Callable[[str, str, float], None] | None = None) -> dict[str, Any]:
-    """Every figure for every kind in ``rounds`` interleaved rounds: ``{"env": {kind: [..]}, "ppo": ..., "dqn":
-    ...}`` (steps/s per round). ``on_result(what, kind, value)`` sees each figure as it is measured."""
+            device: str = "cpu", on_result: Callable[[str, str, float], None] | None = None,
+            env_rounds: int | None = None) -> dict[str, Any]:
+    """Every figure for every kind in ``rounds`` interleaved rounds (``env_rounds`` for the cheap env-only
+    figures; default ``rounds``): ``{"env": {kind: [..]}, "env_cpu": ..., "ppo": ..., "dqn": ...}`` (steps/s per
+    round). ``on_result(what, kind, value)`` sees each figure as it is measured."""
     rollout = n_envs * 128
     learning_starts = 1000
-    samples: dict[str, dict[str, list[float]]] = {what: {k: [] for k in kinds} for what in ("env", "ppo", "dqn")}
+    samples: dict[str, dict[str, list[float]]] = {
+        what: {k: [] for k in kinds} for what in ("env", "env_cpu", "ppo", "ppo_cpu", "dqn", "dqn_cpu")}
+
+    def keep_cpu(what: str, kind: str, cpu: float) -> None:
+        if kind != "subproc":  # its workers' CPU time is not this process's
+            samples[f"{what}_cpu"][kind].append(cpu)
+
+    def env_job(kind: str) -> float:
+        wall, cpu = env_rates(kind, n_envs, env_steps)
+        keep_cpu("env", kind, cpu)
+        return wall
+
+    def train_job(what: str, kind: str) -> float:
+        clock = (train_clock("ppo", kind, ppo_params(n_envs), rollout, ppo_rollouts * rollout, device)
+                 if what == "ppo" else
+                 train_clock("dqn", kind, dqn_params(learning_starts), learning_starts, dqn_steps, device))
+        keep_cpu(what, kind, clock.cpu_fps)
+        return clock.fps
+
     jobs: dict[str, Callable[[str], float]] = {
-        "env": lambda kind: env_rate(kind, n_envs, env_steps),
-        "ppo": lambda kind: train_fps("ppo", kind, ppo_params(n_envs), rollout, ppo_rollouts * rollout, device),
-        "dqn": lambda kind: train_fps("dqn", kind, dqn_params(learning_starts), learning_starts, dqn_steps, device),
+        "env": env_job,
+        "ppo": lambda kind: train_job("ppo", kind),
+        "dqn": lambda kind: train_job("dqn", kind),
     }
-    for _ in range(rounds):
+    env_rounds = rounds if env_rounds is None else env_rounds
+    for r in range(max(rounds, env_rounds)):
         for what, job in jobs.items():
-            if (what == "ppo" and ppo_rollouts <= 0) or (what == "dqn" and dqn_steps <= 0):
+            if (what == "ppo" and (ppo_rollouts <= 0 or r >= rounds)) or (what == "dqn" and (dqn_steps <= 0 or
+                                                                                            r >= rounds)):
+                continue
+            if what == "env" and r >= env_rounds:
                 continue
             for kind in kinds:
                 value = job(kind)
@@ -184,17 +224,23 @@ def markdown(results: dict[str, Any], argv: list[str]) -> str:
         f"Command: `python -m benchmarks.atari_speed{' ' + ' '.join(argv) if argv else ''}` "
         f"({m['cpu']}, {m['cores']} cores, {m['device']}, torch {m['torch']} 1 thread, envpool {m['envpool']}; "
         f"{m['date']}; load average {m['load_before']} before, {m['load_after']} after; "
-        f"{results['rounds']} interleaved round(s), medians; {results['seconds']:.0f} s).",
+        f"{results.get('env_rounds', results['rounds'])} interleaved env-only rounds and {results['rounds']} "
+        f"training round(s), medians; {results['seconds']:.0f} s).",
         f"{results['n_envs']} envs; env-only: random actions, resets included, the same preprocessing "
         "(AtariWrapper + 4-frame stack; EnvPool + the same VecFrameStack); PPO: the `PongNoFrameskip-v4` entry "
         f"(n_steps 128, batch {ppo_params(results['n_envs'])['batch_size']}), timed after one rollout; DQN: the "
         "`atari` entry (1 env), timed after `learning_starts`. Ratios: median of the per-round ratios to DummyVecEnv "
-        "(the default vec env before EnvPool).",
+        "(the default vec env before EnvPool). Per CPU-second: the same steps over the process's CPU time "
+        "(EnvPool's threads included; SubprocVecEnv's workers are other processes, so none for it), i.e. what one "
+        "free core gives whatever the load; EnvPool also spreads its envs over every free core, which only the "
+        "wall figures of a quiet machine show.",
         "",
         "| steps/s | " + " | ".join(kinds) + " | " + " | ".join(f"{k} / dummy" for k in kinds if k != "dummy") + " |",
         "|---|" + "---:|" * (2 * len(kinds) - 1),
     ]
-    names = {"env": "env only", "ppo": "PPO training", "dqn": "DQN training"}
+    names = {"env": "env only", "env_cpu": "env only, per CPU-second", "ppo": "PPO training",
+             "ppo_cpu": "PPO training, per CPU-second", "dqn": "DQN training",
+             "dqn_cpu": "DQN training, per CPU-second"}
     for what, row in table.items():
         cells = [f"{row[k]:,.0f}" if k in row else "-" for k in kinds]
         ratios = [f"{row[f'{k}/dummy']:.2f}x" if f"{k}/dummy" in row else "-" for k in kinds if k != "dummy"]
@@ -222,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.atari_speed", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n-envs", type=int, default=8, help="env copies (PPO and env-only)")
-    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (medians reported)")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved training rounds (medians reported)")
+    parser.add_argument("--env-rounds", type=int, default=9, help="interleaved env-only rounds (a few s each)")
     parser.add_argument("--env-steps", type=int, default=8000, help="timed env transitions per env-only figure")
     parser.add_argument("--ppo-rollouts", type=int, default=2, help="timed PPO rollouts (0: no PPO figure)")
     parser.add_argument("--dqn-steps", type=int, default=1000, help="timed DQN steps (0: no DQN figure)")
@@ -234,7 +281,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = parser.parse_args(argv)
     if args.quick:
-        args.rounds, args.env_steps, args.ppo_rollouts, args.dqn_steps = 1, 2000, 1, 300
+        args.rounds, args.env_rounds, args.env_steps, args.ppo_rollouts, args.dqn_steps = 1, 1, 2000, 1, 300
     if min(args.n_envs, args.rounds, args.env_steps) < 1:
         parser.error("--n-envs, --rounds and --env-steps must be >= 1")
     from sbagents.atari import envpool_installed
@@ -246,10 +293,12 @@ def main(argv: list[str] | None = None) -> int:
     load_before = round(os.getloadavg()[0], 2)
     started = time.perf_counter()
     samples = measure(kinds, args.n_envs, args.rounds, args.env_steps, args.ppo_rollouts, args.dqn_steps,
-                      args.device, on_result=lambda w, k, v: print(f"{w:>4} {k:>8}: {v:,.0f} steps/s", flush=True))
+                      args.device, on_result=lambda w, k, v: print(f"{w:>4} {k:>8}: {v:,.0f} steps/s", flush=True),
+                      env_rounds=args.env_rounds)
     info = machine(args.device)
     info.update(load_before=load_before, load_after=round(os.getloadavg()[0], 2))
     results = {"machine": info, "kinds": kinds, "n_envs": args.n_envs, "rounds": args.rounds,
+               "env_rounds": args.env_rounds,
                "seconds": time.perf_counter() - started, "samples": samples, "summary": summarize(samples)}
     from benchmarks.speed import publish, recorded_argv
 

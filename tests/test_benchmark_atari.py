@@ -40,12 +40,12 @@ def _section(text: str, name: str) -> str:
 def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     md, raw = tmp_path / "BENCH.md", tmp_path / "speed.json"
     md.write_text("# Benchmarks\n\n" + OTHER)
-    argv = ["--n-envs", "2", "--rounds", "1", "--env-steps", "400", "--ppo-rollouts", "1", "--dqn-steps", "0",
-            "--kinds", "dummy", "envpool"]
+    argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "400", "--ppo-rollouts", "1",
+            "--dqn-steps", "0", "--kinds", "dummy", "envpool"]
     assert atari_speed.main([*argv, "--output", str(md), "--json", str(raw)]) == 0
     results = json.loads(raw.read_text())
     summary = results["summary"]
-    assert set(summary) == {"env", "ppo"} and "dqn" not in summary
+    assert set(summary) == {"env", "env_cpu", "ppo", "ppo_cpu"}  # no DQN figure asked for
     for row in summary.values():
         assert row["dummy"] > 0 and row["envpool"] > 0
         assert row["envpool/dummy"] == pytest.approx(row["envpool"] / row["dummy"])  # one round: the same ratio

@@ -393,8 +393,13 @@ def machine(device: str) -> dict[str, Any]:
             "date": time.strftime("%Y-%m-%d %H:%M"), "load_before": round(os.getloadavg()[0], 2)}
 
 
-def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool) -> dict[str, Any]:
-    """All phases within ``budget_s`` seconds from now; returns the results (also in ``out/atari_gpu.json``)."""
+def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool, argv: list[str] | None = None
+        ) -> dict[str, Any]:
+    """All phases within ``budget_s`` seconds from now; returns the results (also in ``out/atari_gpu.json``).
+
+    :param argv: the command's arguments, recorded (``--out``'s folder as ``$OUT``).
+    """
+    argv = [("$OUT" if i and argv[i - 1] == "--out" else a) for i, a in enumerate(argv or [])]
     start = time.perf_counter()
     deadline_all = start + budget_s
     out.mkdir(parents=True, exist_ok=True)
@@ -402,7 +407,7 @@ def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool) -> dict[
         device = "cuda" if torch.cuda.is_available() else "cpu"
     torch.set_num_threads(1)
     results = Results(out, {"machine": machine(device), "budget_s": budget_s, "seed": seed, "tiny": tiny,
-                            "target": TARGET, "command": "python -m benchmarks.atari_gpu " + " ".join(sys.argv[1:])})
+                            "target": TARGET, "argv": argv})
     results.save()
     sampler = GpuSampler()
     results.data["gpu_source"] = sampler.source
@@ -437,11 +442,12 @@ def _fmt_gpu(window: dict[str, float] | None) -> str:
     return "-" if not window else f"{window['util_mean']:.0f}% (max {window['util_max']:.0f}%)"
 
 
-def markdown(data: dict[str, Any], device_command: str) -> str:
+def markdown(data: dict[str, Any]) -> str:
     """The ``atari-gpu`` section of BENCHMARKS.md from the results of :func:`run`."""
     m = data["machine"]
+    command = " ".join(["python3 -m benchmarks.atari_gpu", *data.get("argv", [])])
     lines = ["## Pong on EnvPool in one command on a GPU machine", "",
-             f"Command (on the device, after installing the wheels): `{device_command}`; {m['gpu'] or m['device']}, "
+             f"Command (on the device, after installing the wheels): `{command}`; {m['gpu'] or m['device']}, "
              f"{m['cores']} cores ({m['cpu']}), Python {m['python']}, torch {m['torch']}, envpool {m['envpool']}, "
              f"SB3 {m['stable_baselines3']}; {m['date']}; {data['seconds']:.0f} s in all "
              f"(budget {data['budget_s']:.0f} s); GPU utilisation from {data.get('gpu_source') or 'nothing'}. "
@@ -467,7 +473,9 @@ def markdown(data: dict[str, Any], device_command: str) -> str:
         verdict = (f"the mean of {learned['rolling_games']} training games first reached +{TARGET:g} at "
                    f"{reached['timestep']:,} steps ({reached['minutes']:.1f} min)" if reached else
                    f"the mean of {learned.get('rolling_games', 0)} training games did not reach +{TARGET:g}")
-        lines += ["", f"Learning: {choice.get('reason', '')}. PPO {learned['params']} trained {learned['steps']:,} "
+        p = learned["params"]
+        setting = f"{p['n_envs']} envs x {p['n_steps']} steps, batch {p['batch_size']}"
+        lines += ["", f"Learning: {choice.get('reason', '')}. PPO ({setting}) trained {learned['steps']:,} "
                   f"steps in {learned['seconds']:.0f} s ({learned['fps']:,} steps/s overall, GPU "
                   f"{_fmt_gpu(gpu.get('learn'))}); {learned['games']} games; {verdict}; rolling mean at the end "
                   f"{learned.get('final_rolling_mean')}, best {learned.get('best_rolling_mean')}. "
@@ -485,12 +493,12 @@ def markdown(data: dict[str, Any], device_command: str) -> str:
     return "\n".join(lines)
 
 
-def render(json_path: Path, output: str, results_dir: Path, device_command: str) -> str:
+def render(json_path: Path, output: str, results_dir: Path) -> str:
     """Write the section into ``output`` and copy the JSON and PNG next to it into ``results_dir``."""
     from benchmarks.speed import write_section
 
     data = json.loads(json_path.read_text())
-    text = markdown(data, device_command)
+    text = markdown(data)
     results_dir.mkdir(parents=True, exist_ok=True)
     _atomic_write(results_dir / JSON_NAME, json_path.read_bytes())
     png = json_path.with_name(PNG_NAME)
@@ -500,10 +508,6 @@ def render(json_path: Path, output: str, results_dir: Path, device_command: str)
         write_section(output, text, SECTION)
     print(text)
     return text
-
-
-#: The device command recorded in the section (the wheels' install line comes first on the device).
-DEVICE_COMMAND = "python3 -m benchmarks.atari_gpu --out $OUT --budget-s 470"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -520,13 +524,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results-dir", default="benchmarks/results", help="where --render copies JSON and PNG")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.render is not None:
-        render(Path(args.render), args.output, Path(args.results_dir), DEVICE_COMMAND)
+        render(Path(args.render), args.output, Path(args.results_dir))
         return 0
     if args.out is None:
         parser.error("--out DIR (or --render JSON) is required")
     if args.budget_s < 30:
         parser.error("--budget-s must be >= 30")
-    data = run(Path(args.out), args.budget_s, args.device, args.seed, args.tiny)
+    data = run(Path(args.out), args.budget_s, args.device, args.seed, args.tiny,
+               list(sys.argv[1:] if argv is None else argv))
     return 1 if data.get("errors") else 0
 
 

@@ -72,7 +72,8 @@ def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path) -> None:
     assert atari_gpu.main(["--render", str(out / atari_gpu.JSON_NAME), "--output", str(md),
                            "--results-dir", str(results)]) == 0
     section = _section(md.read_text(), atari_gpu.SECTION)
-    assert atari_gpu.DEVICE_COMMAND in section and "Greedy evaluation: EnvPool" in section
+    assert "`python3 -m benchmarks.atari_gpu --out $OUT --device cpu --tiny --budget-s 100`" in section
+    assert str(tmp_path) not in section and "Greedy evaluation: EnvPool" in section
     assert (results / atari_gpu.PNG_NAME).stat().st_size > 1000
     assert json.loads((results / atari_gpu.JSON_NAME).read_text()) == data
 

@@ -228,7 +228,8 @@ def compare(results: Results, sampler: GpuSampler, device: str, tiny: bool, unti
             continue
         rollout = params["n_envs"] * params["n_steps"]
         clock = train_clock("ppo", kind, params, rollout, rollouts * rollout, device)
-        out["ppo"][name] = {"fps": round(clock.fps), **{k: params[k] for k in ("n_envs", "batch_size")}}
+        out["ppo"][name] = {"fps": round(clock.fps), "rollout_fps": round(clock.rollout_fps),
+                            **{k: params[k] for k in ("n_envs", "batch_size")}}
         sampler.track(f"ppo_{name}", clock.t0, clock.t1)
         print(f"PPO {name}: {clock.fps:,.0f} steps/s (n_envs {params['n_envs']}, batch {params['batch_size']})",
               flush=True)
@@ -456,14 +457,16 @@ def markdown(data: dict[str, Any]) -> str:
     if comp.get("ppo"):
         n = comp["n_envs"]
         lines += [f"Side by side ({n} envs; env-only: random actions, same preprocessing; PPO: the "
-                  "`PongNoFrameskip-v4` entry, timed after one rollout):", "",
-                  "| vec env | env-only steps/s | PPO steps/s | GPU busy (PPO) |", "|---|---:|---:|---:|"]
+                  "`PongNoFrameskip-v4` entry, timed after one rollout; rollout: the collection phase alone):", "",
+                  "| vec env | env-only steps/s | PPO steps/s | PPO rollout steps/s | GPU busy (PPO) |",
+                  "|---|---:|---:|---:|---:|"]
         order = [k for k in ("dummy", "subproc", "envpool") if k in comp["ppo"]]
         for name, row in [(k, comp["ppo"][k]) for k in order + [k for k in comp["ppo"] if k not in order]]:
             kind = name if name in comp["env"] else None
             env = f"{comp['env'][kind]:,}" if kind else "-"
             label = name if kind else f"envpool, {row['n_envs']} envs, batch {row['batch_size']}"
-            lines.append(f"| {label} | {env} | {row['fps']:,} | {_fmt_gpu(gpu.get(f'ppo_{name}'))} |")
+            lines.append(f"| {label} | {env} | {row['fps']:,} | {row.get('rollout_fps', 0):,} | "
+                         f"{_fmt_gpu(gpu.get(f'ppo_{name}'))} |")
         if comp.get("ratios"):
             lines += ["", "Ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in comp["ratios"].items()) + "."]
     choice = data.get("choice") or {}

@@ -42,7 +42,9 @@ SECTION = "atari-speed"
 
 
 class StepClock(BaseCallback):
-    """Wall and process CPU time from the first step at or after ``start_step`` to the end of training."""
+    """Wall and process CPU time from the first step at or after ``start_step`` to the end of training, and the
+    wall time and steps of the rollouts collected after ``start_step`` (on-policy algorithms: the part of training
+    where the env is stepped, without the gradient updates)."""
 
     def __init__(self, start_step: int) -> None:
         super().__init__()
@@ -50,6 +52,22 @@ class StepClock(BaseCallback):
         self.t0: float | None = None
         self.n0 = self.n1 = 0
         self.t1 = self.c0 = self.c1 = 0.0
+        self.rollout_seconds = 0.0
+        self.rollout_steps = 0
+        self._rollout_start: tuple[float, int] | None = None
+
+    def _on_rollout_start(self) -> None:
+        self._rollout_start = (time.perf_counter(), self.num_timesteps) if self.t0 is not None else None
+
+    def _on_rollout_end(self) -> None:
+        if self._rollout_start is not None:
+            self.rollout_seconds += time.perf_counter() - self._rollout_start[0]
+            self.rollout_steps += self.num_timesteps - self._rollout_start[1]
+
+    @property
+    def rollout_fps(self) -> float:
+        """Steps per second of the timed rollouts (nan without any)."""
+        return self.rollout_steps / self.rollout_seconds if self.rollout_seconds > 0 else float("nan")
 
     def _on_step(self) -> bool:
         if self.t0 is None and self.num_timesteps >= self.start_step:
@@ -150,7 +168,8 @@ def measure(kinds: Sequence[str], n_envs: int, rounds: int, env_steps: int, ppo_
     rollout = n_envs * 128
     learning_starts = 1000
     samples: dict[str, dict[str, list[float]]] = {
-        what: {k: [] for k in kinds} for what in ("env", "env_cpu", "ppo", "ppo_cpu", "dqn", "dqn_cpu")}
+        what: {k: [] for k in kinds}
+        for what in ("env", "env_cpu", "ppo_rollout", "ppo", "ppo_cpu", "dqn", "dqn_cpu")}
 
     def keep_cpu(what: str, kind: str, cpu: float) -> None:
         if kind != "subproc":  # its workers' CPU time is not this process's
@@ -166,6 +185,8 @@ def measure(kinds: Sequence[str], n_envs: int, rounds: int, env_steps: int, ppo_
                  if what == "ppo" else
                  train_clock("dqn", kind, dqn_params(learning_starts), learning_starts, dqn_steps, device))
         keep_cpu(what, kind, clock.cpu_fps)
+        if what == "ppo":
+            samples["ppo_rollout"][kind].append(clock.rollout_fps)
         return clock.fps
 
     jobs: dict[str, Callable[[str], float]] = {
@@ -181,7 +202,7 @@ def measure(kinds: Sequence[str], n_envs: int, rounds: int, env_steps: int, ppo_
                 continue
             if what == "env" and r >= env_rounds:
                 continue
-            for kind in kinds:
+            for kind in (kinds if r % 2 == 0 else kinds[::-1]):  # alternate the order: a load trend hits all
                 value = job(kind)
                 samples[what][kind].append(value)
                 if on_result is not None:
@@ -230,7 +251,9 @@ def markdown(results: dict[str, Any], argv: list[str]) -> str:
         "(AtariWrapper + 4-frame stack; EnvPool + the same VecFrameStack); PPO: the `PongNoFrameskip-v4` entry "
         f"(n_steps 128, batch {ppo_params(results['n_envs'])['batch_size']}), timed after one rollout; DQN: the "
         "`atari` entry (1 env), timed after `learning_starts`. Ratios: median of the per-round ratios to DummyVecEnv "
-        "(the default vec env before EnvPool). Per CPU-second: the same steps over the process's CPU time "
+        "(the default vec env before EnvPool); rounds alternate the order of the kinds. PPO rollout collection: "
+        "the steps/s of the timed rollouts alone (SB3's loop without the gradient updates). Per CPU-second: the "
+        "same steps over the process's CPU time "
         "(EnvPool's threads included; SubprocVecEnv's workers are other processes, so none for it), i.e. what one "
         "free core gives whatever the load; EnvPool also spreads its envs over every free core, which only the "
         "wall figures of a quiet machine show.",
@@ -238,7 +261,8 @@ def markdown(results: dict[str, Any], argv: list[str]) -> str:
         "| steps/s | " + " | ".join(kinds) + " | " + " | ".join(f"{k} / dummy" for k in kinds if k != "dummy") + " |",
         "|---|" + "---:|" * (2 * len(kinds) - 1),
     ]
-    names = {"env": "env only", "env_cpu": "env only, per CPU-second", "ppo": "PPO training",
+    names = {"env": "env only", "env_cpu": "env only, per CPU-second",
+             "ppo_rollout": "PPO rollout collection (policy forward + env step)", "ppo": "PPO training",
              "ppo_cpu": "PPO training, per CPU-second", "dqn": "DQN training",
              "dqn_cpu": "DQN training, per CPU-second"}
     for what, row in table.items():

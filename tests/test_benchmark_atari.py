@@ -45,7 +45,7 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     assert atari_speed.main([*argv, "--output", str(md), "--json", str(raw)]) == 0
     results = json.loads(raw.read_text())
     summary = results["summary"]
-    assert set(summary) == {"env", "env_cpu", "ppo", "ppo_cpu"}  # no DQN figure asked for
+    assert set(summary) == {"env", "env_cpu", "ppo_rollout", "ppo", "ppo_cpu"}  # no DQN figure asked for
     for row in summary.values():
         assert row["dummy"] > 0 and row["envpool"] > 0
         assert row["envpool/dummy"] == pytest.approx(row["envpool"] / row["dummy"])  # one round: the same ratio

@@ -41,9 +41,10 @@ def build_parser() -> ArgumentParser:
     p.add_argument("-params", "--hyperparams", nargs="+", metavar="KEY:VALUE", help="override hyperparameters")
     p.add_argument("-conf", "--conf-file", default=None, help="zoo config file (default: zoo_configs/<algo>.yml)")
     p.add_argument("--env-kwargs", nargs="+", metavar="KEY:VALUE", help="env constructor keyword arguments")
-    p.add_argument("--vec-env", default="auto", choices=["auto", "dummy", "subproc", "batched"],
+    p.add_argument("--vec-env", default="auto", choices=["auto", "dummy", "subproc", "batched", "envpool"],
                    help="auto: batched numpy envs for GridWorld, TreasureHunt and mpe2.simple_spread_v3 "
-                        "(discrete actions), else dummy")
+                        "(discrete actions), EnvPool for Atari NoFrameskip-v4 ids when the atari extra is "
+                        "installed, else dummy")
     p.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
     p.add_argument("--num-threads", type=int, default=1, help="torch threads (default 1; <=0 keeps torch's)")
     p.add_argument("-P", "--progress", action="store_true", default=None,

@@ -27,7 +27,7 @@ VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
     "dummy": DummyVecEnv,
     "subproc": SubprocVecEnv,
 }
-VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched")
+VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched", "envpool")
 
 
 def env_constructor(ref: EnvRef) -> Callable[..., Any]:
@@ -189,6 +189,10 @@ def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[st
         got = f"; got {', '.join(problems)}" if problems else ""
         raise UsageError(f"--vec-env batched supports {BATCHED_SUPPORT} with a plain policies: shared team, "
                          f"without env_wrapper/monitor_kwargs{got}")
+    if vec_env == "envpool":  # EnvPool's Atari (sbagents.atari): training picks it for auto, see training_vec_env
+        from sbagents.atari.envpool_support import check_envpool
+
+        check_envpool(exp, ref, env_kwargs)
     if vec_env == "auto":
         return "batched" if batchable else "dummy"
     return vec_env
@@ -217,7 +221,7 @@ def make_vec(
     user_kwargs = {k: v for k, v in kwargs.items() if k != "render_mode"}
     check_env_kwargs(ref, user_kwargs)
     kind = vec_env_kind(vec_env, exp, ref, kwargs)
-    if wrapper is not None and kind == "batched":
+    if wrapper is not None and kind in ("batched", "envpool"):
         kind = "dummy"
     try:
         venv = _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, wrapper)
@@ -237,7 +241,11 @@ def _make_base_vec(
     """The VecEnv of ``kind`` (see :func:`vec_env_kind`) before VecEnv wrappers and frame stacking."""
     monitor = str(monitor_dir) if monitor_dir is not None else None
     venv: VecEnv
-    if kind == "batched":
+    if kind == "envpool":
+        from sbagents.atari.envpool_vec_env import make_envpool_vec_env
+
+        venv = make_envpool_vec_env(exp, ref, n_envs, seed, kwargs, monitor)
+    elif kind == "batched":
         from sbagents.batched import batched_env_id, make_batched_vec_env
 
         batched_id = batched_env_id(ref.env_id, ref.source if ref.multi_agent else "")

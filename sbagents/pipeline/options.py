@@ -16,7 +16,7 @@ from typing import Any
 from sbagents.errors import UsageError
 
 BACKENDS = ("sb3", "rllib")
-VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched")
+VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched", "envpool")
 
 
 def check_at_least(flag: str, value: int | None, low: int, also: str = "") -> None:
@@ -120,7 +120,8 @@ class ExecOptions:
 
     :param seed: random seed (-1: draw one; it is recorded in ``summary.json``).
     :param backend: ``sb3`` or ``rllib`` (Ray RLlib, PettingZoo envs).
-    :param vec_env: ``auto`` (batched numpy envs where they exist), ``dummy``, ``subproc`` or ``batched``.
+    :param vec_env: ``auto`` (batched numpy envs where they exist; EnvPool for Atari ids when installed),
+        ``dummy``, ``subproc``, ``batched`` or ``envpool``.
     :param device: torch device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
     :param num_threads: torch threads (1 is far faster for small networks on few cores; <= 0 keeps torch's).
     :param progress: show a progress bar (None: when stderr is a terminal).

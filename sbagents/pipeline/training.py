@@ -22,6 +22,7 @@ from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.algos import ALGOS
+from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
 from sbagents.errors import UsageError
@@ -92,8 +93,10 @@ class StopOnRequestCallback(BaseCallback):
         return not self.clock.stop_requested
 
 
-def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: ProgressReporter) -> list[BaseCallback]:
-    """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``), checkpoints, config callbacks."""
+def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: ProgressReporter,
+               vec_env: str = "auto") -> list[BaseCallback]:
+    """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``; its env of kind ``vec_env`` where
+    that is ``envpool``), checkpoints, config callbacks."""
     exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
     callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
     if ref.game:
@@ -113,7 +116,8 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
             callbacks.append(TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET,
                                               deterministic=exp.deterministic_eval, **common))
         else:
-            eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET)
+            eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET,
+                                     vec_env="envpool" if vec_env == "envpool" else "auto")
             callbacks.append(AtomicEvalCallback(eval_env, deterministic=exp.deterministic_eval, **common))
     if save_freq > 0:
         callbacks.append(AtomicCheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
@@ -162,9 +166,10 @@ def train_sb3(
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     eval_freq = evaluation.frequency(exp.n_timesteps)
+    vec_env = training_vec_env(execution.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
     args = {"algo": spec.algo, "env": ref.env_id, "seed": seed, "n_timesteps": exp.n_timesteps,
             "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
-            "vec_env": execution.vec_env, "device": execution.device,
+            "vec_env": vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
     if spec.robust is not None:
         if groups is not None:
@@ -182,7 +187,7 @@ def train_sb3(
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
-        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env,
+        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env,
                                                     env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats,
                                            spec.trust_run)
         if privacy.enabled:
@@ -196,7 +201,7 @@ def train_sb3(
         steps_before = model.num_timesteps if agent_path is not None else 0
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0,
                                     start=steps_before)
-        own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter)
+        own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter, vec_env)
         if output.save_replay_buffer and output.save_freq > 0:
             own.append(ReplayBufferCheckpoint(run_dir, ctx.calls(output.save_freq)))
         if privacy.enabled:

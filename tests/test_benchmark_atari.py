@@ -1,0 +1,105 @@
+"""The Atari benchmarks on tiny budgets: ``benchmarks.atari_speed`` (side by side, into a tmp Markdown) and the GPU
+command ``benchmarks.atari_gpu`` run on the CPU (every phase, its files), then rendered into a BENCHMARKS section.
+
+The runs are skipped without EnvPool (``pip install -e ".[atari]"``) unless ``SBAGENTS_REQUIRE_ENVPOOL=1``
+(``.ci/run``); the GPU sampler (with a stand-in ``nvidia-smi``) and the batch choice are tested everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from benchmarks import atari_gpu, atari_speed
+from sbagents.atari import envpool_installed
+
+REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"
+needs_envpool = pytest.mark.skipif(not envpool_installed() and not REQUIRED,
+                                   reason='needs EnvPool: pip install -e ".[atari]"')
+OTHER = "<!-- other:start -->\nkeep me\n<!-- other:end -->\n"
+
+
+@pytest.fixture(autouse=True)
+def _one_thread() -> None:
+    torch.set_num_threads(1)
+
+
+def _section(text: str, name: str) -> str:
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    assert text.count(start) == 1 and text.count(end) == 1
+    return text[text.index(start) + len(start): text.index(end)]
+
+
+@needs_envpool
+def test_atari_speed_side_by_side(tmp_path: Path) -> None:
+    md, raw = tmp_path / "BENCH.md", tmp_path / "speed.json"
+    md.write_text("# Benchmarks\n\n" + OTHER)
+    argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "400", "--ppo-rollouts", "1",
+            "--dqn-steps", "0", "--kinds", "dummy", "envpool"]
+    assert atari_speed.main([*argv, "--output", str(md), "--json", str(raw)]) == 0
+    results = json.loads(raw.read_text())
+    summary = results["summary"]
+    assert set(summary) == {"env", "env_cpu", "ppo_rollout", "ppo", "ppo_cpu"}  # no DQN figure asked for
+    for row in summary.values():
+        assert row["dummy"] > 0 and row["envpool"] > 0
+        assert row["envpool/dummy"] == pytest.approx(row["envpool"] / row["dummy"])  # one round: the same ratio
+    text = md.read_text()
+    assert OTHER in text
+    section = _section(text, atari_speed.SECTION)
+    assert "`python -m benchmarks.atari_speed --n-envs 2 --rounds 1" in section and str(tmp_path) not in section
+    assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
+
+
+@needs_envpool
+def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert atari_gpu.main(["--out", str(out), "--device", "cpu", "--tiny", "--budget-s", "100"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [atari_gpu.JSON_NAME, atari_gpu.PNG_NAME]
+    data = json.loads((out / atari_gpu.JSON_NAME).read_text())
+    assert not data.get("errors") and data["machine"]["device"] == "cpu" and data["gpu_source"] is None
+    assert set(data["compare"]["env"]) == {"dummy", "subproc", "envpool"}
+    assert data["learn"]["steps"] > 0 and data["learn"]["final_eval_ale"]["n_episodes"] == 1
+    assert data["eval_envpool"]["n_games"] == 4 and all(-21 <= r <= 21 for r in data["eval_envpool"]["returns"])
+    md = tmp_path / "BENCH.md"
+    md.write_text("# Benchmarks\n\n" + OTHER)
+    results = tmp_path / "results"
+    assert atari_gpu.main(["--render", str(out / atari_gpu.JSON_NAME), "--output", str(md),
+                           "--results-dir", str(results)]) == 0
+    section = _section(md.read_text(), atari_gpu.SECTION)
+    assert "`python3 -m benchmarks.atari_gpu --out $OUT --device cpu --tiny --budget-s 100`" in section
+    assert str(tmp_path) not in section and "Greedy evaluation: EnvPool" in section
+    assert (results / atari_gpu.PNG_NAME).stat().st_size > 1000
+    assert json.loads((results / atari_gpu.JSON_NAME).read_text()) == data
+
+
+def test_choice_keeps_the_larger_batch_only_when_it_pays() -> None:
+    row = {"n_envs": 16, "batch_size": 256}
+    slow = {"ppo": {"envpool": {"fps": 1000, **row}, "envpool_x32": {"fps": 1200, "n_envs": 32, "batch_size": 512}}}
+    fast = {"ppo": {"envpool": {"fps": 1000, **row}, "envpool_x32": {"fps": 1400, "n_envs": 32, "batch_size": 512}}}
+    assert atari_gpu.choose(slow, tiny=False)["params"]["n_envs"] == 16
+    assert atari_gpu.choose(fast, tiny=False)["params"] == {"n_envs": 32, "batch_size": 512, "n_steps": 128}
+    assert atari_gpu.choose(None, tiny=False)["fps"] is None
+
+
+def test_gpu_sampler_reads_nvidia_smi_stamps(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fake = tmp_path / "nvidia-smi"  # prints what nvidia-smi prints for the query, every 0.1 s
+    fake.write_text('#!/bin/sh\nwhile true; do echo "$(date +"%Y/%m/%d %H:%M:%S.%3N"), 37, 1024"; sleep 0.1; done\n')
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    sampler = atari_gpu.GpuSampler()
+    assert sampler.source == "nvidia-smi"
+    t0 = time.perf_counter()
+    time.sleep(1.0)
+    sampler.track("span", t0, time.perf_counter())
+    sampler.track("before", t0 - 100, t0 - 50)
+    sampler.close()
+    summary = sampler.summary()
+    assert summary["before"] is None
+    assert summary["span"] is not None and summary["span"]["util_mean"] == 37.0
+    assert summary["span"]["memory_max_mib"] == 1024.0 and summary["span"]["samples"] >= 3

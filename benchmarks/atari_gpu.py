@@ -32,6 +32,7 @@ import json
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -53,7 +54,8 @@ JSON_NAME, PNG_NAME = "atari_gpu.json", "atari_gpu_curve.png"
 TRICK_MIN_GAIN = 1.3
 TARGET = 18.0  # the aim: Pong above +18
 ROLLING = 20  # games in the rolling mean of the curve
-EVAL_RESERVE_S = 45.0  # kept for phase 3 and the files (GPU sizes; the CPU smoke run scales it)
+EVAL_RESERVE_S = 75.0  # kept for phase 3 and the files (GPU sizes; the CPU smoke run scales it): one greedy game of a
+#: half-trained Pong agent on the plain ALE env took ~28 s on the H200 machine, 16 on EnvPool about as long
 
 
 class GpuSampler:
@@ -289,7 +291,7 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
     progress = Progress(5.0 if tiny else 30.0, info.setdefault("progress", []), results.save)
     result = train_sb3(TrainSpec("ppo", ENV_ID, n_timesteps=n_timesteps, hyperparams=params),
                        OutputOptions(log_folder=str(work)),
-                       EvalOptions(eval_freq=0, final_eval_episodes=1 if tiny else 2),
+                       EvalOptions(eval_freq=0, final_eval_episodes=1),
                        ExecOptions(seed=seed, vec_env="envpool", device=device, num_threads=1, progress=False,
                                    verbose=1, log_interval=10),
                        callbacks=[stop, progress])
@@ -414,22 +416,33 @@ def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool, argv: li
     sampler = GpuSampler()
     results.data["gpu_source"] = sampler.source
     work = Path(os.environ.get("TMPDIR", "/tmp")) / f"sbagents-atari-gpu-{os.getpid()}"
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # a `timeout` still saves what was measured
+
+    def after_phase() -> None:  # the GPU figures so far (samples still on their way are left out), saved
+        results.data["gpu"] = sampler.summary()
+        results.save()
+
     try:
         until = start + 0.4 * budget_s
         compared = _phase(results, "compare", lambda: compare(results, sampler, device, tiny, until))
+        after_phase()
         choice = choose(compared, tiny)
         results.data["choice"] = choice
         print(choice["reason"], flush=True)
         reserve = EVAL_RESERVE_S * (0.6 if tiny else 1.0)
         trained = _phase(results, "learn", lambda: learn(results, sampler, device, seed, deadline_all - reserve,
                                                         choice, tiny, work))
-        if trained is not None:
-            _phase(results, "eval", lambda: evaluate_envpool(results, trained.model, seed, tiny))
+        after_phase()
         learned = results.data.get("learn") or {}
         plot_curve(learned.get("curve") or [], out / PNG_NAME,
                    f"PPO {ENV_ID} on EnvPool, {learned.get('steps', 0):,} steps in {learned.get('seconds', 0):.0f} s"
                    f" ({results.data['machine']['gpu'] or device})")
+        if trained is not None:
+            _phase(results, "eval", lambda: evaluate_envpool(results, trained.model, seed, tiny))
+    except KeyboardInterrupt:
+        results.data.setdefault("errors", []).append("interrupted (SIGTERM or Ctrl-C): later phases did not run")
     finally:
+        signal.signal(signal.SIGTERM, previous)
         sampler.close()
         results.data["gpu"] = sampler.summary()
         shutil.rmtree(work, ignore_errors=True)
@@ -438,6 +451,10 @@ def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool, argv: li
         results.save()
     print(f"\nwrote {out / JSON_NAME} and {out / PNG_NAME} in {results.data['seconds']:.0f} s", flush=True)
     return results.data
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
 
 
 def _fmt_gpu(window: dict[str, float] | None) -> str:
@@ -494,6 +511,8 @@ def markdown(data: dict[str, Any]) -> str:
         lines += ["", f"![Pong PPO on EnvPool](benchmarks/results/{PNG_NAME})"]
     if data.get("errors"):
         lines += ["", "Errors: " + "; ".join(data["errors"])]
+    if data.get("notes"):
+        lines += ["", "Notes: " + " ".join(data["notes"])]
     return "\n".join(lines)
 
 

@@ -332,3 +332,20 @@ def test_calls_that_would_allocate_or_escape_are_refused(call: tuple[Any, tuple[
 
     with pytest.raises(UntrustedContentError):
         plain_loads(pickle.dumps(Call(), protocol=4), "fuzz")
+
+
+def test_trust_run_loads_what_is_beyond_plain_data(logs: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A model from another tool whose schedule is a closure: refused by default, loaded with --trust-run; a garbage
+    legacy pickle is one line even when trusted."""
+    import cloudpickle
+
+    model = run_dir(logs) / f"{STEM}.zip"
+    rate = 1e-3
+    replace_entry(model, "lr_schedule", cloudpickle.dumps(lambda progress: rate * progress))
+    one_line_error(capsys, evaluate(logs), "'lr_schedule'", TRUST_FLAG)
+    assert evaluate(logs, TRUST_FLAG) == 0
+    capsys.readouterr()
+    folder = run_dir(logs)
+    (folder / "vecnormalize.npz").unlink()
+    (folder / "vecnormalize.pkl").write_bytes(os.urandom(64))
+    one_line_error(capsys, evaluate(logs, TRUST_FLAG), "vecnormalize.pkl is corrupt")

@@ -173,8 +173,11 @@ def test_a_home_keeps_its_state_between_rounds(tmp_path: Path) -> None:
     learner.train_round(first, 2)
     from stable_baselines3 import DDPG
 
-    model = DDPG.load(tmp_path / "home-1" / MODEL_FILE)
-    model.load_replay_buffer(tmp_path / "home-1" / BUFFER_FILE)
+    from sbagents.safe_load import load_model
+    from sbagents.state_files import load_replay_buffer
+
+    model = load_model(DDPG, tmp_path / "home-1" / MODEL_FILE)
+    load_replay_buffer(model.replay_buffer, tmp_path / "home-1" / BUFFER_FILE)
     assert model.num_timesteps == 2 * settings.local_steps
     assert model.replay_buffer.size() == 2 * settings.local_steps  # the home's own experience, both rounds
     prefs = model.replay_buffer.observations[: model.replay_buffer.size(), 0, 3:]

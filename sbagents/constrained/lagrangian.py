@@ -13,7 +13,7 @@ import math
 from collections import deque
 from typing import Any
 
-from sbagents.safe_load import register_plain_class
+from sbagents.plain_data import register_plain_class
 
 
 def _check_finite(name: str, value: float, minimum: float | None = 0.0) -> float:

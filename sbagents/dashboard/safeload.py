@@ -105,7 +105,7 @@ def _load(run: RunFiles, name: str, notes: list[str], kind: str) -> Any:
         return None
     try:
         text = data.decode("utf-8")
-        value = json.loads(text) if kind == "json" else yaml.load(text, Loader=_YAML_LOADER)  # a safe loader
+        value = json.loads(text) if kind == "json" else yaml.load(text, Loader=_YAML_LOADER)  # a SafeLoader
         return json_data(value)
     except Exception as exc:  # a malformed file: the parsers raise many kinds (ValueError, YAMLError, RecursionError)
         notes.append(f"{name} could not be read ({type(exc).__name__}: {str(exc)[:80]}); showing the rest")

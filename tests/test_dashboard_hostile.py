@@ -571,7 +571,7 @@ def test_episode_costs_skip_an_over_long_row(tmp_path: Path, monkeypatch: pytest
     reader = episode_costs.EpisodeCosts(path)
     result = reader.update(byte_budget=64)
     while result["progress"] < 1.0:
-        assert len(reader.carry) <= 100 + 64
+        assert len(reader.lines_in.carry) <= 100 + 64
         result = reader.update(byte_budget=64)
     assert result["problem"] is None and len(result["ep_cost"]) == 3
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from sbagents.dashboard.folders import open_regular
-from sbagents.dashboard.logsources import GzCheckpoint, GzCursor
+from sbagents.dashboard.logsources import BoundedLines, GzCheckpoint, GzCursor
 
 #: Bytes read per call (plain CSV) or compressed bytes (gzip).
 BYTE_BUDGET = 32 << 20
@@ -40,13 +40,12 @@ class EpisodeCosts:
     path: Path
     offset: int = 0
     header: list[str] | None = None
-    carry: bytes = b""
+    lines_in: BoundedLines = field(default_factory=lambda: BoundedLines(MAX_LINE_BYTES))
     episodes: dict[tuple[str, str], _Episode] = field(default_factory=dict)
     finished: list[_Episode] = field(default_factory=list)
     _gz: GzCursor | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
     inode: int | None = None
-    skipping: bool = False  #: inside a line over :data:`MAX_LINE_BYTES`
     problem: str | None = None  #: why the log is not read (further)
 
     def update(self, byte_budget: int = BYTE_BUDGET) -> dict[str, Any]:
@@ -72,9 +71,9 @@ class EpisodeCosts:
             return self._result(1.0 if self.problem else self.offset / max(size, 1))
 
     def _reset(self) -> None:
-        self.offset, self.header, self.carry, self._gz = 0, None, b"", None
+        self.offset, self.header, self.lines_in, self._gz = 0, None, BoundedLines(MAX_LINE_BYTES), None
         self.episodes, self.finished = {}, []
-        self.skipping, self.problem = False, None
+        self.problem = None
 
     def _read(self, fh: IO[bytes], byte_budget: int) -> bytes:
         fh.seek(self.offset)
@@ -93,19 +92,10 @@ class EpisodeCosts:
         return b"".join(out)
 
     def _consume(self, data: bytes) -> None:
-        if self.skipping:  # inside a line over the limit: drop it up to its newline
-            nl = data.find(b"\n")
-            if nl < 0:
-                return
-            data, self.skipping = data[nl + 1 :], False
-        data = self.carry + data
-        cut = data.rfind(b"\n") + 1
-        self.carry = data[cut:]
-        if len(self.carry) > MAX_LINE_BYTES:
-            self.carry, self.skipping = b"", True
-            if self.header is None:
-                self.problem = f"{self.path.name}: its first line is over {MAX_LINE_BYTES:,} bytes (not a log)"
-        lines = data[:cut].decode("utf-8", errors="replace").replace("\x00", "").splitlines()
+        block, dropped = self.lines_in.feed(data)
+        if dropped and self.header is None:
+            self.problem = f"{self.path.name}: its first line is over {MAX_LINE_BYTES:,} bytes (not a log)"
+        lines = block.decode("utf-8", errors="replace").replace("\x00", "").splitlines()
         if not lines:
             return
         reader = _tolerant_rows(lines)

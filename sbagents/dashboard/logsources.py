@@ -267,3 +267,32 @@ def _save_index_cache(cache_file: Path, path: Path, block_rows: int, offsets: li
     except OSError:
         return False
     return True
+
+
+class BoundedLines:
+    """Cuts a stream of bytes into complete lines with bounded memory: a line longer than ``limit`` bytes is dropped
+    up to its newline instead of being held.
+
+    :param limit: the longest line kept (bytes, newline excluded).
+    """
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.carry = b""  # the unfinished last line
+        self.skipping = False  # inside a line over the limit
+
+    def feed(self, data: bytes) -> tuple[bytes, bool]:
+        """The complete lines ``data`` finishes (up to and including the last newline), and whether a line over the
+        limit started being dropped in it."""
+        if self.skipping:
+            nl = data.find(b"\n")
+            if nl < 0:
+                return b"", False
+            data, self.skipping = data[nl + 1 :], False
+        data = self.carry + data
+        cut = data.rfind(b"\n") + 1
+        block, self.carry = data[:cut], data[cut:]
+        dropped = len(self.carry) > self.limit
+        if dropped:
+            self.carry, self.skipping = b"", True
+        return block, dropped

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from sbagents.dashboard.folders import RunFiles, open_regular
+from sbagents.dashboard.logsources import BoundedLines
 
 #: Bytes of one monitor file read per request (a bigger file is read over the next requests).
 READ_BYTES = 32 << 20
@@ -65,8 +66,7 @@ class MonitorFile:
         self.bad_rows = 0
         self.long_lines = 0
         self.stride = 1
-        self._carry = b""
-        self._skipping = False
+        self._lines_in = BoundedLines(MAX_LINE_BYTES)
         self._pending = 0.0  # steps of the episodes after the last kept one
         self._kept: list[dict[str, np.ndarray]] = []
         self._n_kept = 0
@@ -97,18 +97,10 @@ class MonitorFile:
                     self._feed(data)
 
     def _feed(self, data: bytes) -> None:
-        if self._skipping:  # inside a line over the limit: drop it up to its newline
-            nl = data.find(b"\n")
-            if nl < 0:
-                return
-            data, self._skipping = data[nl + 1 :], False
-        data = self._carry + data
-        cut = data.rfind(b"\n") + 1
-        self._carry = data[cut:]
-        if cut:
-            self._lines(data[:cut])
-        if len(self._carry) > MAX_LINE_BYTES:
-            self._carry, self._skipping = b"", True
+        block, dropped = self._lines_in.feed(data)
+        if block:
+            self._lines(block)
+        if dropped:
             self.long_lines += 1
             if self.columns is None and self.broken is None:
                 self.broken = f"{self.path.name}: a first line over {MAX_LINE_BYTES:,} bytes (not a monitor file)"

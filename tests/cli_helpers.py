@@ -68,3 +68,30 @@ def check_error(code: int, stderr: str, expected: str) -> None:
     assert len(lines) == 1, stderr
     assert expected in lines[0], lines[0]
     assert "Traceback" not in stderr
+
+
+#: Runs ``python -m sbagents.serve`` with torch, SB3 and gymnasium unimportable (the server must not need them).
+SERVE_WITHOUT_TORCH = (
+    "import runpy, sys\n"
+    "for m in ('torch', 'stable_baselines3', 'sb3_contrib', 'gymnasium'):\n"
+    "    sys.modules[m] = None\n"
+    "sys.argv = ['serve'] + sys.argv[1:]\n"
+    "runpy.run_module('sbagents.serve', run_name='__main__')\n"
+)
+
+
+def serve_command(*args: str) -> list[str]:
+    """The argv of ``python -m sbagents.serve args...`` without torch (:data:`SERVE_WITHOUT_TORCH`)."""
+    return [sys.executable, "-c", SERVE_WITHOUT_TORCH, *args]
+
+
+#: A BENCHMARKS.md section that writing another section must leave alone.
+OTHER_SECTION = "<!-- other:start -->\nkeep me\n<!-- other:end -->\n"
+
+
+def section_text(text: str, name: str) -> str:
+    """The body of the ``<!-- name:start -->`` ... ``<!-- name:end -->`` section of ``text`` (exactly one)."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    assert text.count(start) == 1 and text.count(end) == 1, f"markers of {name} missing or repeated"
+    return text[text.index(start) + len(start) : text.index(end)]
+

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from cli_helpers import OTHER_SECTION, section_text
 
 from benchmarks import atari_gpu, atari_speed
 from sbagents.atari import envpool_installed
@@ -22,7 +23,6 @@ from sbagents.atari import envpool_installed
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"
 needs_envpool = pytest.mark.skipif(not envpool_installed() and not REQUIRED,
                                    reason='needs EnvPool: pip install -e ".[atari]"')
-OTHER = "<!-- other:start -->\nkeep me\n<!-- other:end -->\n"
 
 
 @pytest.fixture(autouse=True)
@@ -30,16 +30,11 @@ def _one_thread() -> None:
     torch.set_num_threads(1)
 
 
-def _section(text: str, name: str) -> str:
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    assert text.count(start) == 1 and text.count(end) == 1
-    return text[text.index(start) + len(start): text.index(end)]
-
 
 @needs_envpool
 def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     md, raw = tmp_path / "BENCH.md", tmp_path / "speed.json"
-    md.write_text("# Benchmarks\n\n" + OTHER)
+    md.write_text("# Benchmarks\n\n" + OTHER_SECTION)
     argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "400", "--ppo-rollouts", "1",
             "--dqn-steps", "0", "--kinds", "dummy", "envpool"]
     assert atari_speed.main([*argv, "--output", str(md), "--json", str(raw)]) == 0
@@ -50,8 +45,8 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
         assert row["dummy"] > 0 and row["envpool"] > 0
         assert row["envpool/dummy"] == pytest.approx(row["envpool"] / row["dummy"])  # one round: the same ratio
     text = md.read_text()
-    assert OTHER in text
-    section = _section(text, atari_speed.SECTION)
+    assert OTHER_SECTION in text
+    section = section_text(text, atari_speed.SECTION)
     assert "`python -m benchmarks.atari_speed --n-envs 2 --rounds 1" in section and str(tmp_path) not in section
     assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
 
@@ -67,11 +62,11 @@ def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path) -> None:
     assert data["learn"]["steps"] > 0 and data["learn"]["final_eval_ale"]["n_episodes"] == 1
     assert data["eval_envpool"]["n_games"] == 4 and all(-21 <= r <= 21 for r in data["eval_envpool"]["returns"])
     md = tmp_path / "BENCH.md"
-    md.write_text("# Benchmarks\n\n" + OTHER)
+    md.write_text("# Benchmarks\n\n" + OTHER_SECTION)
     results = tmp_path / "results"
     assert atari_gpu.main(["--render", str(out / atari_gpu.JSON_NAME), "--output", str(md),
                            "--results-dir", str(results)]) == 0
-    section = _section(md.read_text(), atari_gpu.SECTION)
+    section = section_text(md.read_text(), atari_gpu.SECTION)
     assert "`python3 -m benchmarks.atari_gpu --out $OUT --device cpu --tiny --budget-s 100`" in section
     assert str(tmp_path) not in section and "Greedy evaluation: EnvPool" in section
     assert (results / atari_gpu.PNG_NAME).stat().st_size > 1000

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from cli_helpers import OTHER_SECTION, section_text
 
 from benchmarks import __main__ as suite
 from benchmarks import callback_overhead, export_latency, recorded
@@ -17,18 +18,12 @@ from benchmarks import callback_overhead, export_latency, recorded
 ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "benchmarks" / "results"
-OTHER = "<!-- other:start -->\nkeep me\n<!-- other:end -->\n"
 
 
 @pytest.fixture(autouse=True)
 def _one_thread() -> None:
     torch.set_num_threads(1)
 
-
-def _section(text: str, name: str) -> str:
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    assert text.count(start) == 1 and text.count(end) == 1, f"markers of {name} missing or repeated"
-    return text[text.index(start) + len(start) : text.index(end)]
 
 
 def _cells(section: str) -> list[list[str]]:
@@ -40,7 +35,7 @@ def _cells(section: str) -> list[list[str]]:
 
 def _md_file(tmp_path: Path) -> Path:
     path = tmp_path / "BENCH.md"
-    path.write_text("# Benchmarks\n\n" + OTHER)
+    path.write_text("# Benchmarks\n\n" + OTHER_SECTION)
     return path
 
 
@@ -51,8 +46,8 @@ def test_recorded_table_from_real_results(tmp_path: Path) -> None:
     learning_files = sorted(p.name for p in RESULTS.glob("learning_*.json"))
     assert learning_files and set(learning_files) <= set(by_file)
     text = md.read_text()
-    assert OTHER in text  # other sections stay
-    section = _section(text, "recorded-learning")
+    assert OTHER_SECTION in text  # other sections stay
+    section = section_text(text, "recorded-learning")
     for name in learning_files:  # key metric range recomputed from the file itself
         runs: list[dict[str, Any]] = json.loads((RESULTS / name).read_text())
         env, algo = runs[0]["env"], runs[0]["algo"]
@@ -102,7 +97,7 @@ def test_callback_overhead_tiny(tmp_path: Path) -> None:
     for row in grid.values():  # the overhead is the fps drop against the no-callback run of the same round
         assert row["overhead_pct"] == pytest.approx(100 * (1 - row["fps_cpu"] / grid["none"]["fps_cpu"]), abs=0.1)
     assert json.loads(raw.read_text())["timesteps"] == 1024
-    section = _section(md.read_text(), "callback-overhead")
+    section = section_text(md.read_text(), "callback-overhead")
     assert "`python -m benchmarks.callback_overhead --timesteps 1024 --repeats 1 --envs GridWorld`" in section
     by_variant = {r[1]: r for r in _cells(section)[1:] if r[0] == "GridWorld"}
     assert set(by_variant) == set(grid)
@@ -121,13 +116,13 @@ def test_export_latency_tiny(tmp_path: Path) -> None:
     lat = results["latency"]
     assert set(lat) == {"sb3_predict", "onnx", "onnx_int8"}
     assert results["action_bounds"] == [[-1.0, 1.0], [-10.0, 10.0]]
-    section = _section(md.read_text(), "export-latency")
+    section = section_text(md.read_text(), "export-latency")
     cells = [c for row in _cells(section) for c in row]
     assert f"{results['files']['onnx']:,} B" in cells and f"{results['files']['onnx_int8']:,} B" in cells
     assert all(f"{row['p50_us']:.1f} us" in cells for row in lat.values())  # the table shows the measured numbers
     cmd = "python -m benchmarks.export_latency --train-steps 0 --latency-n 30 --n-observations 50 --seed 0"
     assert f"`{cmd}`" in section
-    assert "untrained weights" in section and OTHER in md.read_text()
+    assert "untrained weights" in section and OTHER_SECTION in md.read_text()
 
 
 def test_suite_dispatch_and_flags(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -215,7 +210,7 @@ def test_games_sections_match_their_results(task: str) -> None:
         _, met = games.BARS[task]
         verdicts = [c[-1] for c in _cells(section)[1:]]
         assert verdicts == ["yes" if met(r) else "no" for r in rows]
-    assert section.strip() == _section((ROOT / "BENCHMARKS.md").read_text(), f"games-{task}").strip()
+    assert section.strip() == section_text((ROOT / "BENCHMARKS.md").read_text(), f"games-{task}").strip()
     assert sorted({r["seed"] for r in rows}) == [0, 1, 2]
     assert all(vs["illegal_moves"] == 0 for r in rows for vs in r["vs"].values())
 
@@ -239,7 +234,7 @@ def test_federated_section_matches_its_results() -> None:
     from benchmarks import federated_homes
 
     saved = json.loads((RESULTS / "federated_homes.json").read_text())
-    section = _section((ROOT / "BENCHMARKS.md").read_text(), "federated-homes")
+    section = section_text((ROOT / "BENCHMARKS.md").read_text(), "federated-homes")
     assert federated_homes.markdown(saved).strip() == section.strip()
     assert sorted(r["seed"] for r in saved["runs"]) == [0, 1, 2]
     for run in saved["runs"]:

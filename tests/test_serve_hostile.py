@@ -17,7 +17,6 @@ import re
 import select
 import socket
 import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from typing import Any
 import numpy as np
 import onnx
 import pytest
+from cli_helpers import serve_command
 from onnx import TensorProto, helper, numpy_helper
 
 from sbagents.deploy.http_serving import (
@@ -60,14 +60,6 @@ ACTION_NAMES = ("Action_Temp", "Action_Light")
 #: the Box policy: action = obs @ W (linear, so observations near the float32 limit overflow to inf)
 W = (np.arange(10, dtype=np.float32).reshape(5, 2) / 10 - 0.2).astype(np.float32)
 GOOD = [[22.0, 55.0, 3.0, 24.0, 70.0], [19.5, 80.0, 23.0, 21.0, 52.0]]
-#: runs ``python -m sbagents.serve`` with torch, SB3 and gymnasium unimportable
-SERVE_WITHOUT_TORCH = (
-    "import runpy, sys\n"
-    "for m in ('torch', 'stable_baselines3', 'sb3_contrib', 'gymnasium'):\n"
-    "    sys.modules[m] = None\n"
-    "sys.argv = ['serve'] + sys.argv[1:]\n"
-    "runpy.run_module('sbagents.serve', run_name='__main__')\n"
-)
 
 
 def _num(*values: object) -> bytes:
@@ -150,10 +142,6 @@ def _expected(obs: list[float]) -> list[float]:
     return [float(a) for a in np.asarray(obs, dtype=np.float32) @ W]
 
 
-def _cmd(*args: str) -> list[str]:
-    return [sys.executable, "-c", SERVE_WITHOUT_TORCH, *args]
-
-
 def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": str(ROOT)}
 
@@ -167,7 +155,7 @@ def test_stdin_answers_every_hostile_line_and_goes_on(models: Models, tmp_path: 
     for i, (_, line, _) in enumerate(HOSTILE):
         lines += [line, json.dumps(GOOD[i % 2]).encode()]
     log = tmp_path / "decisions.csv"
-    done = subprocess.run(_cmd("--model", str(models.box), "--csv", str(log)), input=b"\n".join(lines) + b"\n",
+    done = subprocess.run(serve_command("--model", str(models.box), "--csv", str(log)), input=b"\n".join(lines) + b"\n",
                           capture_output=True, env=_env(), timeout=120)
     assert done.returncode == 0 and done.stderr == b"", done.stderr.decode(errors="replace")[-2000:]
     replies = [json.loads(r) for r in done.stdout.decode().splitlines()]
@@ -182,8 +170,8 @@ def test_stdin_answers_every_hostile_line_and_goes_on(models: Models, tmp_path: 
 
 def test_stdin_discrete_range_and_types(models: Models) -> None:
     lines = ["3", "[7]", "24", "25", "-1", "3.5", "1e300", "[3, 4]", "true", "9" * 400, "4.0"]
-    done = subprocess.run(_cmd("--model", str(models.discrete)), input="\n".join(lines) + "\n", capture_output=True,
-                          text=True, env=_env(), timeout=60)
+    done = subprocess.run(serve_command("--model", str(models.discrete)), input="\n".join(lines) + "\n",
+                          capture_output=True, text=True, env=_env(), timeout=60)
     assert done.returncode == 0 and done.stderr == ""
     replies = [json.loads(r) for r in done.stdout.splitlines()]
     assert replies[:3] == [0, 1, 0] and replies[-1] == 1
@@ -208,7 +196,7 @@ def test_read_lines_skips_over_long_lines_and_keeps_the_rest(box_policy: Policy)
 # -- HTTP -----------------------------------------------------------------------------------------------------------
 
 def _start(*args: str) -> tuple[subprocess.Popen[str], int]:
-    proc = subprocess.Popen(_cmd(*args), stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_env())
+    proc = subprocess.Popen(serve_command(*args), stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_env())
     assert proc.stderr is not None
     ready, _, _ = select.select([proc.stderr], [], [], 60)
     line = proc.stderr.readline() if ready else ""
@@ -523,7 +511,7 @@ def test_corrupt_model_and_sidecar_are_one_line_exit_2(models: Models, tmp_path:
 def test_corrupt_sidecar_in_a_real_process(models: Models, tmp_path: Path) -> None:
     (tmp_path / "policy.onnx").write_bytes(models.box.read_bytes())
     (tmp_path / "policy.json").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
-    done = subprocess.run(_cmd("--model", str(tmp_path / "policy.onnx")), input="[1, 2, 3, 4, 5]\n",
+    done = subprocess.run(serve_command("--model", str(tmp_path / "policy.onnx")), input="[1, 2, 3, 4, 5]\n",
                           capture_output=True, text=True, env=_env(), timeout=60)
     assert done.returncode == 2 and done.stdout == "" and len(done.stderr.strip().splitlines()) == 1
     assert f"invalid sidecar {tmp_path / 'policy.json'}: not UTF-8 text" in done.stderr

@@ -11,13 +11,13 @@ import select
 import signal
 import socket
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from cli_helpers import serve_command
 from stable_baselines3 import TD3
 from stable_baselines3.common.env_util import make_vec_env
 
@@ -28,14 +28,6 @@ from sbagents.deploy.http_serving import is_loopback, parse_address
 torch.set_num_threads(1)
 ROOT = Path(__file__).resolve().parents[1]
 OBS_NAMES = ("Temperature", "Light_Level", "Time", "Preferred_Temp", "Preferred_Light")
-#: runs ``python -m sbagents.serve`` with torch, SB3 and gymnasium unimportable
-SERVE_WITHOUT_TORCH = (
-    "import runpy, sys\n"
-    "for m in ('torch', 'stable_baselines3', 'sb3_contrib', 'gymnasium'):\n"
-    "    sys.modules[m] = None\n"
-    "sys.argv = ['serve'] + sys.argv[1:]\n"
-    "runpy.run_module('sbagents.serve', run_name='__main__')\n"
-)
 #: bodies the line protocol also refuses (bad JSON, wrong length, unknown key, non-number, not finite)
 MALFORMED = ["{not json", json.dumps([22.0, 55.0, 3.0, 24.0]),
              json.dumps({**dict.fromkeys(OBS_NAMES, 1.0), "Humidity": 3}), json.dumps([22.0, "hot", 3.0, 24.0, 70.0]),
@@ -51,10 +43,6 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, TD3]:
     return out / "policy.onnx", model
 
 
-def _cmd(*args: str) -> list[str]:
-    return [sys.executable, "-c", SERVE_WITHOUT_TORCH, *args]
-
-
 def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": str(ROOT)}
 
@@ -63,7 +51,7 @@ def _env() -> dict[str, str]:
 def server(exported: tuple[Path, TD3], tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], int, Path]]:
     """A running ``serve --http 127.0.0.1:0`` (torch blocked) with a CSV log; its port from its first line."""
     log = tmp_path / "decisions.csv"
-    proc = subprocess.Popen(_cmd("--model", str(exported[0]), "--http", "127.0.0.1:0", "--csv", str(log)),
+    proc = subprocess.Popen(serve_command("--model", str(exported[0]), "--http", "127.0.0.1:0", "--csv", str(log)),
                             stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_env())
     assert proc.stderr is not None
     ready, _, _ = select.select([proc.stderr], [], [], 60)
@@ -102,7 +90,7 @@ def test_http_serves_the_same_actions_errors_and_log_as_the_line_protocol(
     obs = np.array([good[0], list(named.values()), good[1]])
     np.testing.assert_allclose(np.array(actions), model.predict(obs, deterministic=True)[0], atol=1e-4)
 
-    line_replies = subprocess.run(_cmd("--model", str(exported[0])), input="\n".join(MALFORMED) + "\n",
+    line_replies = subprocess.run(serve_command("--model", str(exported[0])), input="\n".join(MALFORMED) + "\n",
                                   capture_output=True, text=True, env=_env(), timeout=60).stdout.splitlines()
     for body, line_reply in zip(MALFORMED, line_replies, strict=True):
         status, error = _request(conn, "POST", "/", body)
@@ -129,12 +117,12 @@ def test_port_in_use_and_bad_addresses_are_one_line(exported: tuple[Path, TD3]) 
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        done = subprocess.run(_cmd("--model", str(exported[0]), "--http", f"127.0.0.1:{port}"), capture_output=True,
-                              text=True, env=_env(), timeout=60)
+        done = subprocess.run(serve_command("--model", str(exported[0]), "--http", f"127.0.0.1:{port}"),
+                              capture_output=True, text=True, env=_env(), timeout=60)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert f"port {port} is in use on 127.0.0.1" in done.stderr
     for bad in ("127.0.0.1:http", "99999", "127.0.0.1:", "127.0.0.1:\u0668\u0660"):  # Arabic-Indic digits too
-        done = subprocess.run(_cmd("--model", str(exported[0]), "--http", bad), capture_output=True, text=True,
+        done = subprocess.run(serve_command("--model", str(exported[0]), "--http", bad), capture_output=True, text=True,
                               env=_env(), timeout=60)
         assert done.returncode == 2 and "expected HOST:PORT or PORT" in done.stderr, bad
 

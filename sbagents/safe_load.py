@@ -33,7 +33,7 @@ from sbagents.plain_data import (
 from sbagents.plain_data import short_message as _short
 
 __all__ = ["TRUST_FLAG", "PlainDataUnpickler", "UntrustedContentError", "custom_objects", "load_model",
-           "load_pickle_file", "plain_loads", "read_model_data", "register_plain_class"]
+           "load_pickle_file", "plain_loads", "read_model_data", "register_plain_class", "untrusted_pickle"]
 
 #: Entries of a model's data that SB3 rebuilds or resets when it is loaded, with what sbagents puts in their place
 #: when they cannot be decoded (ARS's torch weight vector: the policy's parameters, set by :func:`_after_load`).
@@ -130,6 +130,13 @@ def load_model(cls: Any, path: str | Path, *, env: Any = None, device: str = "cp
     return model
 
 
+def untrusted_pickle(path: Path, what: str) -> UntrustedContentError:
+    """The one-line refusal of a pickle file an older run kept (``what`` it holds), naming :data:`TRUST_FLAG`."""
+    return UntrustedContentError(
+        f"{path} is a pickle ({what} of an older run); unpickling runs any code it holds, so sbagents does not "
+        f"load it by default: pass {TRUST_FLAG} if you trust where the run came from")
+
+
 def load_pickle_file(path: str | Path, what: str, trust: bool, loader: Callable[[Path], Any]) -> Any:
     """Load a pickle file of an older run (``vecnormalize.pkl``, ``replay_buffer.pkl``) with ``loader`` only when
     the user trusts it; otherwise refuse in one line that says why and how.
@@ -138,9 +145,7 @@ def load_pickle_file(path: str | Path, what: str, trust: bool, loader: Callable[
     """
     path = Path(path)
     if not trust:
-        raise UntrustedContentError(
-            f"{path} is a pickle ({what} of an older run); unpickling runs any code it holds, so sbagents does not "
-            f"load it by default: pass {TRUST_FLAG} if you trust where the run came from")
+        raise untrusted_pickle(path, what)
     try:
         return loader(path)
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, KeyError, AttributeError, ImportError,

@@ -338,10 +338,10 @@ def load_run(ref: RunRef) -> LoadedRun:
 def _stats(path: Path, trust: bool) -> Path | None:
     """The statistics file to use for ``path``: itself, a legacy pickle beside it (refused in one line now, before
     anything else runs, unless ``trust``), or None when the run has none."""
-    from sbagents.safe_load import load_pickle_file
+    from sbagents.safe_load import untrusted_pickle
     from sbagents.state_files import existing
 
     found = existing(path)
     if found is not None and found.suffix == ".pkl" and not trust:
-        load_pickle_file(found, "VecNormalize statistics", trust, lambda p: None)  # raises: says why and how
+        raise untrusted_pickle(found, "VecNormalize statistics")
     return found

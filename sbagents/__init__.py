@@ -5,13 +5,7 @@ Importing the package registers the Gymnasium IDs (``sbagents/GridWorld-v0``, ..
 PettingZoo env of your package a short name for ``--env``.
 """
 
-from pathlib import Path
-
-from sbagents import source_tree
-
-source_tree.install(Path(__file__).resolve().parent)  # a checkout: envs/, callbacks/, zoo_configs/ beside us
-
-from sbagents.registration import GYM_ENVS, register_envs, register_pettingzoo_env  # noqa: E402
+from sbagents.registration import GYM_ENVS, register_envs, register_pettingzoo_env
 
 __version__ = "0.1.0"
 

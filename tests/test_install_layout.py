@@ -1,4 +1,5 @@
-"""sbagents imports from a source checkout as from a wheel, and writes its caches to the user's cache folder."""
+"""sbagents imports from a source checkout as from a wheel (``sbagents/envs`` etc. are links to the root folders),
+and writes its caches to the user's cache folder."""
 
 from __future__ import annotations
 
@@ -33,8 +34,8 @@ def test_checkout_maps_envs_callbacks_and_configs(tmp_path: Path) -> None:
     )
     result = _python(code, tmp_path)
     assert result.returncode == 0, result.stderr
-    files = [Path(line) for line in result.stdout.splitlines()]
-    assert files == [REPO / "sbagents" / "__init__.py", REPO / "callbacks" / "__init__.py",
+    files = [Path(line).resolve() for line in result.stdout.splitlines()]
+    assert files == [(REPO / "sbagents" / "__init__.py").resolve(), (REPO / "callbacks" / "__init__.py").resolve(),
                      REPO / "envs" / "kuka" / "__init__.py", REPO / "zoo_configs" / "ppo.yml"]
 
 

@@ -29,13 +29,13 @@ import numpy as np
 
 from benchmarks.speed import publish
 from sbagents.api import (
+    ConstraintSpec,
     EvalOptions,
     EvaluateOptions,
     ExecOptions,
     OutputOptions,
     RunRef,
     TrainSpec,
-    TrustOptions,
     evaluate,
     train,
 )
@@ -59,10 +59,10 @@ def run(method: str, seed: int, n_timesteps: int | None, cost_limit: float, epis
     """Train one method on one seed through the ``train`` pipeline, then evaluate it greedily."""
     _, env_kwargs, constraint = METHODS[method]
     folder = logs / f"{method.replace(' ', '_')}_{seed}"
-    trust = TrustOptions(cost_limit=cost_limit) if constraint else TrustOptions()
-    result = train(TrainSpec("ppo", ENV, n_timesteps, env_kwargs=env_kwargs, constraint=constraint),
+    features = [ConstraintSpec(constraint, cost_limit)] if constraint else []
+    result = train(TrainSpec("ppo", ENV, n_timesteps, env_kwargs=env_kwargs),
                    OutputOptions(folder), EvalOptions(eval_freq=0, final_eval_episodes=0),
-                   ExecOptions(seed=seed, verbose=0), trust)
+                   ExecOptions(seed=seed, verbose=0), features=features)
     report = evaluate(RunRef("ppo", ENV, folder), EvaluateOptions(n_episodes=episodes, deterministic=True, seed=0))
     cost = float(report["mean_cost"])
     safety = result.run_dir / "safety.json"

@@ -241,7 +241,8 @@ def main() -> None:
         start = time.perf_counter()
         spec = TrainSpec("dqn", ENV_ID, args.warmup_steps + args.train_steps,
                          {"buffer_size": 10_000, "learning_starts": args.warmup_steps})
-        run = train(spec, OutputOptions(tmp), EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0),
+        run = train(spec, OutputOptions(tmp), EvalOptions(eval_freq=-1, final_eval_episodes=0),
+                    ExecOptions(seed=0, verbose=0),
                     callbacks=[clock])
         result["run_seconds"] = round(time.perf_counter() - start, 1)
         result["run_fps_overall"] = run.summary["fps"]

@@ -35,7 +35,7 @@ def run(epsilon: float, seed: int, params: dict[str, Any], clip: float, episodes
     load = os.getloadavg()[0]
     result = train(TrainSpec("ddpg", ENV, hyperparams=params), OutputOptions(logs),
                    EvalOptions(eval_freq=0, final_eval_episodes=episodes), ExecOptions(seed=seed, verbose=0),
-                   privacy=privacy)
+                   features=[privacy])
     ev, dp = result.summary["eval"], result.summary.get("dp", {})
     return {"epsilon_target": epsilon, "seed": seed, "epsilon": dp.get("epsilon"),
             "noise_multiplier": dp.get("noise_multiplier"), "n_timesteps": result.summary["n_timesteps"],

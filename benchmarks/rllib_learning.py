@@ -59,7 +59,7 @@ def run_seed(
     start = time.perf_counter()
     save_freq = checkpoints[0] if checkpoints else -1
     result = train_rllib(TrainSpec("ppo", env, n_timesteps, params), OutputOptions(log_folder, save_freq=save_freq),
-                         EvalOptions(-1, final_eval_episodes=0),
+                         EvalOptions(eval_freq=-1, final_eval_episodes=0),
                          ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0,
                                      num_env_runners=num_env_runners))
     wall = time.perf_counter() - start

@@ -24,7 +24,17 @@ from statistics import mean
 from typing import Any
 
 from benchmarks.speed import publish
-from sbagents.api import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
+from sbagents.api import (
+    EvalOptions,
+    EvaluateOptions,
+    ExecOptions,
+    OutputOptions,
+    RunRef,
+    TrainSpec,
+    evaluate,
+    parse_robust,
+    train,
+)
 
 ENV = "sbagents/SmartHome-v0"
 ALGO = "td3"
@@ -73,10 +83,10 @@ def run(name: str, variant: Variant, seed: int, episodes: int, logs: str) -> dic
     """Train and evaluate one variant on one seed."""
     folder = os.path.join(logs, f"{name}_{seed}")
     load = os.getloadavg()[0]
-    result = train(TrainSpec(ALGO, ENV, n_timesteps=variant.n_timesteps, robust=variant.robust,
-                             conf_file=variant.conf_file),
+    result = train(TrainSpec(ALGO, ENV, n_timesteps=variant.n_timesteps, conf_file=variant.conf_file),
                    OutputOptions(folder, command=variant.command(seed)),
-                   EvalOptions(eval_freq=0, final_eval_episodes=0), ExecOptions(seed=seed, verbose=0))
+                   EvalOptions(eval_freq=0, final_eval_episodes=0), ExecOptions(seed=seed, verbose=0),
+                   features=[parse_robust(variant.robust)] if variant.robust else [])
     report = evaluate(RunRef(ALGO, ENV, folder), EvaluateOptions(n_episodes=episodes, attacks=ATTACKS))
     row: dict[str, Any] = {"variant": name, "seed": seed, "n_timesteps": result.summary["n_timesteps"],
                            "train_s": result.summary["train_seconds"],

@@ -62,7 +62,8 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
 
         with tempfile.TemporaryDirectory() as logs:
             result = train(TrainSpec("ppo", ENV, hyperparams=params), OutputOptions(logs),
-                           EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=seed, vec_env="batched", verbose=0))
+                           EvalOptions(eval_freq=-1, final_eval_episodes=0),
+                           ExecOptions(seed=seed, vec_env="batched", verbose=0))
             model, train_s = result.model, float(result.summary["train_seconds"])
             if not isinstance(model.get_env().unwrapped, BatchedTreasureHuntVecEnv):  # type: ignore[union-attr]
                 raise RuntimeError("train(vec_env='batched') did not use the batched VecEnv")

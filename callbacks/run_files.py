@@ -79,7 +79,7 @@ class AtomicCheckpointCallback(CheckpointCallback):
     """SB3's ``CheckpointCallback`` (same arguments) writing ``<prefix>_<N>_steps.zip`` atomically, after the
     ``VecNormalize`` statistics of the same step (``<prefix>_vecnormalize_<N>_steps.npz``, when
     ``save_vecnormalize`` and the model normalizes). Replay buffers are kept by
-    :class:`sbagents.pipeline.replay_buffer.ReplayBufferCheckpoint` (one file, not one per checkpoint)."""
+    :class:`sbagents.replay.buffer_files.ReplayBufferCheckpoint` (one file, not one per checkpoint)."""
 
     def _on_step(self) -> bool:
         if self.n_calls % self.save_freq == 0:

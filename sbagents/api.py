@@ -6,7 +6,10 @@
     print(result.run_dir, evaluate(RunRef("ppo", "sbagents/GridWorld-v0"))["mean_return"])   # 93.0
 """
 
+from sbagents.callbacks.extension import TrustOptions
+from sbagents.constrained.options import ConstraintSpec
 from sbagents.deploy.exporting import export, export_groups
+from sbagents.extensions import TrainingExtension, register_extension
 from sbagents.federated.personal import personalize
 from sbagents.federated.runner import federate
 from sbagents.federated.settings import FederatedSettings
@@ -21,31 +24,38 @@ from sbagents.pipeline.options import (
 )
 from sbagents.pipeline.run_dir import RunRef
 from sbagents.pipeline.training import TrainResult
-from sbagents.pipeline.trust import TrustOptions
 from sbagents.pipeline.tuning import tune
 from sbagents.private.options import PrivacyOptions
+from sbagents.replay.extension import ReplayBufferOptions
+from sbagents.robust.options import RobustSpec, parse_robust
 from sbagents.visualize.curves import plot
 from sbagents.visualize.video import record_video
 
 __all__ = [
+    "ConstraintSpec",
     "EvalOptions",
     "EvaluateOptions",
     "ExecOptions",
     "FederatedSettings",
     "OutputOptions",
     "PrivacyOptions",
+    "ReplayBufferOptions",
+    "RobustSpec",
     "RunRef",
     "StudyOptions",
     "TrainResult",
     "TrainSpec",
+    "TrainingExtension",
     "TrustOptions",
     "evaluate",
     "export",
     "export_groups",
     "federate",
+    "parse_robust",
     "personalize",
     "plot",
     "record_video",
+    "register_extension",
     "train",
     "tune",
 ]

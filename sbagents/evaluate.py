@@ -43,8 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, evaluate the run, print a table or JSON."""
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
-    options = EvaluateOptions(args.n_episodes, args.deterministic, args.seed, args.render, args.attack,
-                              args.fairness, args.bins, args.opponent)
+    options = EvaluateOptions(n_episodes=args.n_episodes, deterministic=args.deterministic, seed=args.seed,
+                              render=args.render, attacks=args.attack, fairness=args.fairness, bins=args.bins,
+                              opponent=args.opponent)
     summary = evaluate(run_ref(args), options)
     print(json.dumps(summary) if args.json else format_evaluation(summary))
     return 0

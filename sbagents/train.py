@@ -13,14 +13,12 @@ from typing import Any
 
 from sbagents.algos import ALGOS
 from sbagents.cli_common import ArgumentParser, run
-from sbagents.errors import UsageError
-from sbagents.pipeline.backends import train
+from sbagents.extensions import registered_extensions, specs_from_args
+from sbagents.pipeline.backends import train  # registers the built-in training extensions
 from sbagents.pipeline.console import train_summary_lines
 from sbagents.pipeline.env_names import sbagents_env_ids
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.trust import TrustOptions, trust_summary_lines
 from sbagents.pipeline.zoo_config import parse_overrides
-from sbagents.private.options import PrivacyOptions
 from sbagents.visualize.showcase import describe_policy
 
 
@@ -56,44 +54,9 @@ def build_parser() -> ArgumentParser:
                    help="the -i model and its files come from a source you trust: load pickles in them (older "
                         "runs' vecnormalize.pkl / replay_buffer.pkl, model entries beyond plain data); see "
                         "docs/security.md")
-    p.add_argument("--save-replay-buffer", action="store_true",
-                   help="off-policy: keep the replay buffer in the run dir (replay_buffer.npz, replaced at each "
-                        "checkpoint and at the end, also after Ctrl-C) so that -i continues with it")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
-    trust = p.add_argument_group("trust (sbagents.callbacks)")
-    trust.add_argument("--transparency-log", nargs="?", const="", default=None, metavar="PATH",
-                       help="CSV of every decision (default <run dir>/transparency.csv; .csv.gz compresses)")
-    trust.add_argument("--transparency-format", choices=["full", "book"], default="full",
-                       help="full: every obs/action/info column; book: the book's header (SmartHome)")
-    trust.add_argument("--safety", action="store_true", help="count safety violations (safety.json, TensorBoard)")
-    trust.add_argument("--cost-limit", type=float, default=None,
-                       help="stop when the mean episode cost passes X (with --constraint: the limit trained for)")
-    trust.add_argument("--constraint", choices=["lagrangian", "pid"], default=None,
-                       help="train under --cost-limit: PPO-Lagrangian (ppo) or SAC-Lagrangian (sac) with a cost "
-                            "critic and a Lagrange (or PID) multiplier, settings from the entry's constraint_kwargs; "
-                            "safety.json records its history")
-    trust.add_argument("--max-violations", type=int, default=None, help="stop after N violations")
-    trust.add_argument("--adversarial-eval", default=None, metavar="SPEC",
-                       help='attacks evaluated during training, e.g. "gaussian:0.05,0.1 fgsm:0.01,0.05"')
-    trust.add_argument("--fairness", default=None, metavar="KEYS",
-                       help="info keys to bucket episodes by, e.g. object_scale,object_mass")
-    trust.add_argument("--bins", type=int, default=3, help="buckets per fairness key")
-    robust = p.add_argument_group("robust training (sbagents.robust)")
-    robust.add_argument("--robust", default=None, metavar="SPEC",
-                        help="METHOD:EPS[,KEY=VALUE...]: sa (state-adversarial regularizer; ddpg, td3; keys kappa, "
-                             "steps, qdrop, ramp), adv (adversarial rollouts; ddpg, td3, sac; keys attack, share, "
-                             "ramp) or sa+adv; eps in the attacks' units, ramped up over the first half of training")
-    private = p.add_argument_group("privacy (DP-SGD with Opacus; ddpg, td3, sac, ppo, a2c; "
-                                   "pip install 'sbagents[private]')")
-    private.add_argument("--dp-epsilon", type=float, default=None, metavar="E",
-                         help="train with (E, delta)-DP per transition: noise calibrated to the run's draws (ppo, "
-                              "a2c: to one rollout's; with --dp-noise: stop before passing E)")
-    private.add_argument("--dp-delta", type=float, default=None, metavar="D",
-                         help="delta, below 1 / the transitions trained on (default 1e-5)")
-    private.add_argument("--dp-clip", type=float, default=None, metavar="C",
-                         help="per-transition gradient clipping norm (default 1.0)")
-    private.add_argument("--dp-noise", type=float, default=None, metavar="SIGMA",
-                         help="noise multiplier instead of a calibrated one (epsilon is reported)")
+    for extension in registered_extensions():  # trust callbacks, robust, constrained, DP training, yours
+        extension.add_arguments(p.add_argument_group(extension.title))
     p.add_argument("--list", action="store_true", help="list registered envs and algorithms, then exit")
     p.add_argument("--log-interval", type=int, default=-1,
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
@@ -108,31 +71,24 @@ def build_parser() -> ArgumentParser:
     return p
 
 
-def privacy_from_args(args: argparse.Namespace) -> PrivacyOptions:
-    """The ``--dp-*`` flags; ``--dp-delta`` / ``--dp-clip`` alone are refused (they would do nothing)."""
-    if args.dp_epsilon is None and args.dp_noise is None and (args.dp_delta is not None or args.dp_clip is not None):
-        raise UsageError("--dp-delta and --dp-clip apply to DP training: add --dp-epsilon E or --dp-noise SIGMA")
-    defaults = PrivacyOptions()
-    return PrivacyOptions(args.dp_epsilon, defaults.delta if args.dp_delta is None else args.dp_delta,
-                          defaults.clip if args.dp_clip is None else args.dp_clip, args.dp_noise)
-
-
 def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
-    """The option groups of :func:`sbagents.pipeline.backends.train` from the parsed flags."""
+    """The option groups of :func:`sbagents.pipeline.backends.train` from the parsed flags (the extensions' specs
+    under ``features``)."""
     return {
-        "spec": TrainSpec(args.algo, args.env, args.n_timesteps, parse_overrides(args.hyperparams, "-params"),
-                          args.conf_file, parse_overrides(args.env_kwargs, "--env-kwargs"),
-                          tuple(args.gym_packages), args.trained_agent, args.robust, args.constraint,
+        "spec": TrainSpec(args.algo, args.env, n_timesteps=args.n_timesteps,
+                          hyperparams=parse_overrides(args.hyperparams, "-params"), conf_file=args.conf_file,
+                          env_kwargs=parse_overrides(args.env_kwargs, "--env-kwargs"),
+                          gym_packages=tuple(args.gym_packages), trained_agent=args.trained_agent,
                           trust_run=args.trust_run),
-        "output": OutputOptions(args.log_folder, args.tensorboard_log, args.save_freq, command,
-                                args.save_replay_buffer),
-        "evaluation": EvalOptions(args.eval_freq, args.eval_episodes, args.n_eval_envs, args.final_eval_episodes),
-        "execution": ExecOptions(args.seed, args.backend, args.vec_env, args.device, args.num_threads, args.progress,
-                                 args.verbose, args.log_interval, args.num_env_runners, args.address),
-        "trust": TrustOptions(args.transparency_log, args.safety, args.cost_limit, args.max_violations,
-                              args.adversarial_eval, args.fairness, args.bins,
-                              book_header=args.transparency_format == "book"),
-        "privacy": privacy_from_args(args),
+        "output": OutputOptions(args.log_folder, tensorboard_log=args.tensorboard_log, save_freq=args.save_freq,
+                                command=command),
+        "evaluation": EvalOptions(eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+                                  n_eval_envs=args.n_eval_envs, final_eval_episodes=args.final_eval_episodes),
+        "execution": ExecOptions(seed=args.seed, backend=args.backend, vec_env=args.vec_env, device=args.device,
+                                 num_threads=args.num_threads, progress=args.progress, verbose=args.verbose,
+                                 log_interval=args.log_interval, num_env_runners=args.num_env_runners,
+                                 address=args.address),
+        "features": specs_from_args(args),
     }
 
 
@@ -149,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     if result.model is not None and not result.interrupted:
         text = describe_policy(result.model, result.experiment)
         lines[1:1] = [text] if text else []
-    print("\n".join([*lines, *trust_summary_lines(result.trust)]))
+    lines += [line for extension in registered_extensions() for line in extension.result_lines(result.results)]
+    print("\n".join(lines))
     return 130 if result.interrupted else 0
 
 

@@ -36,8 +36,9 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run or resume the study, print the best trial and where its zoo entry is."""
     a = build_parser().parse_args(argv)
     spec = TrainSpec(a.algo, a.env, n_timesteps=a.n_timesteps, gym_packages=tuple(a.gym_packages))
-    study = StudyOptions(a.n_trials, a.storage, a.study_name, a.n_jobs, a.sampler, a.pruner, a.n_seeds,
-                         a.n_evaluations, a.eval_episodes)
+    study = StudyOptions(n_trials=a.n_trials, storage=a.storage, study_name=a.study_name, n_jobs=a.n_jobs,
+                         sampler=a.sampler, pruner=a.pruner, n_seeds=a.n_seeds, n_evaluations=a.n_evaluations,
+                         eval_episodes=a.eval_episodes)
     result = tune(spec, study, a.log_folder, a.seed, a.verbose)
     print(f"study {result.study.study_name}: {len(result.study.trials)} trials")
     if result.best_config_path.exists():

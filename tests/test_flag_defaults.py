@@ -28,11 +28,12 @@ def test_robust_sa_defaults_are_the_published_recipe() -> None:
 
 @pytest.mark.parametrize(("algo", "features", "hyperparams", "n", "expected"), [
     ("td3", (), {}, None, {"n_timesteps": 8000}),
-    ("td3", ("robust",), {}, None, {"n_timesteps": 16000}),  # docs/robust.md's budget for --robust sa:0.2
-    ("td3", ("robust",), {}, 9000, {"n_timesteps": 9000}),
+    ("td3", ("robust_overrides",), {}, None, {"n_timesteps": 16000}),  # docs/robust.md's budget for --robust sa:0.2
+    ("td3", ("robust_overrides",), {}, 9000, {"n_timesteps": 9000}),
     ("ddpg", (), {}, None, {"n_timesteps": 8000, "learning_starts": 500, "batch_size": 128}),
-    ("ddpg", ("dp",), {}, None, {"n_timesteps": 40000, "learning_starts": 4000, "batch_size": 256, "train_freq": 8}),
-    ("ddpg", ("dp",), {"batch_size": 64}, None, {"n_timesteps": 40000, "batch_size": 64, "train_freq": 8}),
+    ("ddpg", ("dp_overrides",), {}, None,
+     {"n_timesteps": 40000, "learning_starts": 4000, "batch_size": 256, "train_freq": 8}),
+    ("ddpg", ("dp_overrides",), {"batch_size": 64}, None, {"n_timesteps": 40000, "batch_size": 64, "train_freq": 8}),
 ])
 def test_shipped_entries_carry_the_flag_recipes(algo: str, features: tuple[str, ...], hyperparams: dict[str, int],
                                                 n: int | None, expected: dict[str, int]) -> None:
@@ -44,7 +45,7 @@ def test_overrides_must_be_a_mapping(tmp_path: Path) -> None:
     conf = tmp_path / "conf.yml"
     conf.write_text(f"{HOME}:\n  n_timesteps: 100\n  dp_overrides: 5\n")
     with pytest.raises(UsageError, match="dp_overrides must be a mapping of hyperparameters, got 5"):
-        build_experiment(TrainSpec("ddpg", HOME, conf_file=conf), resolve_env(HOME), ("dp",))
+        build_experiment(TrainSpec("ddpg", HOME, conf_file=conf), resolve_env(HOME), ("dp_overrides",))
 
 
 def test_train_applies_the_overrides_of_the_flags_given(tmp_path: Path) -> None:
@@ -56,8 +57,8 @@ def test_train_applies_the_overrides_of_the_flags_given(tmp_path: Path) -> None:
         "robust_overrides": {"n_timesteps": 300}, "dp_overrides": {"n_timesteps": 320, "batch_size": 64}}}))
     quiet = (OutputOptions(tmp_path / "logs"), EvalOptions(eval_freq=0, final_eval_episodes=0),
              ExecOptions(seed=0, verbose=0))
-    robust = train(TrainSpec("td3", HOME, conf_file=conf, robust="sa:0.2"), *quiet)
-    private = train(TrainSpec("ddpg", HOME, conf_file=conf), *quiet, privacy=PrivacyOptions(noise=1.0))
+    robust = train(TrainSpec("td3", HOME, conf_file=conf), *quiet, features=[parse_robust("sa:0.2")])
+    private = train(TrainSpec("ddpg", HOME, conf_file=conf), *quiet, features=[PrivacyOptions(noise=1.0)])
     assert (summary(robust.run_dir)["n_timesteps"], summary(private.run_dir)["n_timesteps"]) == (300, 320)
     config = yaml.safe_load((private.run_dir / "sbagents_SmartHome-v0" / "config.yml").read_text())
     assert (config["n_timesteps"], config["batch_size"]) == (320, 64)

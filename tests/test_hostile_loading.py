@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, ReplayBufferOptions, TrainSpec, train
 from sbagents.errors import UsageError
 from sbagents.safe_load import TRUST_FLAG, UntrustedContentError, custom_objects, plain_loads, read_model_data
 
@@ -53,7 +53,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished DDPG SmartHome run (VecNormalize statistics, a checkpoint, a replay buffer): the log folder."""
     logs = tmp_path_factory.mktemp("hostile") / "logs"
     train(TrainSpec("ddpg", ENV, n_timesteps=200, hyperparams={"learning_starts": 50}),
-          output=OutputOptions(logs, save_freq=200, save_replay_buffer=True),
+          output=OutputOptions(logs, save_freq=200), features=[ReplayBufferOptions(save=True)],
           evaluation=EvalOptions(eval_freq=-1, final_eval_episodes=0), execution=ExecOptions(seed=0, verbose=0))
     return logs
 

@@ -56,8 +56,9 @@ def test_book_ddpg_entry_runs(tmp_path: Path) -> None:
                   lookup_entry(CONFIGS / "kuka_ddpg.yml", "sbagents/PickAndPlace-v0"), "kuka_ddpg.yml")
     assert exp.algo_kwargs["policy_kwargs"]["net_arch"] == [256, 128]
     assert exp.algo_kwargs["batch_size"] == 64
-    spec = TrainSpec("ddpg", "sbagents/PickAndPlace-v0", 150, {"learning_starts": 100}, CONFIGS / "kuka_ddpg.yml")
-    result = train(spec, OutputOptions(tmp_path), EvalOptions(-1, final_eval_episodes=0),
+    spec = TrainSpec("ddpg", "sbagents/PickAndPlace-v0", 150, {"learning_starts": 100},
+                     conf_file=CONFIGS / "kuka_ddpg.yml")
+    result = train(spec, OutputOptions(tmp_path), EvalOptions(eval_freq=-1, final_eval_episodes=0),
                    ExecOptions(seed=0, verbose=0))
     model = result.model
     assert isinstance(model, DDPG) and model.num_timesteps == 150

@@ -22,8 +22,8 @@ STEM = "sbagents_GridWorld-v0"
 
 def test_plot_two_seeds_cli(tmp_path: Path) -> None:
     for seed in (0, 1):
-        train(TrainSpec("qlearning", GRID, 3000), OutputOptions(tmp_path), EvalOptions(500, 2, final_eval_episodes=0),
-              ExecOptions(seed=seed, verbose=0))
+        train(TrainSpec("qlearning", GRID, 3000), OutputOptions(tmp_path),
+              EvalOptions(eval_freq=500, eval_episodes=2, final_eval_episodes=0), ExecOptions(seed=seed, verbose=0))
     groups = find_runs(RunRef("qlearning", "GridWorld-v0", tmp_path))
     assert list(groups) == [("qlearning", STEM)] and len(groups["qlearning", STEM]) == 2
     curves = [load_run_curve(d, STEM) for d in groups["qlearning", STEM]]
@@ -44,7 +44,7 @@ def test_plot_two_seeds_cli(tmp_path: Path) -> None:
 
 
 def test_default_output_and_all_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    train(TrainSpec("qlearning", GRID, 1000), OutputOptions(tmp_path), EvalOptions(-1, final_eval_episodes=0),
+    train(TrainSpec("qlearning", GRID, 1000), OutputOptions(tmp_path), EvalOptions(eval_freq=-1, final_eval_episodes=0),
           ExecOptions(seed=0, verbose=0))
     titles: list[str | None] = []
     original = Figure.savefig

@@ -126,7 +126,7 @@ def test_smart_home_sidecar_is_unnormalized(tmp_path: Path) -> None:
     """A VecNormalize run: the sidecar has the env's own observations and rewards (a replay gives the same)."""
     small = {"n_envs": 1, "n_steps": 128, "batch_size": 128, "n_epochs": 1}
     train(TrainSpec("ppo", "sbagents/SmartHome-v0", 128, small), OutputOptions(tmp_path),
-          EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+          EvalOptions(eval_freq=-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
     assert list(tmp_path.glob("ppo/*/vecnormalize.npz"))
     video = record_video(RunRef("ppo", "sbagents/SmartHome-v0", tmp_path), n_steps=102, output_dir=tmp_path / "v")
     rows = _rows(sidecar_path(video))
@@ -151,7 +151,7 @@ def test_smart_home_sidecar_is_unnormalized(tmp_path: Path) -> None:
 def test_treasure_hunt_team_video(tmp_path: Path) -> None:
     small = {"n_envs": 2, "n_steps": 256, "batch_size": 512}
     train(TrainSpec("ppo", "treasure_hunt_v0", 1536, small), OutputOptions(tmp_path),
-          EvalOptions(-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+          EvalOptions(eval_freq=-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
     path = record_video(RunRef("ppo", "treasure_hunt_v0", tmp_path), n_steps=12, output_dir=tmp_path / "v")
     frames = iio.imread(path)
     assert frames.shape[1:] == (320, 320, 3) and frames.shape[0] >= 12

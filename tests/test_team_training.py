@@ -25,11 +25,11 @@ from gymnasium import spaces
 from stable_baselines3 import DQN, PPO
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, export_groups, train
+from sbagents.callbacks.extension import TrustOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.masking import ActedMaskCallback, MaskedReplayBuffer, MaskedRolloutBuffer
 from sbagents.multiagent.options import TeamOptions
-from sbagents.pipeline.trust import TrustOptions
 from sbagents.registration import PETTINGZOO_ENVS
 
 USER_ENVS = Path(__file__).resolve().parent / "user_envs"
@@ -162,7 +162,7 @@ def test_replay_samples_never_hold_absent_agents() -> None:
 def test_per_group_trust_files_count_present_agents_only(tmp_path: Path) -> None:
     trust = TrustOptions(transparency_log="", safety=True)
     result = train(TrainSpec("ppo", RELAY, 1024, {**PPO_PARAMS, "policies": "per_group"}), *quiet(tmp_path),
-                   trust=trust)
+                   features=[trust])
     with (result.run_dir / "transparency.scout.csv").open() as f:
         scout_rows = list(csv.DictReader(f))
     with (result.run_dir / "transparency.worker.csv").open() as f:

@@ -108,13 +108,14 @@ class ConstraintSpec:
     """A checked ``--constraint``: what :func:`sbagents.pipeline.models.make_model` builds.
 
     :param method: ``lagrangian`` or ``pid``.
-    :param cost_limit: the mean episode cost to stay under (``--cost-limit``).
+    :param cost_limit: the mean episode cost to stay under (``--cost-limit``; None only before the spec is checked by
+        :func:`constraint_spec`, which refuses it).
     :param kwargs: the constrained class's other keyword arguments (the config's ``constraint_kwargs``, with
         ``multiplier_kwargs`` resolved for ``method``).
     """
 
     method: str
-    cost_limit: float
+    cost_limit: float | None = None
     kwargs: dict[str, Any] = field(default_factory=dict)
 
     def model_class(self, algo: str) -> type[Any]:

@@ -12,12 +12,12 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.errors import UsageError
+from sbagents.extensions import activate
 from sbagents.pipeline.evaluation import evaluate_sb3_run
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.run_dir import RunRef, load_run
 from sbagents.pipeline.training import TrainResult, train_sb3
-from sbagents.pipeline.trust import TrustOptions, parse_attacks
-from sbagents.private.options import PrivacyOptions
+from sbagents.pipeline.trust import parse_attacks
 
 
 def train(
@@ -25,9 +25,8 @@ def train(
     output: OutputOptions | None = None,
     evaluation: EvalOptions | None = None,
     execution: ExecOptions | None = None,
-    trust: TrustOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
-    privacy: PrivacyOptions | None = None,
+    features: Sequence[Any] = (),
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` and write a run directory (``python -m sbagents.train``).
 
@@ -35,9 +34,11 @@ def train(
     :param output: where to write (default: ``logs/``).
     :param evaluation: periodic and final evaluation.
     :param execution: seed, backend (``sb3`` or ``rllib``), vec env, device, threads, verbosity.
-    :param trust: transparency log, safety counting, attacks and fairness during training (SB3 only).
     :param callbacks: extra SB3 callbacks (SB3 only).
-    :param privacy: DP-SGD training, ``--dp-*`` (SB3's DDPG, TD3, SAC, PPO and A2C).
+    :param features: specs of training extensions (:mod:`sbagents.extensions`), e.g. ``TrustOptions(safety=True)``
+        (transparency log, safety counting, attacks and fairness), ``PrivacyOptions(epsilon=8)`` (DP-SGD),
+        ``parse_robust("sa:0.1")``, ``ConstraintSpec("pid", 0.1)``, ``ReplayBufferOptions(save=True)``; a
+        backend refuses in one line the features it cannot honour.
     :return: the run dir, the model (SB3) and the summary; ``interrupted`` after Ctrl-C/SIGTERM.
     """
     execution = execution or ExecOptions()
@@ -50,17 +51,15 @@ def train(
             raise UsageError(f"{spec.env} is a turn-based game: it trains with --backend sb3 and ppo_mask (self-play "
                              "with action masks)")
 
-        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution,
-                       "trust": trust})
+        refused = [flag for a in activate(features) for flag in a.extension.unsupported_flags(a.spec, "rllib")]
+        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution}, refused)
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
-        if privacy is not None and privacy.enabled:
-            raise UsageError("DP training (--dp-*) is for --backend sb3 (ddpg, td3, sac, ppo, a2c)")
         require_ray()
         from sbagents.rllib.training import train_rllib
 
         return train_rllib(spec, output, evaluation, execution)
-    return train_sb3(spec, output, evaluation, execution, trust, callbacks, privacy)
+    return train_sb3(spec, output, evaluation, execution, callbacks, features)
 
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.

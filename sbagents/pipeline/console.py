@@ -11,11 +11,14 @@ import math
 import sys
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
+
+from sbagents.extensions import registered_extensions
 
 
 def format_eval_line(
@@ -170,24 +173,6 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
     return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
 
 
-def _verdict(held: bool | None, cost: float | None, where: str, measure: str) -> str:
-    if held is None or cost is None:
-        return f"not measured {where}"
-    return f"{'held' if held else 'missed'} {where} ({measure} {cost:.3g})"
-
-
-def constraint_line(constraint: Mapping[str, Any]) -> str:
-    """``constraint (lagrangian): cost limit 0.5 missed in training (recent episodes' mean cost 0.93); missed in the
-    final evaluation (mean episode cost 1); multiplier 2.9``."""
-    parts = [_verdict(constraint.get("held_in_training"), constraint.get("train_ep_cost"), "in training",
-                      "recent episodes' mean cost")]
-    if "held_in_evaluation" in constraint:
-        parts.append(_verdict(constraint["held_in_evaluation"], constraint.get("eval_ep_cost"),
-                              "in the final evaluation", "mean episode cost"))
-    return (f"constraint ({constraint['method']}): cost limit {constraint['cost_limit']:g} {'; '.join(parts)}; "
-            f"multiplier {constraint['multiplier']:.3g}")
-
-
 def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: bool) -> list[str]:
     """The lines ``train`` ends with: where the run went, its speed and its final evaluation."""
     if interrupted:
@@ -204,25 +189,7 @@ def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: b
         cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
         lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
                      f"{ev['n_episodes']} episodes{success}{cost}{metrics}")
-    buffer = summary.get("replay_buffer")
-    if buffer:
-        loaded = buffer["loaded_transitions"]
-        parts = ([] if loaded is None else [f"continued with the {loaded} transitions saved beside -i's model"]) + (
-            [f"saved in {run_dir}/replay_buffer.npz"] if buffer["saved"] else [])
-        lines.append("replay buffer: " + "; ".join(parts))
-    constraint = summary.get("constraint")
-    if constraint:
-        lines.append(constraint_line(constraint))
-    dp = summary.get("dp")
-    if dp:
-        stop = "; stopped at the budget" if dp.get("stopped_at_budget") else ""
-        rollout = ""
-        if dp.get("composition"):  # on-policy: the exposure of one transition is its own rollout's steps
-            all_steps = dp.get("epsilon_all_steps")
-            rollout = "; per rollout" + ("" if all_steps is None else f", {all_steps:.2f} over all steps composed")
-        unit = dp.get("unit", "transition")
-        lines.append(f"privacy: epsilon {dp['epsilon']:.2f} at delta {dp['delta']:g} per {unit} (noise "
-                     f"{dp['noise_multiplier']:.3g}, clip {dp['max_grad_norm']:g}; RDP accountant, Poisson "
-                     f"batches{rollout}){stop}")
+    for extension in registered_extensions():  # e.g. the replay buffer, a constraint's verdicts, DP's epsilon
+        lines += extension.summary_lines(summary, Path(run_dir))
     return lines
 

@@ -18,8 +18,10 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
 from sbagents.errors import UsageError
+from sbagents.extensions import config_keys
 from sbagents.multiagent.options import CRITICS, POLICY_MODES, TeamOptions
 from sbagents.pipeline.env_names import EnvRef
+from sbagents.pipeline.features import register_builtin_extensions
 from sbagents.pipeline.options import TrainSpec
 from sbagents.pipeline.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 
@@ -45,6 +47,8 @@ KNOWN_CLASSES: dict[str, str] = {
     "RMSpropTFLike": "stable_baselines3.common.sb2_compat.rmsprop_tf_like.RMSpropTFLike",
     "NatureCNN": "stable_baselines3.common.torch_layers.NatureCNN",
 }
+
+register_builtin_extensions()  # their config keys (constraint_kwargs, ...) are accepted in zoo entries
 
 _SCHEDULABLE = ("learning_rate", "clip_range", "clip_range_vf")
 _CLASS_KWARGS = ("replay_buffer_class", "features_extractor_class", "optimizer_class")
@@ -251,16 +255,17 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     if not game and set(entry) & GAME_KEYS:
         raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only ({source})")
     accepted = accepted_algo_kwargs(algo)
-    unknown = sorted(k for k in entry if k not in ZOO_KEYS and k not in accepted)
+    zoo_keys = ZOO_KEYS | config_keys()  # RL Zoo's keys, sbagents' own and the training extensions'
+    unknown = sorted(k for k in entry if k not in zoo_keys and k not in accepted)
     if unknown:
         raise UsageError(
             f"unknown hyperparameter(s) {', '.join(unknown)} for {algo} ({source}); "
-            f"accepted: {', '.join(sorted(ZOO_KEYS | set(accepted)))}"
+            f"accepted: {', '.join(sorted(zoo_keys | set(accepted)))}"
         )
     n_timesteps = _positive_int(entry, "n_timesteps", None) or 0
     algo_kwargs: dict[str, Any] = {}
     for key, value in entry.items():
-        if key in ZOO_KEYS:
+        if key in zoo_keys:
             continue
         if key in _SCHEDULABLE:
             value = _schedule(key, value)
@@ -316,17 +321,17 @@ def _self_play(value: Any, source: str) -> Any:
     return SelfPlayOptions.from_mapping(value, source)
 
 
-def build_experiment(spec: TrainSpec, ref: EnvRef, features: tuple[str, ...] = ()) -> Experiment:
+def build_experiment(spec: TrainSpec, ref: EnvRef, overrides: tuple[str, ...] = ()) -> Experiment:
     """The :class:`Experiment` of ``spec`` on the env ``ref``: its zoo entry (``zoo_configs/<algo>.yml`` or
     ``spec.conf_file``, looked up by :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`) with the overrides,
     validated.
 
-    :param features: enabled features whose entry overrides apply (``robust``, ``dp``:
-        :data:`~sbagents.pipeline.zoo_config.FEATURE_OVERRIDES`).
+    :param overrides: entry keys of hyperparameter overrides to apply (the run's extensions'
+        :attr:`~sbagents.extensions.TrainingExtension.overrides_key`, e.g. ``robust_overrides``).
     """
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
-    entry, where = spec_entry(spec, spec.algo, ref, features)
+    entry, where = spec_entry(spec, spec.algo, ref, overrides)
     from sbagents.pipeline.image_obs import image_entry
 
     entry = image_entry(spec, ref, entry)

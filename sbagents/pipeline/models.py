@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -14,15 +15,13 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.algos import ALGOS, algos_for
 from sbagents.errors import UsageError
+from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
 from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
-from sbagents.pipeline.env_factory import make_vec
+from sbagents.pipeline.env_factory import make_eval_vec, make_vec
 from sbagents.pipeline.env_names import EnvRef
 from sbagents.pipeline.experiment import Experiment
 from sbagents.safe_load import load_model
-
-if TYPE_CHECKING:
-    from sbagents.constrained.options import ConstraintSpec
 
 
 def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Space]:
@@ -49,33 +48,29 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
 
 def make_model(
     exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
-    verbose: int = 0, trained_agent: Path | None = None, robust: str | None = None,
-    constraint: ConstraintSpec | None = None, trust: bool = False,
+    verbose: int = 0, trained_agent: Path | None = None, extensions: Sequence[ActiveExtension] = (),
+    trust: bool = False,
 ) -> BaseAlgorithm:
     """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue
     (without running code from its file unless ``trust``: :mod:`sbagents.safe_load`).
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
-    :param robust: ``--robust`` (:func:`sbagents.robust.options.parse_robust`): the algorithm's robust class.
-    :param constraint: ``--constraint`` (:func:`sbagents.constrained.options.constraint_spec`): the algorithm's
-        constrained class (PPO-Lagrangian, ...) and its keyword arguments.
+    :param extensions: the run's training extensions, which may pick the class and add keyword arguments
+        (:meth:`~sbagents.extensions.TrainingExtension.model_class`) and load ``trained_agent`` their own way.
     :raises UsageError: hyperparameters the algorithm rejects.
     """
     cls: Any = ALGOS[exp.algo].cls
     extra: dict[str, Any] = {}
-    if robust is not None:
-        from sbagents.robust.options import parse_robust
-
-        spec = parse_robust(robust, exp.algo)
-        cls, extra = spec.model_class(exp.algo), spec.model_kwargs()
-    if constraint is not None:
-        cls, extra = constraint.model_class(exp.algo), constraint.model_kwargs()
+    for active in extensions:
+        cls, extra = active.extension.model_class(active.spec, exp.algo, cls, extra)
     if trained_agent is not None:
-        if constraint is not None:  # the saved multiplier and its state continue (under the new cost limit)
-            return constraint.load_model(cls, trained_agent, env=env, device=device, tensorboard_log=tensorboard_log,
-                                         verbose=verbose, trust=trust)
-        return load_model(cls, trained_agent, env=env, device=device, trust=trust, tensorboard_log=tensorboard_log,
-                          verbose=verbose, **extra)
+        common: dict[str, Any] = dict(env=env, device=device, trust=trust, tensorboard_log=tensorboard_log,
+                                      verbose=verbose)
+        for active in extensions:
+            model = active.extension.load_model(active.spec, cls, trained_agent, **common, **extra)
+            if model is not None:
+                return model
+        return load_model(cls, trained_agent, **common, **extra)
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
@@ -111,10 +106,15 @@ def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) 
 
 @dataclass
 class RunContext:
-    """What the callbacks of an SB3 run are built from.
+    """What the callbacks of an SB3 run are built from (the :class:`~sbagents.extensions.TrainingContext` the
+    training extensions see).
 
     :param eval_freq: env steps between periodic evaluations (resolved: <= 0 means none).
     :param eval_episodes: episodes per periodic evaluation.
+    :param trained_agent: the model ``-i`` continues (None: a new one).
+    :param trust_run: ``--trust-run``: files beside ``trained_agent`` may hold pickles.
+    :param save_freq: env steps between checkpoints (<= 0: none).
+    :param state: the extensions' per-run scratch space.
     """
 
     exp: Experiment
@@ -125,6 +125,14 @@ class RunContext:
     seed: int
     eval_freq: int
     eval_episodes: int
+    trained_agent: Path | None = None
+    trust_run: bool = False
+    save_freq: int = -1
+    state: dict[str, Any] = field(default_factory=dict)
+
+    def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:
+        """A fresh evaluation vec env of the run's env."""
+        return make_eval_vec(self.exp, self.ref, n_envs, seed)
 
     def calls(self, env_steps: int) -> int:
         """An env-step period as callback calls (one call per vec step of ``train_env``), at least 1."""

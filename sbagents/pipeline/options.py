@@ -4,12 +4,15 @@ The CLIs build these from their flags; Python users build them directly (every f
 
     train(TrainSpec("ppo", "sbagents/GridWorld-v0", n_timesteps=20_000), execution=ExecOptions(seed=0))
 
-Each group checks its own values (:meth:`validate`) before any run dir exists; messages name the CLI flag.
+The groups are frozen; beyond their first field(s) they take keywords only, so a new field never shifts the others.
+Each group checks its own values (:meth:`validate`) before any run dir exists; messages name the CLI flag. A
+training feature's options (``--robust``, ``--dp-*``, the trust flags, ...) belong to its extension
+(:mod:`sbagents.extensions`), not to these groups.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +28,7 @@ def check_at_least(flag: str, value: int | None, low: int, also: str = "") -> No
         raise UsageError(f"{flag} must be >= {low}{also}, got {value}")
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainSpec:
     """What to train.
 
@@ -37,10 +40,6 @@ class TrainSpec:
     :param env_kwargs: env constructor arguments merged into the config's (``--env-kwargs``).
     :param gym_packages: packages to import that register the env (``--gym-packages``).
     :param trained_agent: a model ``.zip`` to continue training (``-i``).
-    :param robust: robust training (``--robust METHOD:EPS[,KEY=VALUE...]``; :mod:`sbagents.robust`), None for
-        plain training.
-    :param constraint: constrained training (``--constraint lagrangian|pid``, with the trust options' ``cost_limit``
-        and the entry's ``constraint_kwargs``; :mod:`sbagents.constrained`), None for none.
     :param trust_run: the ``-i`` model and the files beside it come from a trusted source: load pickles in them
         as they are (``--trust-run``; by default loading runs no code from a file, see docs/security.md).
     """
@@ -49,25 +48,20 @@ class TrainSpec:
     env: str = "sbagents/GridWorld-v0"
     n_timesteps: int | None = None
     hyperparams: dict[str, Any] = field(default_factory=dict)
+    _: KW_ONLY
     conf_file: str | Path | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     gym_packages: tuple[str, ...] = ()
     trained_agent: str | Path | None = None
-    robust: str | None = None
-    constraint: str | None = None
     trust_run: bool = False
 
     def validate(self) -> None:
-        """Check the budget and ``robust`` (the rest is checked against the config and the env)."""
+        """Check the budget (the rest is checked against the config and the env)."""
         if self.n_timesteps is not None and self.n_timesteps < 1:
             raise UsageError(f"-n/--n-timesteps must be a positive integer, got {self.n_timesteps}")
-        if self.robust is not None:
-            from sbagents.robust.options import parse_robust
-
-            parse_robust(self.robust, self.algo)
 
 
-@dataclass
+@dataclass(frozen=True)
 class OutputOptions:
     """Where a run writes.
 
@@ -75,18 +69,16 @@ class OutputOptions:
     :param tensorboard_log: TensorBoard folder (``-tb``; None: none).
     :param save_freq: checkpoint every N env steps (``--save-freq``; <= 0: never).
     :param command: the command line recorded in ``command.txt`` (default: one rebuilt from the spec).
-    :param save_replay_buffer: off-policy runs keep their replay buffer in ``replay_buffer.npz`` (replaced at each
-        checkpoint and at the end), which ``-i`` loads to continue (``--save-replay-buffer``).
     """
 
     log_folder: str | Path = "logs"
+    _: KW_ONLY
     tensorboard_log: str | None = None
     save_freq: int = -1
     command: str = ""
-    save_replay_buffer: bool = False
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class EvalOptions:
     """How a run is evaluated while and after it trains.
 
@@ -114,7 +106,7 @@ class EvalOptions:
         return min(25_000, max(n_timesteps // 10, 1))
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class ExecOptions:
     """How a run executes.
 
@@ -164,7 +156,7 @@ class ExecOptions:
                 ) from None
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class EvaluateOptions:
     """How ``evaluate`` plays a finished run.
 
@@ -202,7 +194,7 @@ class EvaluateOptions:
         return default if self.deterministic is None else self.deterministic
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class StudyOptions:
     """An Optuna study of ``tune``.
 

@@ -306,11 +306,12 @@ def load_run(ref: RunRef) -> LoadedRun:
     trusted = env.trusted_modules()
     exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game, trusted),
                           ref.env_kwargs)
-    cls: Any = ALGOS[ref.algo].cls
-    if run_args(run_dir, env.env_id).get("constraint"):
-        from sbagents.constrained.options import constrained_class  # its zip holds a cost critic PPO.load refuses
+    from sbagents.extensions import registered_extensions  # (registered by load_experiment's import)
 
-        cls = constrained_class(ref.algo)
+    cls: Any = ALGOS[ref.algo].cls
+    args = run_args(run_dir, env.env_id)
+    for extension in registered_extensions():  # e.g. a constrained run's zip holds a cost critic PPO.load refuses
+        cls = extension.load_class(ref.algo, args) or cls
 
     def load(path: Path) -> Any:
         return load_model(cls, path, device="cpu", trust=ref.trust, trusted_modules=trusted)

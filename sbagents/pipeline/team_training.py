@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from sbagents.algos import ALGOS, algos_for
 from sbagents.atomic import save_model
 from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback
+from sbagents.callbacks.extension import TrustOptions
 from sbagents.callbacks.run_files import AtomicCheckpointCallback
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_model_name, group_stats_name
@@ -38,7 +39,6 @@ from sbagents.pipeline.lifecycle import LearningClock
 from sbagents.pipeline.models import make_model
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX
-from sbagents.pipeline.trust import TrustOptions
 from sbagents.state_files import save_vecnormalize
 
 #: Seed offset of the evaluation team (as single-model runs).
@@ -60,7 +60,9 @@ def check_group_spaces(exp: Experiment, venvs: dict[str, VecEnv]) -> None:
                              f"algos that can: {able}")
 
 
-def _trust_callbacks(trust: TrustOptions, run_dir: Path, group: str) -> list[BaseCallback]:
+def _trust_callbacks(trust: TrustOptions | None, run_dir: Path, group: str) -> list[BaseCallback]:
+    if trust is None:
+        return []
     if trust.adversarial or trust.fairness:
         raise UsageError("--adversarial-eval and --fairness support policies: shared (one model); this run trains "
                          "one model per group")
@@ -76,7 +78,7 @@ def _trust_callbacks(trust: TrustOptions, run_dir: Path, group: str) -> list[Bas
 
 
 def _group_callbacks(
-    exp: Experiment, models: dict[str, BaseAlgorithm], run_dir: Path, output: OutputOptions, trust: TrustOptions,
+    exp: Experiment, models: dict[str, BaseAlgorithm], run_dir: Path, output: OutputOptions, trust: TrustOptions | None,
     calls_per_env_step: float,
 ) -> dict[str, list[BaseCallback]]:
     each: dict[str, list[BaseCallback]] = {}
@@ -107,7 +109,7 @@ class GroupSetup:
 
 def build_groups(
     exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, options: tuple[OutputOptions, EvalOptions, ExecOptions],
-    trust: TrustOptions, callbacks: Sequence[BaseCallback] = (),
+    trust: TrustOptions | None, callbacks: Sequence[BaseCallback] = (),
 ) -> GroupSetup:
     """The group models of ``exp`` on one team writing into ``run_dir``, with their callbacks.
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import contextlib
 import shlex
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -21,11 +21,11 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sbagents.algos import ALGOS
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
 from sbagents.errors import UsageError
+from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, registered_extensions
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.pipeline.budget import budget_warnings
@@ -34,20 +34,17 @@ from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_
 from sbagents.pipeline.env_names import EnvRef, resolve_env
 from sbagents.pipeline.evaluation import evaluate_model
 from sbagents.pipeline.experiment import Experiment, build_experiment
+from sbagents.pipeline.features import register_builtin_extensions
 from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.replay_buffer import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
 from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem
-from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
-from sbagents.private.options import PrivacyOptions
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
-
-if TYPE_CHECKING:
-    from sbagents.constrained.options import ConstraintSpec
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
 EVAL_SEED_OFFSET = 10_000
+
+register_builtin_extensions()
 
 
 @dataclass
@@ -57,7 +54,8 @@ class TrainResult:
     :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``, and for runs
         of one model per group, which are in :attr:`models`).
     :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
-    :param trust: the trust callbacks' final results (see :func:`sbagents.pipeline.trust.trust_results`).
+    :param results: what the run's extensions report of their callbacks
+        (:meth:`sbagents.extensions.TrainingExtension.results`; e.g. ``safety``, ``adversarial``, ``fairness``).
     """
 
     run_dir: Path
@@ -65,17 +63,15 @@ class TrainResult:
     experiment: Any
     summary: dict[str, Any] = field(default_factory=dict)
     interrupted: bool = False
-    trust: dict[str, Any] = field(default_factory=dict)
+    results: dict[str, Any] = field(default_factory=dict)
     models: dict[str, BaseAlgorithm] = field(default_factory=dict)
 
 
-def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
+def default_command(spec: TrainSpec, execution: ExecOptions, extensions: Sequence[ActiveExtension] = ()) -> str:
     """The command line recorded when the caller gave none (the Python API)."""
     args = ["--algo", spec.algo, "--env", spec.env]
-    if spec.robust is not None:
-        args += ["--robust", spec.robust]
-    if spec.constraint is not None:
-        args += ["--constraint", spec.constraint]
+    for active in extensions:
+        args += active.extension.command_args(active.spec)
     if execution.backend != "sb3":
         args += ["--backend", execution.backend]
     return "python -m sbagents.train " + shlex.join(args)
@@ -131,36 +127,41 @@ def train_sb3(
     output: OutputOptions | None = None,
     evaluation: EvalOptions | None = None,
     execution: ExecOptions | None = None,
-    trust: TrustOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
-    privacy: PrivacyOptions | None = None,
+    features: Sequence[Any] = (),
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
 
     :param callbacks: extra SB3 callbacks, after sbagents' own.
-    :param privacy: DP-SGD training (:mod:`sbagents.private`; needs the ``private`` extra).
+    :param features: the specs of the training extensions this run uses (:mod:`sbagents.extensions`: e.g.
+        ``TrustOptions``, ``PrivacyOptions``, a ``RobustSpec``), each checked by its extension.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
-    output, evaluation = output or OutputOptions(), evaluation or EvalOptions()
-    execution, trust = execution or ExecOptions(), trust or TrustOptions()
-    privacy = privacy or PrivacyOptions()
-    for group in (spec, evaluation, execution, trust, privacy):
+    output, evaluation, execution = output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions()
+    for group in (spec, evaluation, execution):
         group.validate()
+    actives = activate(features)
+    for active in actives:
+        active.extension.validate(active.spec)
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
-    features = (("robust",) if spec.robust is not None else ()) + (("dp",) if privacy.enabled else ())
-    exp = build_experiment(spec, ref, features)
+    overrides = tuple(a.extension.overrides_key for a in actives if a.extension.overrides_key)
+    exp = build_experiment(spec, ref, overrides)
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
-    if privacy.enabled:
-        exp = _private(privacy, exp, spec.trained_agent is not None)
     groups = team_agents(exp, ref) if exp.team is not None else None
-    if groups is not None and len(groups) > 1 and spec.trained_agent is not None:
-        raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
-    if output.save_replay_buffer and (not ALGOS[spec.algo].off_policy or (groups is not None and len(groups) > 1)):
-        raise UsageError("--save-replay-buffer keeps the buffer of one off-policy model (dqn, ddpg, td3, sac, tqc, "
-                         f"...); {spec.algo} on {ref.env_id} has none or trains one model per group")
+    plan = ExtensionPlan(spec.algo, exp, ref, team=groups is not None, resuming=spec.trained_agent is not None,
+                         n_models=1 if groups is None else len(groups), specs={a.name: a.spec for a in actives},
+                         hyperparams=spec.hyperparams)
+    actives = _prepare(plan)
+    exp = plan.exp
+    if groups is not None and len(groups) > 1:
+        if spec.trained_agent is not None:
+            raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
+        refused = [a.extension.flags for a in actives if not a.extension.group_runs]
+        if refused:
+            raise UsageError(f"{', '.join(refused)} not supported for runs of one model per group ({ref.env_id})")
     if groups is None or len(groups) == 1:
         check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
@@ -171,46 +172,34 @@ def train_sb3(
             "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
             "vec_env": vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
-    if spec.robust is not None:
-        if groups is not None:
-            raise UsageError("--robust trains single-agent ddpg/td3/sac runs, not PettingZoo envs")
-        args["robust"] = spec.robust
-    constraint = _constraint(spec, exp, trust, groups is not None)
-    if constraint is not None:
-        args.update(constraint.record())
-        trust = replace(trust, safety=True, cost_limit=None)  # the multiplier holds the limit: count, do not stop
+    for active in actives:
+        args.update(active.extension.record(active.spec))
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
-    command = output.command or default_command(spec, execution)
+    command = output.command or default_command(spec, execution, actives)
     if groups is not None and len(groups) > 1:
-        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution), trust, callbacks)
+        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution), actives, callbacks)
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env,
                                                     env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats,
                                            spec.trust_run)
-        if privacy.enabled:
-            from sbagents.private.training import freeze_normalization
-
-            train_env = freeze_normalization(train_env)
+        for active in actives:
+            train_env = active.extension.wrap_train_env(active.spec, train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
-                           max(execution.verbose - 1, 0), agent_path, spec.robust, constraint, spec.trust_run)
-        resumed_buffer = load_replay_buffer(model, agent_path, spec.trust_run) if agent_path is not None else None
-        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes)
+                           max(execution.verbose - 1, 0), agent_path, actives, spec.trust_run)
+        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes,
+                         trained_agent=agent_path, trust_run=spec.trust_run, save_freq=output.save_freq)
+        for active in actives:
+            active.extension.setup(active.spec, ctx)
         steps_before = model.num_timesteps if agent_path is not None else 0
         reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0,
                                     start=steps_before)
         own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter, vec_env)
-        if output.save_replay_buffer and output.save_freq > 0:
-            own.append(ReplayBufferCheckpoint(run_dir, ctx.calls(output.save_freq)))
-        if privacy.enabled:
-            from sbagents.private.training import make_dp_callback
-
-            own.append(make_dp_callback(model, privacy, exp.n_timesteps))
         if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
             own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
-        trust_cbs = trust_callbacks(trust, ctx)
+        per_extension = [active.extension.callbacks(active.spec, ctx) for active in actives]
     log_interval = execution.log_interval
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
@@ -218,65 +207,53 @@ def train_sb3(
     for warning in warnings:
         reporter.warn(warning)
     clock = LearningClock(graceful=True)
+    extension_callbacks = [cb for cbs in per_extension for cb in cbs]
     try:
         with clock:
-            model.learn(exp.n_timesteps, callback=[StopOnRequestCallback(clock), *own, *trust_cbs, *callbacks],
+            model.learn(exp.n_timesteps, callback=[StopOnRequestCallback(clock), *own, *extension_callbacks,
+                                                   *callbacks],
                         reset_num_timesteps=agent_path is None, log_interval=log_interval)
     finally:
         reporter.close()
         _save(model, ctx)
-        if output.save_replay_buffer:
-            save_replay_buffer(model, run_dir)
+        for active in actives:
+            active.extension.after_learn(active.spec, ctx)
     summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
                            clock)
     if warnings:
         summary["warnings"] = warnings
-    if resumed_buffer is not None or output.save_replay_buffer:
-        summary["replay_buffer"] = {"loaded_transitions": resumed_buffer, "saved": output.save_replay_buffer}
-    if constraint is not None:
-        from sbagents.constrained.options import record_constraint
-
-        summary.update(record_constraint(run_dir, model))
-    for callback in own:  # e.g. turn-based games: the learner's illegal moves during training
+    for active in actives:
+        summary.update(active.extension.summary(active.spec, ctx))
+    for callback in [*own, *extension_callbacks]:  # e.g. turn-based games: the learner's illegal moves in training
         summary.update(getattr(callback, "summary_items", dict)())
 
     def final_eval() -> dict[str, Any]:
         result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes,
                                                                  seed=seed), run_dir / VECNORMALIZE_FILE)
-        if constraint is not None:  # did the limit hold for the greedy policy too
-            from sbagents.constrained.options import judge_evaluation
-
-            judge_evaluation(summary["constraint"], result)
+        for active in actives:
+            active.extension.judge_evaluation(active.spec, summary, result)
         return result
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
-    return TrainResult(run_dir, model, exp, summary, clock.interrupted, trust_results(trust_cbs))
+    results: dict[str, Any] = {}
+    for active, cbs in zip(actives, per_extension, strict=True):
+        results.update(active.extension.results(active.spec, cbs))
+    return TrainResult(run_dir, model, exp, summary, clock.interrupted, results)
 
 
-def _constraint(spec: TrainSpec, exp: Experiment, trust: TrustOptions, team: bool) -> ConstraintSpec | None:
-    """``--constraint`` checked with the entry's ``constraint_kwargs`` (:mod:`sbagents.constrained.options`); None
-    for a run without one."""
-    from sbagents.constrained.options import CONFIG_KEY, check_unconstrained, constraint_spec
-
-    if spec.constraint is None:
-        check_unconstrained(spec.algo, exp.hyperparams, spec.hyperparams)
-        return None
-    if team:
-        raise UsageError("--constraint trains single-agent runs, not PettingZoo envs")
-    if spec.robust is not None:
-        raise UsageError("--constraint and --robust cannot be combined yet (one or the other)")
-    return constraint_spec(spec.constraint, spec.algo, trust.cost_limit, exp.hyperparams.get(CONFIG_KEY),
-                           f"entry for {exp.env_id}")
-
-
-def _private(privacy: PrivacyOptions, exp: Experiment, resuming: bool) -> Experiment:
-    """The DP version of ``exp`` (checked; Opacus imported here so runs without DP never need it)."""
-    try:
-        from sbagents.private.training import check_dp_experiment, private_experiment
-    except ImportError as exc:
-        raise UsageError(f"DP training needs Opacus: pip install 'sbagents[private]' ({exc})") from None
-    check_dp_experiment(privacy, exp, resuming)
-    return private_experiment(exp)
+def _prepare(plan: ExtensionPlan) -> list[ActiveExtension]:
+    """Let every registered extension check the plan: :meth:`~sbagents.extensions.TrainingExtension.prepare` for
+    those the run uses (in order; each may adjust the experiment and replace a later one's spec),
+    :meth:`~sbagents.extensions.TrainingExtension.check_unused` for the others; the run's extensions."""
+    for extension in registered_extensions():
+        spec = plan.specs.get(extension.name)
+        if spec is None:
+            extension.check_unused(plan)
+            continue
+        spec = extension.prepare(spec, plan)
+        plan.replace(extension.name, spec)
+        plan.exp = extension.adjust_experiment(spec, plan.exp)
+    return activate(list(plan.specs.values()))
 
 
 def _selfplay_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
@@ -304,9 +281,11 @@ def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:
 
 def _train_groups(
     spec: TrainSpec, exp: Experiment, ref: EnvRef, args: dict[str, Any], command: str,
-    options: tuple[OutputOptions, EvalOptions, ExecOptions], trust: TrustOptions, callbacks: Sequence[BaseCallback],
+    options: tuple[OutputOptions, EvalOptions, ExecOptions], actives: Sequence[ActiveExtension],
+    callbacks: Sequence[BaseCallback],
 ) -> TrainResult:
-    """The run of one model per group (:mod:`sbagents.pipeline.team_training`)."""
+    """The run of one model per group (:mod:`sbagents.pipeline.team_training`); of the extensions, the trust
+    callbacks' transparency log and safety counting apply per group (the others refuse group runs)."""
     from sbagents.pipeline.evaluation import evaluate_groups
     from sbagents.pipeline.team_training import build_groups, learn_groups
 
@@ -314,7 +293,8 @@ def _train_groups(
     seed = int(args["seed"])
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
-        setup = build_groups(exp, ref, run_dir, seed, options, trust, callbacks)
+        specs = {active.name: active.spec for active in actives}
+        setup = build_groups(exp, ref, run_dir, seed, options, specs.get("trust"), callbacks)
     clock = LearningClock()
     learn_groups(setup, clock, execution.log_interval, run_dir, env_stem(ref.env_id))
     steps = sum(m.num_timesteps for m in setup.models.values())

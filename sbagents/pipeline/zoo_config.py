@@ -40,15 +40,8 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "critic",
         "deterministic_eval",
         "self_play",
-        "constraint_kwargs",
-        "robust_overrides",
-        "dp_overrides",
     }
 )
-#: Features whose entry key ``<feature>_overrides`` (hyperparameters) applies when the feature's flag is given:
-#: ``robust`` (``--robust``) and ``dp`` (``--dp-epsilon`` / ``--dp-noise``). The flag's defaults then carry the
-#: recipe the entry's results were measured with; ``-params`` and ``-n`` still win.
-FEATURE_OVERRIDES: dict[str, str] = {"robust": "robust_overrides", "dp": "dp_overrides"}
 #: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.
 MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
 #: The keys of :data:`ZOO_KEYS` that only turn-based games take.
@@ -241,36 +234,37 @@ def parse_overrides(pairs: list[str] | None, flag: str = "-params") -> dict[str,
     return result
 
 
-def feature_overrides(entry: dict[str, Any], features: tuple[str, ...], source: str) -> dict[str, Any]:
-    """The hyperparameters the entry's ``<feature>_overrides`` (:data:`FEATURE_OVERRIDES`) set for the enabled
-    ``features``, merged in order; :class:`UsageError` for a value that is not a mapping."""
+def feature_overrides(entry: dict[str, Any], keys: tuple[str, ...], source: str) -> dict[str, Any]:
+    """The hyperparameters the entry's override mappings ``keys`` set (the ``overrides_key`` of the run's training
+    extensions, e.g. ``robust_overrides`` with ``--robust``: the flag's defaults then carry the recipe the entry's
+    results were measured with; ``-params`` and ``-n`` still win), merged in order; :class:`UsageError` for a value
+    that is not a mapping."""
     merged: dict[str, Any] = {}
-    for feature in features:
-        value = entry.get(FEATURE_OVERRIDES[feature])
+    for key in keys:
+        value = entry.get(key)
         if value is None:
             continue
         if not isinstance(value, dict):
-            raise UsageError(f"{FEATURE_OVERRIDES[feature]} must be a mapping of hyperparameters, got {value!r} "
-                             f"({source})")
+            raise UsageError(f"{key} must be a mapping of hyperparameters, got {value!r} ({source})")
         merged.update(value)
     return merged
 
 
-def spec_entry(spec: TrainSpec, config_name: str, ref: EnvRef, features: tuple[str, ...] = ()
+def spec_entry(spec: TrainSpec, config_name: str, ref: EnvRef, overrides: tuple[str, ...] = ()
                ) -> tuple[dict[str, Any], str]:
     """The zoo entry of the env ``ref`` with the spec's overrides (``-params``, ``-n``, ``--env-kwargs``) applied,
     and where it came from (file and entry, for error messages). Shared by every backend's experiment builder.
 
     :param config_name: the shipped file to read when ``spec.conf_file`` is None (``zoo_configs/<name>.yml``).
-    :param features: the enabled features (keys of :data:`FEATURE_OVERRIDES`) whose ``<feature>_overrides`` apply
-        between the entry and ``-params``.
+    :param overrides: entry keys of hyperparameter overrides (the run's extensions') applied between the entry and
+        ``-params``.
     """
     spec.validate()
     path = Path(spec.conf_file) if spec.conf_file is not None else default_config_path(config_name)
     if spec.conf_file is not None and not path.exists():
         raise UsageError(f"config file {path} does not exist")
     entry = lookup_entry(path, ref.config_keys)
-    entry.update(feature_overrides({**entry, **spec.hyperparams}, features, f"{path}, entry for {ref.env_id}"))
+    entry.update(feature_overrides({**entry, **spec.hyperparams}, overrides, f"{path}, entry for {ref.env_id}"))
     entry.update(spec.hyperparams)
     if spec.n_timesteps is not None:
         entry["n_timesteps"] = spec.n_timesteps

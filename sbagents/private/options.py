@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from sbagents.errors import UsageError
 
 
-@dataclass
+@dataclass(frozen=True, kw_only=True)
 class PrivacyOptions:
     """What the ``--dp-*`` flags asked for (all None / default: no DP).
 
@@ -25,6 +25,7 @@ class PrivacyOptions:
 
     @property
     def enabled(self) -> bool:
+        """Whether DP training is asked for (an epsilon or a noise multiplier)."""
         return self.epsilon is not None or self.noise is not None
 
     def validate(self) -> None:

@@ -37,20 +37,10 @@ NEEDS_RAY = "--backend rllib needs Ray: pip install 'sbagents[distributed]'"
 UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
     ("spec", "trained_agent"): "-i/--trained-agent",
     ("spec", "gym_packages"): "--gym-packages",
-    ("spec", "robust"): "--robust",
-    ("spec", "constraint"): "--constraint",
     ("output", "tensorboard_log"): "-tb/--tensorboard-log",
     ("evaluation", "n_eval_envs"): "--n-eval-envs",
     ("execution", "vec_env"): "--vec-env",
     ("execution", "log_interval"): "--log-interval",
-    ("trust", "transparency_log"): "--transparency-log",
-    ("trust", "book_header"): "--transparency-format",
-    ("trust", "safety"): "--safety",
-    ("trust", "cost_limit"): "--cost-limit",
-    ("trust", "max_violations"): "--max-violations",
-    ("trust", "adversarial"): "--adversarial-eval",
-    ("trust", "fairness"): "--fairness",
-    ("trust", "bins"): "--bins",
 }
 
 
@@ -90,17 +80,20 @@ def check_address(address: str | None, timeout: float = 5.0) -> None:
         raise UsageError(f"cannot reach the Ray cluster at {address}: {exc.strerror or exc}") from None
 
 
-def check_options(groups: dict[str, Any]) -> None:
+def check_options(groups: dict[str, Any], refused: list[str] | None = None) -> None:
     """Reject options the RLlib backend cannot honour (one-line :class:`UsageError` naming their flags).
 
-    :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``,
-        ``trust``); a field that differs from its dataclass default counts as given.
+    :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``); a field
+        that differs from its dataclass default counts as given.
+    :param refused: flags of training extensions that refuse this backend
+        (:meth:`sbagents.extensions.TrainingExtension.unsupported_flags`), named in the same line.
     """
     given = []
     for (group, name), flag in UNSUPPORTED_OPTIONS.items():
         options = groups.get(group)
         if options is not None and getattr(options, name) != getattr(type(options)(), name):
             given.append(flag)
+    given += refused or []
     if given:
         raise UsageError(f"{', '.join(given)} not supported with --backend rllib")
     execution, spec = groups["execution"], groups["spec"]

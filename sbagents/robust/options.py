@@ -65,11 +65,13 @@ class RobustSpec:
     :param method: ``"sa"``, ``"adv"`` or ``"sa+adv"``.
     :param eps: the final perturbation radius trained against.
     :param options: the ``KEY=VALUE`` settings, as ``(key, parsed value)`` pairs.
+    :param text: the flag's value as given (recorded in ``args.yml``; :func:`parse_robust` reads it back).
     """
 
     method: str
     eps: float
     options: tuple[tuple[str, Any], ...] = ()
+    text: str = ""
 
     def model_class(self, algo: str) -> Any:
         """The SB3 class that trains ``algo`` with this method (imports torch)."""
@@ -124,4 +126,4 @@ def parse_robust(text: str, algo: str | None = None) -> RobustSpec:
         raise UsageError(f"--robust {method} trains {', '.join(ROBUST_ALGOS[method])}, not {algo}")
     if "sa" in method.split("+"):
         options = {**SA_DEFAULTS, **options}
-    return RobustSpec(method, eps, tuple(options.items()))
+    return RobustSpec(method, eps, tuple(options.items()), text)

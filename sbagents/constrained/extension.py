@@ -1,0 +1,113 @@
+"""``--constraint lagrangian|pid``: constrained training (:mod:`sbagents.constrained`) as a training extension
+(:mod:`sbagents.extensions`)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sbagents.callbacks.extension import TrustOptions
+from sbagents.constrained.options import (
+    CONFIG_KEY,
+    ConstraintSpec,
+    check_unconstrained,
+    constrained_class,
+    constraint_spec,
+    judge_evaluation,
+    record_constraint,
+)
+from sbagents.errors import UsageError
+from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
+
+
+def _verdict(held: bool | None, cost: float | None, where: str, measure: str) -> str:
+    if held is None or cost is None:
+        return f"not measured {where}"
+    return f"{'held' if held else 'missed'} {where} ({measure} {cost:.3g})"
+
+
+def constraint_line(constraint: Mapping[str, Any]) -> str:
+    """``constraint (lagrangian): cost limit 0.5 missed in training (recent episodes' mean cost 0.93); missed in the
+    final evaluation (mean episode cost 1); multiplier 2.9``."""
+    parts = [_verdict(constraint.get("held_in_training"), constraint.get("train_ep_cost"), "in training",
+                      "recent episodes' mean cost")]
+    if "held_in_evaluation" in constraint:
+        parts.append(_verdict(constraint["held_in_evaluation"], constraint.get("eval_ep_cost"),
+                              "in the final evaluation", "mean episode cost"))
+    return (f"constraint ({constraint['method']}): cost limit {constraint['cost_limit']:g} {'; '.join(parts)}; "
+            f"multiplier {constraint['multiplier']:.3g}")
+
+
+class ConstraintExtension(TrainingExtension[ConstraintSpec]):
+    """``--constraint`` with ``--cost-limit`` (a trust flag) and the entry's ``constraint_kwargs``: the algorithm's
+    constrained class (PPO-/SAC-Lagrangian), safety counting without the stop (the multiplier holds the limit), the
+    constraint's history in ``safety.json`` and its verdicts in ``summary.json``; a run dir whose ``args.yml`` has a
+    constraint loads with the constrained class."""
+
+    name = "constraint"
+    title = "constrained training (sbagents.constrained)"
+    flags = "--constraint"
+    spec_type = ConstraintSpec
+    config_keys = frozenset({CONFIG_KEY})
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--constraint", choices=["lagrangian", "pid"], default=None,
+                           help="train under --cost-limit: PPO-Lagrangian (ppo) or SAC-Lagrangian (sac) with a cost "
+                                "critic and a Lagrange (or PID) multiplier, settings from the entry's "
+                                "constraint_kwargs; safety.json records its history")
+
+    def from_args(self, args: argparse.Namespace) -> ConstraintSpec | None:
+        return None if args.constraint is None else ConstraintSpec(args.constraint, args.cost_limit)
+
+    def prepare(self, spec: ConstraintSpec, plan: ExtensionPlan) -> ConstraintSpec:
+        if plan.team:
+            raise UsageError("--constraint trains single-agent runs, not PettingZoo envs")
+        if "robust" in plan.specs:
+            raise UsageError("--constraint and --robust cannot be combined yet (one or the other)")
+        trust = plan.specs.get("trust")
+        limit = spec.cost_limit if spec.cost_limit is not None else getattr(trust, "cost_limit", None)
+        checked = constraint_spec(spec.method, plan.algo, limit, plan.exp.hyperparams.get(CONFIG_KEY),
+                                  f"entry for {plan.exp.env_id}")
+        # the multiplier holds the limit: count violations, never stop at the limit
+        plan.replace("trust", replace(trust if isinstance(trust, TrustOptions) else TrustOptions(), safety=True,
+                                      cost_limit=None))
+        return checked
+
+    def check_unused(self, plan: ExtensionPlan) -> None:
+        check_unconstrained(plan.algo, plan.exp.hyperparams, dict(plan.hyperparams))
+
+    def record(self, spec: ConstraintSpec) -> dict[str, Any]:
+        return spec.record()
+
+    def command_args(self, spec: ConstraintSpec) -> list[str]:
+        return ["--constraint", spec.method]
+
+    def model_class(self, spec: ConstraintSpec, algo: str, cls: type,
+                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
+        return spec.model_class(algo), {**kwargs, **spec.model_kwargs()}
+
+    def load_model(self, spec: ConstraintSpec, cls: type, path: Path, **kwargs: Any) -> BaseAlgorithm | None:
+        # the saved multiplier and its state continue (under the new cost limit); the constructor's keywords are not
+        # passed again
+        for key in spec.model_kwargs():
+            kwargs.pop(key, None)
+        return spec.load_model(cls, path, **kwargs)
+
+    def summary(self, spec: ConstraintSpec, ctx: TrainingContext) -> dict[str, Any]:
+        return record_constraint(ctx.run_dir, ctx.model)
+
+    def judge_evaluation(self, spec: ConstraintSpec, summary: dict[str, Any], result: dict[str, Any]) -> None:
+        judge_evaluation(summary["constraint"], result)  # did the limit hold for the greedy policy too
+
+    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+        constraint = summary.get("constraint")
+        return [constraint_line(constraint)] if constraint else []
+
+    def load_class(self, algo: str, args: Mapping[str, Any]) -> type | None:
+        # a constrained run's zip holds a cost critic the plain class refuses
+        return constrained_class(algo) if args.get("constraint") else None

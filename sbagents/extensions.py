@@ -1,0 +1,324 @@
+"""Training extensions: how a feature plugs into ``python -m sbagents.train`` without the pipeline knowing its name.
+
+A feature (DP-SGD training, robust training, constrained training, the trust callbacks, replay-buffer saving, or one
+of your own) is a :class:`TrainingExtension`. It declares its flags, parses them into a frozen spec at the CLI
+boundary, checks the spec against the backend and the experiment, and then takes part in an SB3 run through the
+hooks below, which :func:`sbagents.pipeline.training.train_sb3` calls in this fixed order for every extension whose
+spec the run carries (in registration order: the built-in ones first, then yours)::
+
+    add_arguments(group)                      the extension's flags, in an argument group of its own
+    from_args(args) -> spec | None            the parsed flags as a frozen spec (None: not used by this run)
+    unsupported_flags(spec, backend)          flags a backend cannot honour (refused in one line); default: SB3 only
+    overrides_key                             zoo entry key of hyperparameters applied when the spec is present
+    prepare(spec, plan) -> spec               check against the experiment; may replace another extension's spec
+    adjust_experiment(spec, exp) -> exp       e.g. DP's smaller networks
+    record(spec) -> dict                      entries of args.yml (command_args(spec): flags for command.txt)
+    wrap_train_env(spec, env) -> env          the training vec env
+    model_class(spec, algo, cls, kwargs)      the SB3 class and extra keyword arguments of the model
+    load_model(spec, cls, path, **kw)         how ``-i`` continues a model (None: SB3's own load)
+    setup(spec, ctx)                          once the model exists (e.g. load what -i left beside it)
+    callbacks(spec, ctx) -> [BaseCallback]    after sbagents' own callbacks, before the caller's
+    after_learn(spec, ctx)                    once learning stopped (also after Ctrl-C), before the summary
+    summary(spec, ctx) -> dict                keys of summary.json
+    judge_evaluation(spec, summary, result)   after the final evaluation
+    results(spec, callbacks) -> dict          what ``TrainResult.trust``/the console shows of the callbacks
+
+and, for any run (the spec is no longer there): :meth:`~TrainingExtension.summary_lines` (the console lines of
+``train`` from ``summary.json``) and :meth:`~TrainingExtension.load_class` (the SB3 class that loads a run whose
+``args.yml`` says it used the extension).
+
+Register one of your own with :func:`register_extension` (``sbagents.register_extension``) before building the
+``train`` parser or calling :func:`sbagents.pipeline.backends.train`; ``docs/extending.md`` has a worked example.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
+
+from sbagents.errors import UsageError
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import VecEnv
+
+SpecT = TypeVar("SpecT")
+
+
+class TrainingContext(Protocol):
+    """What an extension's :meth:`~TrainingExtension.callbacks` / :meth:`~TrainingExtension.summary` see of an SB3 run.
+
+    ``exp`` is the resolved :class:`~sbagents.pipeline.experiment.Experiment`, ``ref`` the env reference.
+    """
+
+    exp: Any
+    ref: Any
+    run_dir: Path
+    train_env: VecEnv
+    model: BaseAlgorithm
+    seed: int
+    eval_freq: int
+    eval_episodes: int
+    #: the model ``-i`` continues (None: a new model) and whether its files may hold pickles (``--trust-run``)
+    trained_agent: Path | None
+    trust_run: bool
+    #: env steps between checkpoints (``--save-freq``; <= 0: none)
+    save_freq: int
+    #: per-run scratch space of the extensions (keyed by extension name): extensions are shared objects
+    state: dict[str, Any]
+
+    def calls(self, env_steps: int) -> int:
+        """An env-step period as callback calls (one per vec step of ``train_env``), at least 1."""
+        ...
+
+    def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:
+        """A fresh evaluation vec env of the run's env (its VecNormalize statistics synced from training)."""
+        ...
+
+
+@dataclass
+class ExtensionPlan:
+    """What :meth:`TrainingExtension.prepare` checks a spec against, before the run dir exists.
+
+    :param algo: the ``--algo`` name.
+    :param exp: the resolved experiment (already adjusted by the extensions before this one).
+    :param ref: the env reference (``ref.env_id``).
+    :param team: a PettingZoo env (a team of agents) rather than one Gymnasium agent.
+    :param resuming: ``-i`` continues a model.
+    :param n_models: models the run trains (one per group of a team with ``policies: per_group``; else 1).
+    :param specs: every extension's spec of this run by extension name; :meth:`replace` swaps one.
+    :param hyperparams: the ``-params`` overrides.
+    """
+
+    algo: str
+    exp: Any
+    ref: Any
+    team: bool
+    resuming: bool
+    n_models: int = 1
+    specs: dict[str, Any] = field(default_factory=dict)
+    hyperparams: Mapping[str, Any] = field(default_factory=dict)
+
+    def replace(self, name: str, spec: Any) -> None:
+        """Replace the spec of the extension ``name`` (e.g. constrained training turns the safety stop off)."""
+        self.specs[name] = spec
+
+
+class TrainingExtension(Generic[SpecT]):
+    """A feature of ``train`` (see the module docstring for the order of the hooks).
+
+    Subclasses set :attr:`name` (unique), :attr:`title` (the ``--help`` group), :attr:`flags` (their flags, for
+    refusals) and :attr:`spec_type`, and override the hooks they need; every hook has a do-nothing default.
+    """
+
+    #: Unique name (the key of :attr:`ExtensionPlan.specs`).
+    name: ClassVar[str] = ""
+    #: Title of the extension's argument group in ``--help``.
+    title: ClassVar[str] = ""
+    #: The flags of the extension, as refusals name them (e.g. ``"--dp-*"``).
+    flags: ClassVar[str] = ""
+    #: The frozen spec type this extension's hooks take (:func:`extension_for` finds the extension of a spec).
+    spec_type: ClassVar[type]
+    #: Whether runs of one model per group (``policies: per_group``) take the extension (else refused in one line).
+    group_runs: ClassVar[bool] = False
+    #: Backends the extension works with.
+    backends: ClassVar[tuple[str, ...]] = ("sb3",)
+    #: Zoo entry key whose mapping overrides hyperparameters when the spec is present (None: none).
+    overrides_key: ClassVar[str | None] = None
+    #: Zoo entry keys the extension reads (accepted in config files besides RL Zoo's).
+    config_keys: ClassVar[frozenset[str]] = frozenset()
+
+    # --- the CLI boundary -------------------------------------------------------------------------------------
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        """Add the extension's flags to ``group`` (its own group of the ``train`` parser)."""
+
+    def from_args(self, args: argparse.Namespace) -> SpecT | None:
+        """The spec the parsed flags ask for, or None when the run does not use the extension.
+
+        :raises UsageError: flags that do not fit together (one line naming them).
+        """
+        return None
+
+    def default_spec(self) -> SpecT | None:
+        """The spec of a run that gave none for this extension (None: the extension is off by default)."""
+        return None
+
+    def is_active(self, spec: SpecT) -> bool:
+        """Whether ``spec`` asks for anything (a spec of defaults given through the Python API may not)."""
+        return True
+
+    def validate(self, spec: SpecT) -> None:
+        """Check the spec's own values (default: its ``validate()`` method, if it has one)."""
+        check = getattr(spec, "validate", None)
+        if callable(check):
+            check()
+
+    # --- checks before the run dir exists ---------------------------------------------------------------------
+    def unsupported_flags(self, spec: SpecT, backend: str) -> list[str]:
+        """The flags of ``spec`` that ``backend`` cannot honour (default: :attr:`flags` unless the backend is one of
+        :attr:`backends`); the backend refuses them all in one line."""
+        return [] if backend in self.backends else [self.flags]
+
+    def prepare(self, spec: SpecT, plan: ExtensionPlan) -> SpecT:
+        """Check ``spec`` against the experiment of ``plan`` and return the spec to train with.
+
+        :raises UsageError: what the extension cannot do with this algorithm, env or combination of features.
+        """
+        return spec
+
+    def check_unused(self, plan: ExtensionPlan) -> None:
+        """Called instead of :meth:`prepare` when the run does not use the extension (e.g. refuse its config key
+        given by ``-params``)."""
+
+    def adjust_experiment(self, spec: SpecT, exp: Any) -> Any:
+        """The experiment to train (default: ``exp`` unchanged)."""
+        return exp
+
+    def record(self, spec: SpecT) -> dict[str, Any]:
+        """Entries of the run's ``args.yml`` (what :meth:`load_class` reads back)."""
+        return {}
+
+    def command_args(self, spec: SpecT) -> list[str]:
+        """The flags that ask for ``spec``, for the ``command.txt`` of a run started from Python."""
+        return []
+
+    # --- building the run ---------------------------------------------------------------------------------------
+    def wrap_train_env(self, spec: SpecT, env: VecEnv) -> VecEnv:
+        """The training vec env (default: ``env`` unchanged)."""
+        return env
+
+    def model_class(self, spec: SpecT, algo: str, cls: type, kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
+        """The SB3 class of the model and the extra keyword arguments it is built (or loaded) with."""
+        return cls, kwargs
+
+    def load_model(self, spec: SpecT, cls: type, path: Path, **kwargs: Any) -> BaseAlgorithm | None:
+        """Load ``path`` to continue training (``-i``); None leaves it to :func:`sbagents.safe_load.load_model`."""
+        return None
+
+    def setup(self, spec: SpecT, ctx: TrainingContext) -> None:
+        """Called once the model is built (or loaded by ``-i``), before :meth:`callbacks`."""
+
+    def callbacks(self, spec: SpecT, ctx: TrainingContext) -> list[BaseCallback]:
+        """SB3 callbacks of the run."""
+        return []
+
+    # --- after learning -----------------------------------------------------------------------------------------
+    def after_learn(self, spec: SpecT, ctx: TrainingContext) -> None:
+        """Called once learning stopped (normally, by Ctrl-C or by an error), after the model is saved."""
+
+    def summary(self, spec: SpecT, ctx: TrainingContext) -> dict[str, Any]:
+        """Keys added to ``summary.json``."""
+        return {}
+
+    def judge_evaluation(self, spec: SpecT, summary: dict[str, Any], result: dict[str, Any]) -> None:
+        """Look at the final evaluation ``result`` (may update ``summary`` in place)."""
+
+    def results(self, spec: SpecT, callbacks: Sequence[BaseCallback]) -> dict[str, Any]:
+        """Final results of the run's callbacks worth showing (``TrainResult.trust``)."""
+        return {}
+
+    # --- any finished run ---------------------------------------------------------------------------------------
+    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+        """The console lines of ``train`` for the extension's ``summary.json`` keys (none when absent)."""
+        return []
+
+    def result_lines(self, results: Mapping[str, Any]) -> list[str]:
+        """The console lines for :meth:`results` (and for ``evaluate``'s summary)."""
+        return []
+
+    def load_class(self, algo: str, args: Mapping[str, Any]) -> type | None:
+        """The class that loads a run whose ``args.yml`` holds ``args`` (None: the algorithm's own class)."""
+        return None
+
+
+_REGISTRY: dict[str, TrainingExtension[Any]] = {}
+
+
+def register_extension(extension: TrainingExtension[Any]) -> TrainingExtension[Any]:
+    """Add ``extension`` to ``train`` (its flags, checks and hooks); returns it.
+
+    Registering an extension of the same name again replaces it in place (a reloaded module, a test).
+
+    :raises ValueError: an extension without a name or a spec type.
+    """
+    if not extension.name or not isinstance(getattr(extension, "spec_type", None), type):
+        raise ValueError(f"{type(extension).__name__} needs a name and a spec_type")
+    _REGISTRY[extension.name] = extension
+    return extension
+
+
+def unregister_extension(name: str) -> None:
+    """Remove the extension ``name`` (no error when absent)."""
+    _REGISTRY.pop(name, None)
+
+
+def registered_extensions() -> list[TrainingExtension[Any]]:
+    """Every registered extension, in registration order (the pipeline registers the built-in ones first)."""
+    return list(_REGISTRY.values())
+
+
+def extension_for(spec: object) -> TrainingExtension[Any]:
+    """The registered extension whose :attr:`~TrainingExtension.spec_type` ``spec`` is.
+
+    :raises UsageError: a spec no registered extension takes.
+    """
+    for extension in _REGISTRY.values():
+        if isinstance(spec, extension.spec_type):
+            return extension
+    raise UsageError(f"{type(spec).__name__} is not the spec of a registered training extension "
+                     "(sbagents.register_extension)")
+
+
+def specs_from_args(args: argparse.Namespace) -> list[Any]:
+    """The specs of every registered extension the parsed flags ask for, in registration order."""
+    specs = []
+    for extension in _REGISTRY.values():
+        spec = extension.from_args(args)
+        if spec is not None:
+            specs.append(spec)
+    return specs
+
+
+def config_keys() -> frozenset[str]:
+    """The zoo entry keys the registered extensions read."""
+    keys: frozenset[str] = frozenset()
+    for extension in _REGISTRY.values():
+        keys |= extension.config_keys | ({extension.overrides_key} if extension.overrides_key else set())
+    return keys
+
+
+@dataclass(frozen=True)
+class ActiveExtension:
+    """An extension together with the spec of one run."""
+
+    extension: TrainingExtension[Any]
+    spec: Any
+
+    @property
+    def name(self) -> str:
+        """The extension's name."""
+        return self.extension.name
+
+
+def activate(specs: Sequence[Any]) -> list[ActiveExtension]:
+    """Pair each spec with its extension, in registration order, adding the default spec of extensions given none
+    (:meth:`~TrainingExtension.default_spec`); specs that ask for nothing are dropped.
+
+    :raises UsageError: a spec of no registered extension, or two specs of one extension.
+    """
+    given = {extension_for(spec).name for spec in specs}
+    defaults = [ext.default_spec() for name, ext in _REGISTRY.items() if name not in given]
+    by_name: dict[str, ActiveExtension] = {}
+    for spec in [*specs, *(d for d in defaults if d is not None)]:
+        extension = extension_for(spec)
+        if not extension.is_active(spec):
+            continue
+        if extension.name in by_name:
+            raise UsageError(f"two {extension.name} specs given; a run takes one")
+        by_name[extension.name] = ActiveExtension(extension, spec)
+    order = list(_REGISTRY)
+    return sorted(by_name.values(), key=lambda active: order.index(active.name))

@@ -1,0 +1,89 @@
+"""``--save-replay-buffer`` and ``-i``'s replay buffer as a training extension (:mod:`sbagents.extensions`)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sbagents.algos import ALGOS
+from sbagents.errors import UsageError
+from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
+from sbagents.replay.buffer_files import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayBufferOptions:
+    """What happens to an off-policy run's replay buffer.
+
+    :param save: keep it in ``replay_buffer.npz`` (replaced at each checkpoint and at the end, also after Ctrl-C),
+        which ``-i`` loads to continue (``--save-replay-buffer``). Whatever this says, ``-i`` continues with the
+        buffer saved beside its model, if there is one.
+    """
+
+    save: bool = False
+
+
+class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
+    """Loads the buffer beside ``-i``'s model; with ``--save-replay-buffer`` saves it at checkpoints and at the end;
+    ``summary.json``'s ``replay_buffer`` item and its console line."""
+
+    name = "replay_buffer"
+    title = "replay buffer (off-policy algorithms)"
+    flags = "--save-replay-buffer"
+    spec_type = ReplayBufferOptions
+    group_runs = True
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--save-replay-buffer", action="store_true",
+                           help="off-policy: keep the replay buffer in the run dir (replay_buffer.npz, replaced at "
+                                "each checkpoint and at the end, also after Ctrl-C) so that -i continues with it")
+
+    def from_args(self, args: argparse.Namespace) -> ReplayBufferOptions:
+        return ReplayBufferOptions(save=args.save_replay_buffer)
+
+    def default_spec(self) -> ReplayBufferOptions:
+        return ReplayBufferOptions()
+
+    def unsupported_flags(self, spec: ReplayBufferOptions, backend: str) -> list[str]:
+        return [self.flags] if spec.save and backend not in self.backends else []
+
+    def prepare(self, spec: ReplayBufferOptions, plan: ExtensionPlan) -> ReplayBufferOptions:
+        if spec.save and (not ALGOS[plan.algo].off_policy or plan.n_models > 1):
+            raise UsageError("--save-replay-buffer keeps the buffer of one off-policy model (dqn, ddpg, td3, sac, "
+                             f"tqc, ...); {plan.algo} on {plan.ref.env_id} has none or trains one model per group")
+        return spec
+
+    def setup(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> None:
+        loaded = None
+        if ctx.trained_agent is not None:
+            loaded = load_replay_buffer(ctx.model, ctx.trained_agent, ctx.trust_run)
+        ctx.state[self.name] = loaded
+
+    def callbacks(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> list[BaseCallback]:
+        if spec.save and ctx.save_freq > 0:
+            return [ReplayBufferCheckpoint(ctx.run_dir, ctx.calls(ctx.save_freq))]
+        return []
+
+    def after_learn(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> None:
+        if spec.save:
+            save_replay_buffer(ctx.model, ctx.run_dir)
+
+    def summary(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> dict[str, Any]:
+        loaded = ctx.state.get(self.name)
+        if loaded is None and not spec.save:
+            return {}
+        return {"replay_buffer": {"loaded_transitions": loaded, "saved": spec.save}}
+
+    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+        buffer = summary.get("replay_buffer")
+        if not buffer:
+            return []
+        loaded = buffer["loaded_transitions"]
+        parts = ([] if loaded is None else [f"continued with the {loaded} transitions saved beside -i's model"]) + (
+            [f"saved in {run_dir}/replay_buffer.npz"] if buffer["saved"] else [])
+        return ["replay buffer: " + "; ".join(parts)]

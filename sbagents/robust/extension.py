@@ -1,0 +1,45 @@
+"""``--robust``: robust training (:mod:`sbagents.robust`) as a training extension (:mod:`sbagents.extensions`)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from sbagents.errors import UsageError
+from sbagents.extensions import ExtensionPlan, TrainingExtension
+from sbagents.robust.options import RobustSpec, parse_robust
+
+
+class RobustExtension(TrainingExtension[RobustSpec]):
+    """``--robust METHOD:EPS[,KEY=VALUE...]``: the algorithm's robust class (SA regularizer, adversarial rollouts),
+    the entry's ``robust_overrides`` applied, ``robust`` recorded in ``args.yml``; SB3 single-agent runs only."""
+
+    name = "robust"
+    title = "robust training (sbagents.robust)"
+    flags = "--robust"
+    spec_type = RobustSpec
+    overrides_key = "robust_overrides"
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--robust", default=None, metavar="SPEC",
+                           help="METHOD:EPS[,KEY=VALUE...]: sa (state-adversarial regularizer; ddpg, td3; keys kappa, "
+                                "steps, qdrop, ramp), adv (adversarial rollouts; ddpg, td3, sac; keys attack, share, "
+                                "ramp) or sa+adv; eps in the attacks' units, ramped up over the first half of training")
+
+    def from_args(self, args: argparse.Namespace) -> RobustSpec | None:
+        return None if args.robust is None else parse_robust(args.robust, args.algo)
+
+    def prepare(self, spec: RobustSpec, plan: ExtensionPlan) -> RobustSpec:
+        if plan.team:
+            raise UsageError("--robust trains single-agent ddpg/td3/sac runs, not PettingZoo envs")
+        return parse_robust(spec.text, plan.algo)
+
+    def record(self, spec: RobustSpec) -> dict[str, Any]:
+        return {"robust": spec.text}
+
+    def command_args(self, spec: RobustSpec) -> list[str]:
+        return ["--robust", spec.text]
+
+    def model_class(self, spec: RobustSpec, algo: str, cls: type,
+                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
+        return spec.model_class(algo), {**kwargs, **spec.model_kwargs()}

@@ -84,7 +84,7 @@ _HOOKS_ATTR = "_sbagents_error_hooks"
 _SHADOWED = (*_HOOK_METHODS, _HOOKS_ATTR, "_excluded_save_params")
 
 
-def install_exception_hook(model: BaseAlgorithm, owner: object, on_error: Callable[[], None]) -> None:
+def install_exception_hook(model: BaseAlgorithm, owner: object, on_error: Callable[[], object]) -> None:
     """Make ``on_error()`` run when an exception (including ``KeyboardInterrupt``) leaves ``model.learn``.
 
     SB3 does not call ``_on_training_end`` when ``learn`` raises. ``learn`` spends its time in
@@ -92,9 +92,9 @@ def install_exception_hook(model: BaseAlgorithm, owner: object, on_error: Callab
     ``try/except BaseException`` calling every registered ``on_error`` and re-raising. The shadowing
     attributes are excluded from ``model.save`` (so checkpoints taken during training stay clean) and
     removed by :func:`remove_exception_hook` (call it from ``_on_training_end``) or when they fire.
-    Several owners (callbacks) can hook the same model.
+    Several owners (callbacks) can hook the same model. What ``on_error`` returns is ignored.
     """
-    hooks: dict[int, Callable[[], None]] = model.__dict__.setdefault(_HOOKS_ATTR, {})
+    hooks: dict[int, Callable[[], object]] = model.__dict__.setdefault(_HOOKS_ATTR, {})
     hooks[id(owner)] = on_error
     if "_excluded_save_params" not in model.__dict__:
         class_excluded = type(model)._excluded_save_params.__get__(model)
@@ -124,7 +124,7 @@ def _unshadow(model: BaseAlgorithm) -> None:
 
 
 def _fire_hooks(model: BaseAlgorithm) -> None:
-    hooks: dict[int, Callable[[], None]] = model.__dict__.get(_HOOKS_ATTR, {})
+    hooks: dict[int, Callable[[], object]] = model.__dict__.get(_HOOKS_ATTR, {})
     _unshadow(model)
     for hook in list(hooks.values()):
         with contextlib.suppress(Exception):  # never mask the original exception
@@ -133,7 +133,7 @@ def _fire_hooks(model: BaseAlgorithm) -> None:
 
 def remove_exception_hook(model: BaseAlgorithm, owner: object) -> None:
     """Undo :func:`install_exception_hook` for ``owner`` (the wrappers go when no owner is left)."""
-    hooks: dict[int, Callable[[], None]] = model.__dict__.get(_HOOKS_ATTR, {})
+    hooks: dict[int, Callable[[], object]] = model.__dict__.get(_HOOKS_ATTR, {})
     hooks.pop(id(owner), None)
     if not hooks:
         _unshadow(model)

@@ -71,6 +71,8 @@ class KukaPickAndPlaceEnv(KukaEnvBase):
     :param render_mode: ``"rgb_array"`` (headless TinyRenderer, ``(240, 320, 3)`` uint8) or ``"human"``.
     """
 
+    robot: KukaGripper
+
     def __init__(
         self,
         reward_type: str = "sparse",

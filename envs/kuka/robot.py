@@ -23,7 +23,7 @@ import numpy as np
 import pybullet_data
 
 from sbagents.cache import cache_dir
-from sbagents.envs.kuka.sim import BulletSim
+from sbagents.envs.kuka.sim import BulletSim, Vector
 
 #: Number of controlled (and observed) joints; the 7th joint is held at 0.
 N_CONTROLLED = 6
@@ -158,7 +158,7 @@ class KukaIiwa:
         self._last_solution: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ state
-    def reset(self, joint_angles: Sequence[float]) -> None:
+    def reset(self, joint_angles: Vector) -> None:
         """Teleport the joints to ``joint_angles`` (6 or 7 values) with zero velocity and hold them."""
         q = np.zeros(self.n_joints)
         q[: len(joint_angles)] = joint_angles
@@ -228,7 +228,7 @@ class KukaIiwa:
         q[N_CONTROLLED:] = 0.0
         return self.clip_joints(q)
 
-    def inverse_kinematics(self, position: Sequence[float], tolerance: float = 0.01) -> np.ndarray:
+    def inverse_kinematics(self, position: Vector, tolerance: float = 0.01) -> np.ndarray:
         """Joint targets ``(7,)`` that put the end effector at ``position`` ``(3,)`` pointing down.
 
         Seeds PyBullet's IK with the current pose and, if that misses ``position`` by more than

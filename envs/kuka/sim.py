@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 import pybullet
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
+
+#: A vector argument (a position, a quaternion, joint angles): a sequence of floats or an ``(n,)`` array.
+Vector: TypeAlias = Sequence[float] | np.ndarray
 
 
 class BulletSim:
@@ -126,7 +129,7 @@ class BulletSim:
         return np.array(self._get_base_pose(body)[0])
 
     def set_base_pose(
-        self, body: int, position: Sequence[float], orientation: Sequence[float] = (0.0, 0.0, 0.0, 1.0)
+        self, body: int, position: Vector, orientation: Vector = (0.0, 0.0, 0.0, 1.0)
     ) -> None:
         """Teleport a body's base and zero its velocity (soft reset, ~10 us)."""
         self.client.resetBasePositionAndOrientation(body, list(position), list(orientation))

@@ -67,6 +67,7 @@ class BatchedTreasureHuntVecEnv(BatchedTeamVecEnv):
         self.max_cycles, self.shared = env.max_cycles, env.reward_mode == "shared"
         self.egocentric = env.observation_mode == "egocentric"
         obs_space = env.observation_space(self.possible_agents[0])
+        assert obs_space.shape is not None  # a Box of shape (obs_dim,)
         self._dim = int(obs_space.shape[0])
         n, n_a, n_t = n_envs, self.n_agents, self.n_treasures
         self._cells = self.size * self.size  # cell index ``cells`` is the "collected" sentinel

@@ -44,7 +44,7 @@ def _action_pairs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(onnx actions, SB3 actions)`` as float64 arrays of the same shape ``(N, *act_shape)``."""
     session = _session(onnx_path)
-    onnx_actions = session.run(None, {OBS_INPUT: _onnx_input(session, observations)})[0]
+    onnx_actions = np.asarray(session.run(None, {OBS_INPUT: _onnx_input(session, observations)})[0])
     sb3_actions = _sb3_actions(model, observations, vec_normalize).astype(np.float64)
     return onnx_actions.astype(np.float64).reshape(sb3_actions.shape), sb3_actions
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from pettingzoo import AECEnv
 from pettingzoo.classic.connect_four import connect_four
 from pettingzoo.utils import wrappers
 
@@ -85,7 +86,7 @@ class FastConnectFourRaw(connect_four.raw_env):  # type: ignore[misc]
 
 def env(**kwargs: Any) -> Any:
     """The wrapped env, as ``pettingzoo.classic.connect_four_v3.env(**kwargs)`` builds it."""
-    game = FastConnectFourRaw(**kwargs)
+    game: AECEnv[str, Any, Any] = FastConnectFourRaw(**kwargs)
     game = wrappers.TerminateIllegalWrapper(game, illegal_reward=-1)
     game = wrappers.AssertOutOfBoundsWrapper(game)
     return wrappers.OrderEnforcingWrapper(game)

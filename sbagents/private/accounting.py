@@ -60,7 +60,8 @@ def epsilon_of(draws: Counter[tuple[float, int]], noise_multiplier: float, delta
     rdp = sum(n * _rdp_of_one_draw(q, noise_multiplier / math.sqrt(k)) for (q, k), n in draws.items())
     with warnings.catch_warnings():  # "optimal order is the smallest alpha": epsilon above ~11, see ORDERS
         warnings.simplefilter("ignore", UserWarning)
-        eps, _ = get_privacy_spent(orders=ORDERS, rdp=rdp, delta=delta)
+        # opacus annotates rdp as list[float] | float; it takes any array (np.atleast_1d), as its docstring says
+        eps, _ = get_privacy_spent(orders=ORDERS, rdp=rdp, delta=delta)  # type: ignore[arg-type]
     return float(eps)
 
 

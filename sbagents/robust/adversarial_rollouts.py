@@ -88,7 +88,9 @@ class AdversarialRollouts(_Base):
         :return: ``(observations, attacked)``: same shape and dtype as ``obs``, and the ``(n_envs,)`` bool mask of the
             rows drawn for the attack (all False at eps 0).
         """
-        target = (self.policy, self.env)
+        env = self.env
+        assert env is not None  # rollouts are collected from the model's env
+        target = (self.policy, env)
         if self._adv_attacker is None or self._adv_target is None or any(
             a is not b for a, b in zip(target, self._adv_target, strict=True)
         ):

@@ -71,8 +71,10 @@ class ParallelTextStepPrinter(BaseParallelWrapper):  # type: ignore[misc]
 
     def __init__(self, env: ParallelEnv, stream: TextIO | None = None) -> None:
         super().__init__(env)
-        if env.render_mode != "ansi":
-            raise ValueError(f"ParallelTextStepPrinter needs render_mode='ansi', got {env.render_mode!r}")
+        # every PettingZoo env sets render_mode, but pettingzoo's ParallelEnv does not declare it
+        render_mode = env.render_mode  # type: ignore[attr-defined]
+        if render_mode != "ansi":
+            raise ValueError(f"ParallelTextStepPrinter needs render_mode='ansi', got {render_mode!r}")
         self._printer = _StatePrinter(env.render, stream)
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:

@@ -16,7 +16,7 @@ from sbagents.cli_common import ArgumentParser, run
 from sbagents.extensions import registered_extensions, specs_from_args
 from sbagents.pipeline.backends import train  # registers the built-in training extensions
 from sbagents.pipeline.console import train_summary_lines
-from sbagents.pipeline.env_names import sbagents_env_ids
+from sbagents.pipeline.env_names import import_packages, sbagents_env_ids
 from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.visualize.showcase import describe_policy
@@ -92,14 +92,25 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
     }
 
 
+def import_user_packages(argv: list[str]) -> None:
+    """Import the ``--gym-packages`` of ``argv`` before the parser is built: a package may register envs and training
+    extensions (:func:`sbagents.register_extension`), whose flags the parser then has."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--gym-packages", nargs="+", default=[])
+    known, _ = pre.parse_known_args(argv)
+    import_packages(known.gym_packages)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, train, print where the run went and its evaluation."""
+    argv = sys.argv[1:] if argv is None else argv
+    import_user_packages(argv)
     args = build_parser().parse_args(argv)
     if args.list:
         print("envs:  " + "  ".join(sbagents_env_ids()))
         print("algos: " + "  ".join(ALGOS))
         return 0
-    command = "python -m sbagents.train " + shlex.join(sys.argv[1:] if argv is None else argv)
+    command = "python -m sbagents.train " + shlex.join(argv)
     result = train(**options_from_args(args, command))
     lines = train_summary_lines(result.summary, result.run_dir, result.interrupted)
     if result.model is not None and not result.interrupted:

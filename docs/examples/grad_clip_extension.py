@@ -1,0 +1,71 @@
+"""A training extension of your own: ``--grad-clip X`` caps the gradient norm of any algorithm that has one.
+
+Run it with ``python -m sbagents.train --gym-packages grad_clip_extension --algo ppo --grad-clip 0.3`` (this folder
+on ``PYTHONPATH``), or from Python: ``register_extension(GradClipExtension())``, then
+``train(..., features=[GradClip(0.3)])``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sbagents import register_extension
+from sbagents.errors import UsageError
+from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
+
+
+@dataclass(frozen=True)
+class GradClip:
+    """The parsed flag: the largest gradient norm of an update."""
+
+    max_norm: float
+
+
+class GradClipExtension(TrainingExtension[GradClip]):
+    """``--grad-clip X``: the model's ``max_grad_norm`` (PPO, A2C, DQN, ...), recorded in ``args.yml`` and
+    ``summary.json``; SB3 only (``--backend rllib`` refuses it in one line)."""
+
+    name = "grad_clip"
+    title = "gradient clipping (an example extension)"
+    flags = "--grad-clip"
+    spec_type = GradClip
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--grad-clip", type=float, default=None, metavar="X",
+                           help="largest gradient norm of an update (algorithms with max_grad_norm)")
+
+    def from_args(self, args: argparse.Namespace) -> GradClip | None:
+        if args.grad_clip is None:
+            return None
+        if not args.grad_clip > 0:
+            raise UsageError(f"--grad-clip must be > 0, got {args.grad_clip}")
+        return GradClip(args.grad_clip)
+
+    def prepare(self, spec: GradClip, plan: ExtensionPlan) -> GradClip:
+        from sbagents.algos import ALGOS
+
+        if "max_grad_norm" not in inspect.signature(ALGOS[plan.algo].cls).parameters:
+            raise UsageError(f"--grad-clip: {plan.algo} has no max_grad_norm")
+        return spec
+
+    def record(self, spec: GradClip) -> dict[str, Any]:
+        return {"grad_clip": spec.max_norm}
+
+    def model_class(self, spec: GradClip, algo: str, cls: type,
+                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
+        return cls, {**kwargs, "max_grad_norm": spec.max_norm}
+
+    def summary(self, spec: GradClip, ctx: TrainingContext) -> dict[str, Any]:
+        return {"grad_clip": {"max_grad_norm": float(vars(ctx.model)["max_grad_norm"])}}
+
+    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+        clip = summary.get("grad_clip")
+        return [f"gradient norm capped at {clip['max_grad_norm']:g}"] if clip else []
+
+
+register_extension(GradClipExtension())

@@ -11,7 +11,7 @@ import shlex
 import sys
 from typing import Any
 
-from sbagents.algos import ALGOS
+from sbagents.algos import ALGOS, capability_table
 from sbagents.cli_common import ArgumentParser, run
 from sbagents.extensions import registered_extensions, specs_from_args
 from sbagents.pipeline.backends import train  # registers the built-in training extensions
@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print("envs:  " + "  ".join(sbagents_env_ids()))
         print("algos: " + "  ".join(ALGOS))
+        print("\nwhat each algorithm supports (sbagents.algos.FEATURES):\n" + capability_table())
         return 0
     command = "python -m sbagents.train " + shlex.join(argv)
     result = train(**options_from_args(args, command))

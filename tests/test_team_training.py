@@ -191,7 +191,7 @@ TEAM_ERRORS = [
      "that can:"),
     (["--env", "tiny_marl_pkg.variants:stateless", "--algo", "ppo", "-params", "critic:centralized"],
      "critic: centralized needs the env's global state()"),
-    (["--env", RELAY, "-params", "critic:centralized"], "critic: centralized is for ppo and a2c"),
+    (["--env", RELAY, "-params", "critic:centralized"], "critic: centralized is for a2c and ppo"),
     (["--env", RELAY, "-params", "policies:everyone"], "policies must be one of shared, per_agent, per_group"),
     (["--env", RELAY, "-params", "agent_id:3"], "agent_id must be true or false, got 3"),
     (["--env", RELAY, "-params", "monitor_kwargs:{}"], "monitor_kwargs apply to Gymnasium envs only"),

@@ -1,4 +1,5 @@
-"""The algorithm table: every name the CLIs accept, with the spaces each algorithm can handle."""
+"""The algorithm table: every name the CLIs accept, with the spaces each algorithm can handle and the training
+features it supports (the one capability table: refusals, ``train --list`` and the docs table come from it)."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ class AlgoSpec:
     :param observation_spaces: observation space types it can read.
     :param off_policy: True for replay-buffer algorithms (they accept ``replay_buffer_class``, e.g. HER).
     :param masked: acts with action masks (the env must have ``action_masks()``: turn-based games).
+    :param features: the training features it supports (:data:`FEATURES`).
     """
 
     cls: type[BaseAlgorithm]
@@ -31,6 +33,7 @@ class AlgoSpec:
     observation_spaces: tuple[type[spaces.Space], ...] = _ANY_OBS
     off_policy: bool = False
     masked: bool = False
+    features: frozenset[str] = frozenset()
 
     def supports(self, observation_space: spaces.Space, action_space: spaces.Space) -> bool:
         """Whether this algorithm can learn in an env with these spaces."""
@@ -39,17 +42,40 @@ class AlgoSpec:
         )
 
 
+#: Training features an algorithm may support -> what the feature is (the columns of the capability table).
+FEATURES: dict[str, str] = {
+    "dp": "DP-SGD training (--dp-*)",
+    "robust:sa": "--robust sa (state-adversarial regularizer)",
+    "robust:adv": "--robust adv (adversarial rollouts)",
+    "robust:sa+adv": "--robust sa+adv",
+    "constrained": "--constraint (Lagrangian / PID multiplier)",
+    "federated": "federated homes (python -m sbagents.federated)",
+    "rllib": "--backend rllib (PettingZoo envs)",
+    "centralized_critic": "critic: centralized (PettingZoo teams)",
+}
+
+
+def _features(*names: str) -> frozenset[str]:
+    unknown = set(names) - set(FEATURES)
+    assert not unknown, unknown
+    return frozenset(names)
+
+
 ALGOS: dict[str, AlgoSpec] = {
-    "a2c": AlgoSpec(A2C, _ANY_ACTION),
-    "ppo": AlgoSpec(PPO, _ANY_ACTION),
+    "a2c": AlgoSpec(A2C, _ANY_ACTION, features=_features("dp", "federated", "centralized_critic")),
+    "ppo": AlgoSpec(PPO, _ANY_ACTION,
+                    features=_features("dp", "constrained", "federated", "rllib", "centralized_critic")),
     "trpo": AlgoSpec(TRPO, _ANY_ACTION),
     "ppo_mask": AlgoSpec(MaskablePPO, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary), masked=True),
     "ars": AlgoSpec(ARS, (spaces.Box, spaces.Discrete), (spaces.Box, spaces.Discrete)),
     "dqn": AlgoSpec(DQN, (spaces.Discrete,), off_policy=True),
     "qrdqn": AlgoSpec(QRDQN, (spaces.Discrete,), off_policy=True),
-    "ddpg": AlgoSpec(DDPG, (spaces.Box,), off_policy=True),
-    "td3": AlgoSpec(TD3, (spaces.Box,), off_policy=True),
-    "sac": AlgoSpec(SAC, (spaces.Box,), off_policy=True),
+    "ddpg": AlgoSpec(DDPG, (spaces.Box,), off_policy=True,
+                     features=_features("dp", "robust:sa", "robust:adv", "robust:sa+adv", "federated")),
+    "td3": AlgoSpec(TD3, (spaces.Box,), off_policy=True,
+                    features=_features("dp", "robust:sa", "robust:adv", "robust:sa+adv", "federated")),
+    "sac": AlgoSpec(SAC, (spaces.Box,), off_policy=True,
+                    features=_features("dp", "robust:adv", "constrained", "federated")),
     "tqc": AlgoSpec(TQC, (spaces.Box,), off_policy=True),
     "crossq": AlgoSpec(CrossQ, (spaces.Box,), off_policy=True),
     "qlearning": AlgoSpec(QLearning, (spaces.Discrete,), (spaces.Discrete,)),
@@ -67,4 +93,41 @@ def algos_for(observation_space: spaces.Space, action_space: spaces.Space, masks
             if spec.supports(observation_space, action_space) and spec.masked == masks]
 
 
-__all__ = ["ALGOS", "AlgoSpec", "QLearning", "SARSA", "algos_for"]
+def algos_with(feature: str) -> tuple[str, ...]:
+    """The algorithms that support ``feature`` (a key of :data:`FEATURES`), in table order."""
+    if feature not in FEATURES:
+        raise KeyError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
+    return tuple(name for name, spec in ALGOS.items() if feature in spec.features)
+
+
+def _space_names(types: tuple[type[spaces.Space], ...]) -> str:
+    return ", ".join(t.__name__ for t in types)
+
+
+def capability_rows() -> list[dict[str, str]]:
+    """One row per algorithm: its name, spaces, kind and a mark per feature (the table of ``train --list``)."""
+    rows = []
+    for name, spec in ALGOS.items():
+        row = {"algo": name, "actions": _space_names(spec.action_spaces),
+               "observations": "any" if spec.observation_spaces == _ANY_OBS else _space_names(spec.observation_spaces),
+               "kind": "masked" if spec.masked else "off-policy" if spec.off_policy else "on-policy"}
+        row.update({feature: "yes" if feature in spec.features else "" for feature in FEATURES})
+        rows.append(row)
+    return rows
+
+
+def capability_table(markdown: bool = False) -> str:
+    """:func:`capability_rows` as an aligned text table, or as a Markdown table (``docs/architecture.md``)."""
+    rows = capability_rows()
+    header = list(rows[0])
+    if markdown:
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        return "\n".join(lines + ["| " + " | ".join(row.values()) + " |" for row in rows])
+    widths = {key: max(len(key), *(len(row[key]) for row in rows)) for key in header}
+    lines = ["  ".join(key.ljust(widths[key]) for key in header)]
+    lines += ["  ".join(row[key].ljust(widths[key]) for key in header) for row in rows]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+__all__ = ["ALGOS", "FEATURES", "AlgoSpec", "QLearning", "SARSA", "algos_for", "algos_with", "capability_rows",
+           "capability_table"]

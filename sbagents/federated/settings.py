@@ -7,6 +7,7 @@ import shlex
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from sbagents.algos import algos_with
 from sbagents.errors import UsageError
 from sbagents.pipeline.zoo_config import parse_overrides
 
@@ -15,7 +16,7 @@ STRATEGIES = ("fedavg", "fedprox", "dp-fedavg")
 #: Envs with a population of homes (:mod:`sbagents.federated.homes`).
 FEDERATED_ENVS = ("sbagents/SmartHome-v0",)
 #: Algorithms a home can train (SB3 actor-critics for SmartHome's Box actions).
-FEDERATED_ALGOS = ("ddpg", "td3", "sac", "ppo", "a2c")
+FEDERATED_ALGOS = algos_with("federated")
 
 
 @dataclass

@@ -13,7 +13,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.algos import ALGOS, algos_for
+from sbagents.algos import ALGOS, algos_for, algos_with
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
@@ -92,8 +92,9 @@ def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) 
     assert exp.team is not None
     on_policy = issubclass(ALGOS[exp.algo].cls, OnPolicyAlgorithm)
     centralized = exp.team.critic == "centralized"
-    if centralized and exp.algo not in ("ppo", "a2c"):
-        raise UsageError(f"critic: centralized is for ppo and a2c (a value function to centralize), not {exp.algo}")
+    if centralized and exp.algo not in algos_with("centralized_critic"):
+        raise UsageError(f"critic: centralized is for {' and '.join(algos_with('centralized_critic'))} (a value "
+                         f"function to centralize), not {exp.algo}")
     if on_policy:
         kwargs.setdefault("rollout_buffer_class", MaskedDictRolloutBuffer if dict_obs else MaskedRolloutBuffer)
     elif ALGOS[exp.algo].off_policy and dict_obs and "replay_buffer_class" not in kwargs:

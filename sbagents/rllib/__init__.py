@@ -19,8 +19,13 @@ from typing import Any
 
 from sbagents.errors import UsageError
 
-#: Algorithms the RLlib backend trains (names as in ``--algo``).
-RLLIB_ALGOS: tuple[str, ...] = ("ppo",)
+
+def rllib_algos() -> tuple[str, ...]:
+    """Algorithms the RLlib backend trains (names as in ``--algo``; the capability table's ``rllib`` column)."""
+    from sbagents.algos import algos_with  # imports SB3: only when asked
+
+    return algos_with("rllib")
+
 #: The RLlib checkpoint inside a run dir; its presence marks an RLlib run.
 CHECKPOINT_DIR = "rllib_checkpoint"
 #: Periodic module checkpoints (``--save-freq``) are ``<run dir>/checkpoint_<env steps>/``.
@@ -97,8 +102,8 @@ def check_options(groups: dict[str, Any], refused: list[str] | None = None) -> N
     if given:
         raise UsageError(f"{', '.join(given)} not supported with --backend rllib")
     execution, spec = groups["execution"], groups["spec"]
-    if spec.algo not in RLLIB_ALGOS:
-        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {spec.algo!r}")
+    if spec.algo not in rllib_algos():
+        raise UsageError(f"--backend rllib supports --algo {', '.join(rllib_algos())}; got {spec.algo!r}")
     if execution.device not in ("auto", "cpu"):
         raise UsageError(f"--backend rllib trains on the CPU here; got --device {execution.device}")
     check_address(execution.address)
@@ -110,7 +115,7 @@ __all__ = [
     "MODULE_SUBDIR",
     "NEEDS_RAY",
     "PROGRESS_FILE",
-    "RLLIB_ALGOS",
+    "rllib_algos",
     "SHARED_MODULE",
     "check_address",
     "check_options",

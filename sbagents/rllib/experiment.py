@@ -25,7 +25,7 @@ from sbagents.pipeline.env_names import EnvRef, make_parallel_env
 from sbagents.pipeline.options import TrainSpec
 from sbagents.pipeline.zoo_config import spec_entry
 from sbagents.registration import PETTINGZOO_ENVS
-from sbagents.rllib import RLLIB_ALGOS, SHARED_MODULE
+from sbagents.rllib import SHARED_MODULE, rllib_algos
 from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
 from sbagents.rllib.truncation import PettingZooEnv, keep_truncation
 
@@ -109,8 +109,8 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
 
     :param num_env_runners: overrides the entry's ``num_env_runners`` (``--num-env-runners``).
     """
-    if spec.algo not in RLLIB_ALGOS:
-        raise UsageError(f"--backend rllib supports --algo {', '.join(RLLIB_ALGOS)}; got {spec.algo!r}")
+    if spec.algo not in rllib_algos():
+        raise UsageError(f"--backend rllib supports --algo {', '.join(rllib_algos())}; got {spec.algo!r}")
     if not ref.multi_agent:
         raise UsageError(f"--backend rllib trains PettingZoo envs (e.g. {', '.join(PETTINGZOO_ENVS)} or a module "
                          f"such as mpe2.simple_spread_v3); got {ref.env_id}")

@@ -25,11 +25,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from sbagents.algos import algos_with
 from sbagents.errors import UsageError
 
 #: Algorithms each robust method trains, by name.
-ROBUST_ALGOS: dict[str, tuple[str, ...]] = {"sa": ("ddpg", "td3"), "adv": ("ddpg", "td3", "sac"),
-                                            "sa+adv": ("ddpg", "td3")}
+ROBUST_ALGOS: dict[str, tuple[str, ...]] = {
+    method: algos_with(f"robust:{method}") for method in ("sa", "adv", "sa+adv")}
 _ATTACKS = ("pgd", "fgsm", "critic", "uniform", "gaussian")
 _SA_KEYS = {"kappa": "sa_kappa", "steps": "sa_pgd_steps", "qdrop": "sa_critic_weight"}
 #: ``sa`` settings a spec that does not name them gets: the recipe docs/robust.md measures.

@@ -6,12 +6,7 @@
     print(result.run_dir, evaluate(RunRef("ppo", "sbagents/GridWorld-v0"))["mean_return"])   # 93.0
 """
 
-from sbagents.deploy.exporting import export, export_groups
-from sbagents.federated.personal import personalize
-from sbagents.federated.runner import federate
-from sbagents.federated.settings import FederatedSettings
-from sbagents.pipeline.backends import evaluate, train
-from sbagents.pipeline.options import (
+from sbagents.core.options import (
     EvalOptions,
     EvaluateOptions,
     ExecOptions,
@@ -19,7 +14,12 @@ from sbagents.pipeline.options import (
     StudyOptions,
     TrainSpec,
 )
-from sbagents.pipeline.run_dir import RunRef
+from sbagents.core.run_dir import RunRef
+from sbagents.deploy.exporting import export, export_groups
+from sbagents.federated.personal import personalize
+from sbagents.federated.runner import federate
+from sbagents.federated.settings import FederatedSettings
+from sbagents.pipeline.backends import evaluate, train
 from sbagents.pipeline.training import TrainResult
 from sbagents.pipeline.trust import TrustOptions
 from sbagents.pipeline.tuning import tune

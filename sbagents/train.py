@@ -13,13 +13,13 @@ from typing import Any
 
 from sbagents.algos import ALGOS
 from sbagents.cli_common import ArgumentParser, run
+from sbagents.core.env_names import sbagents_env_ids
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.errors import UsageError
 from sbagents.pipeline.backends import train
 from sbagents.pipeline.console import train_summary_lines
-from sbagents.pipeline.env_names import sbagents_env_ids
-from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.trust import TrustOptions, trust_summary_lines
-from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.private.options import PrivacyOptions
 from sbagents.visualize.showcase import describe_policy
 

@@ -6,7 +6,7 @@ observations, float64 rewards, terminations (never), truncations at ``max_cycles
 infos, ``state()`` and seeding (``reset(seed=s)`` seeds the generator as mpe2 does; ``reset()`` continues it). It
 skips mpe2's AEC round trip and per-agent Python loops, which makes every path that steps PettingZoo env copies
 (``per_group``, ``agent_id``, ``critic: centralized``, RLlib's env runners) several times faster on this env.
-:func:`sbagents.pipeline.env_names.make_parallel_env` uses it wherever the kwargs allow.
+:func:`sbagents.core.env_names.make_parallel_env` uses it wherever the kwargs allow.
 """
 
 from __future__ import annotations

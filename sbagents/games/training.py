@@ -18,17 +18,18 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.callbacks.run_files import AtomicEvalOutputs
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
 from sbagents.games.numpy_policy import numpy_actor
 from sbagents.games.players import ModelPlayer, Player, load_player
-from sbagents.games.pool import SNAPSHOT_DIR, IllegalMovesCallback, SelfPlayOptions, SnapshotCallback
+from sbagents.games.pool import SNAPSHOT_DIR, IllegalMovesCallback, SnapshotCallback
 from sbagents.games.selfplay import SelfPlayEnv, make_selfplay_env
 from sbagents.pipeline.env_factory import make_eval_vec
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.experiment import Experiment
-from sbagents.pipeline.options import EvaluateOptions
 
 #: Seed offset of the rating matches (apart from training and evaluation envs).
 ELO_SEED_OFFSET = 20_000

@@ -12,10 +12,10 @@ from collections.abc import Callable
 
 from pettingzoo import ParallelEnv
 
+from sbagents.core.team_options import TeamOptions
 from sbagents.errors import UsageError
 from sbagents.multiagent.group_env import GroupVecEnv, ObsLayout
 from sbagents.multiagent.joint import JointStepper
-from sbagents.multiagent.options import TeamOptions
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team import Team, monitor_path
 

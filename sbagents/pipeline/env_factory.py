@@ -1,4 +1,4 @@
-"""Building the vectorised training and evaluation envs of an :class:`~sbagents.pipeline.experiment.Experiment`."""
+"""Building the vectorised training and evaluation envs of an :class:`~sbagents.core.experiment.Experiment`."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
+from sbagents.core.env_names import EnvRef, pettingzoo_factory
+from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import EnvRef, pettingzoo_factory
-from sbagents.pipeline.experiment import Experiment
 from sbagents.state_files import existing, load_vecnormalize
 
 VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {

@@ -25,20 +25,20 @@ from sbagents.algos import ALGOS
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
+from sbagents.core.env_names import EnvRef, resolve_env
+from sbagents.core.experiment import Experiment, build_experiment
+from sbagents.core.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import group_stats_name, team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
 from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
-from sbagents.pipeline.env_names import EnvRef, resolve_env
 from sbagents.pipeline.evaluation import evaluate_model
-from sbagents.pipeline.experiment import Experiment, build_experiment
-from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
-from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.pipeline.replay_buffer import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
-from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem
 from sbagents.pipeline.trust import TrustOptions, trust_callbacks, trust_results
 from sbagents.private.options import PrivacyOptions
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
@@ -83,7 +83,7 @@ def default_command(spec: TrainSpec, execution: ExecOptions) -> str:
 
 class StopOnRequestCallback(BaseCallback):
     """Ends ``learn`` between two steps once ``clock.stop_requested`` (the first Ctrl-C / SIGTERM of a graceful
-    :class:`~sbagents.pipeline.lifecycle.LearningClock`)."""
+    :class:`~sbagents.core.lifecycle.LearningClock`)."""
 
     def __init__(self, clock: LearningClock) -> None:
         super().__init__(verbose=0)

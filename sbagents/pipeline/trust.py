@@ -21,11 +21,11 @@ from sbagents.callbacks import (
     fairness_report,
     parse_attack_spec,
 )
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.run_dir import LoadedRun
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_factory import make_eval_vec
 from sbagents.pipeline.models import RunContext
-from sbagents.pipeline.options import EvaluateOptions
-from sbagents.pipeline.run_dir import LoadedRun
 
 DEFAULT_TRANSPARENCY_FILE = "transparency.csv"
 #: Seed offsets of the attack and fairness evaluation envs (distinct from training and periodic evaluation).

@@ -27,9 +27,9 @@ from sbagents.atomic import write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
+from sbagents.core.run_dir import LoadedRun, RunRef, env_stem, load_run
 from sbagents.errors import UsageError
 from sbagents.pipeline.env_factory import MissingDependencyError, make_team_vecs, make_vec, normalize_for_eval
-from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
 
 
 class _Recorder(VecVideoRecorder):

@@ -17,11 +17,12 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
+from sbagents.core.env_names import EnvRef
+from sbagents.core.options import TrainSpec
+from sbagents.core.selfplay_options import SelfPlayOptions
+from sbagents.core.team_options import CRITICS, POLICY_MODES, TeamOptions
+from sbagents.core.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 from sbagents.errors import UsageError
-from sbagents.multiagent.options import CRITICS, POLICY_MODES, TeamOptions
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh,
@@ -158,7 +159,7 @@ class Experiment:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     team: TeamOptions | None = None  # set for PettingZoo envs
     deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
-    self_play: Any = None  # sbagents.games.pool.SelfPlayOptions for turn-based games
+    self_play: SelfPlayOptions | None = None  # set for turn-based games
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -310,24 +311,22 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     )
 
 
-def _self_play(value: Any, source: str) -> Any:
-    from sbagents.games.pool import SelfPlayOptions
-
+def _self_play(value: Any, source: str) -> SelfPlayOptions:
     return SelfPlayOptions.from_mapping(value, source)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef, features: tuple[str, ...] = ()) -> Experiment:
     """The :class:`Experiment` of ``spec`` on the env ``ref``: its zoo entry (``zoo_configs/<algo>.yml`` or
-    ``spec.conf_file``, looked up by :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`) with the overrides,
+    ``spec.conf_file``, looked up by :attr:`~sbagents.core.env_names.EnvRef.config_keys`) with the overrides,
     validated.
 
     :param features: enabled features whose entry overrides apply (``robust``, ``dp``:
-        :data:`~sbagents.pipeline.zoo_config.FEATURE_OVERRIDES`).
+        :data:`~sbagents.core.zoo_config.FEATURE_OVERRIDES`).
     """
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
     entry, where = spec_entry(spec, spec.algo, ref, features)
-    from sbagents.pipeline.image_obs import image_entry
+    from sbagents.core.image_obs import image_entry
 
     entry = image_entry(spec, ref, entry)
     return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game, ref.trusted_modules())

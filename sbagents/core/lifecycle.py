@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from sbagents.atomic import write_json
-from sbagents.pipeline.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
+from sbagents.core.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
 
 
 def draw_seed(seed: int) -> int:

@@ -339,7 +339,7 @@ def evaluate_envpool(results: Results, model: Any, seed: int, tiny: bool) -> dic
     from sbagents.core.env_names import resolve_env
     from sbagents.core.experiment import build_experiment
     from sbagents.core.options import TrainSpec
-    from sbagents.pipeline.env_factory import make_eval_vec
+    from sbagents.env_factory import make_eval_vec
 
     n = 4 if tiny else 16
     ref = resolve_env(ENV_ID)

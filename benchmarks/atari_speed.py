@@ -109,7 +109,7 @@ def env_rates(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> tuple[floa
     from sbagents.core.env_names import resolve_env
     from sbagents.core.experiment import build_experiment
     from sbagents.core.options import TrainSpec
-    from sbagents.pipeline.env_factory import make_vec
+    from sbagents.env_factory import make_vec
 
     ref = resolve_env(ENV_ID)
     exp = build_experiment(TrainSpec("ppo", ENV_ID), ref)

@@ -37,7 +37,7 @@ from sbagents.core.env_names import resolve_env  # noqa: E402
 from sbagents.core.experiment import build_experiment  # noqa: E402
 from sbagents.core.options import TrainSpec  # noqa: E402
 from sbagents.deploy.exporting import ExportChecks, export_run  # noqa: E402
-from sbagents.pipeline.env_factory import make_vec, normalize_for_training  # noqa: E402
+from sbagents.env_factory import make_vec, normalize_for_training  # noqa: E402
 from sbagents.pipeline.models import make_model  # noqa: E402
 
 ENV_ID = "sbagents/SmartHome-v0"

@@ -157,8 +157,8 @@ def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:
     from benchmarks.team_baselines import random_actor
     from sbagents.api import RunRef
     from sbagents.core.run_dir import load_run
+    from sbagents.env_factory import make_team_vecs
     from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
-    from sbagents.pipeline.env_factory import make_team_vecs
 
     loaded = load_run(RunRef(task.algo, task.env, logs, exp_id=int(run_dir.name.rsplit("_", 1)[1])))
     venvs = make_team_vecs(loaded.experiment, loaded.env, 1, None, vec_env="dummy")

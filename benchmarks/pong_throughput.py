@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env import VecTransposeImage
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
-from sbagents.pipeline.env_factory import make_vec
+from sbagents.env_factory import make_vec
 
 ENV_ID = "PongNoFrameskip-v4"
 PUBLISHED_BUDGET = 10_000_000

@@ -42,7 +42,7 @@ ENV = "treasure_hunt_v0"
 def train_supports_batched() -> bool:
     """Whether the env factory builds a batched VecEnv for ``vec_env="batched"``."""
     try:
-        from sbagents.pipeline.env_factory import make_vec
+        from sbagents.env_factory import make_vec
 
         ref = resolve_env(ENV)
         probe = make_vec(build_experiment(TrainSpec("ppo", ENV), ref), ref, 1, None, vec_env="batched")

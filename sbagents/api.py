@@ -6,6 +6,7 @@
     print(result.run_dir, evaluate(RunRef("ppo", "sbagents/GridWorld-v0"))["mean_return"])   # 93.0
 """
 
+from sbagents.core.lifecycle import TrainResult
 from sbagents.core.options import (
     EvalOptions,
     EvaluateOptions,
@@ -20,7 +21,6 @@ from sbagents.federated.personal import personalize
 from sbagents.federated.runner import federate
 from sbagents.federated.settings import FederatedSettings
 from sbagents.pipeline.backends import evaluate, train
-from sbagents.pipeline.training import TrainResult
 from sbagents.pipeline.trust import TrustOptions
 from sbagents.pipeline.tuning import tune
 from sbagents.private.options import PrivacyOptions

@@ -34,6 +34,12 @@ def register_envs() -> None:
 PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_hunt_v0"}
 
 
+#: PettingZoo env modules with an equivalent array implementation -> the ``module:function`` that builds it from the
+#: env kwargs, or returns None for kwargs it does not reproduce (then the module's own env is built). Named by path,
+#: like :data:`GYM_ENVS`, so that resolving env names never imports the packages that implement them.
+ARRAY_IMPLEMENTATIONS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_env:array_parallel_env"}
+
+
 def register_pettingzoo_env(name: str, source: str) -> None:
     """Let ``--env NAME`` mean the PettingZoo env at ``source`` (``pkg.my_env_v0`` or ``pkg.module:make_env``).
 

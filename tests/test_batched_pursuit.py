@@ -23,9 +23,9 @@ from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
 from sbagents.core.options import TrainSpec
 from sbagents.core.team_options import TeamOptions
+from sbagents.env_factory import vec_env_kind
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.pipeline.env_factory import vec_env_kind
 
 pursuit_v5 = pytest.importorskip("pettingzoo.sisl.pursuit_v5")
 

@@ -27,10 +27,10 @@ from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
 from sbagents.core.options import TrainSpec
 from sbagents.core.team_options import TeamOptions
+from sbagents.env_factory import vec_env_kind
 from sbagents.errors import UsageError
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.pipeline.env_factory import vec_env_kind
 
 mpe2_spread = pytest.importorskip("mpe2.simple_spread_v3")
 

@@ -32,8 +32,8 @@ from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
 from sbagents.core.monitor_files import read_monitor_files
 from sbagents.core.options import TrainSpec
+from sbagents.env_factory import make_vec
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_vec
 
 PONG, BREAKOUT = "PongNoFrameskip-v4", "BreakoutNoFrameskip-v4"
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"

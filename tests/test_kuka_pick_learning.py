@@ -94,7 +94,7 @@ def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) ->
 
 def test_in_hand_config_trains_with_the_aid_and_evaluates_the_plain_task() -> None:
     from sbagents.core.env_names import resolve_env
-    from sbagents.pipeline.env_factory import make_eval_vec, make_vec
+    from sbagents.env_factory import make_eval_vec, make_vec
 
     path = CONF.parent / "kuka_pick_in_hand.yml"
     entry = load_yaml(path)[OURS]

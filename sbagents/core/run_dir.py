@@ -27,6 +27,8 @@ if TYPE_CHECKING:
 
 SUMMARY_FILE = "summary.json"
 BEST_MODEL_FILE = "best_model.zip"
+#: The group of a run whose agents share one model (its files carry no group name).
+SHARED_GROUP = "shared"
 
 
 def env_stem(env_id: str) -> str:
@@ -274,6 +276,16 @@ def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
     return {str(g): [str(x) for x in a] for g, a in groups.items()}
 
 
+def group_model_name(stem: str, group: str) -> str:
+    """The model file of a group in a run dir: ``<EnvStem>.<group>.zip`` (``shared``: ``<EnvStem>.zip``)."""
+    return f"{stem}.zip" if group == SHARED_GROUP else f"{stem}.{group}.zip"
+
+
+def group_stats_name(group: str) -> str:
+    """The VecNormalize statistics file of a group: ``vecnormalize.npz`` (shared) or ``vecnormalize.<group>.npz``."""
+    return "vecnormalize.npz" if group == SHARED_GROUP else f"vecnormalize.{group}.npz"
+
+
 def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = False) -> Path:
     """A group's model file (``<EnvId>.<group>.zip`` or ``best_model.<group>.zip``), or :class:`UsageError`."""
     name = f"best_model.{group}.zip" if load_best else f"{env_stem(env_id)}.{group}.zip"
@@ -317,8 +329,6 @@ def load_run(ref: RunRef) -> LoadedRun:
 
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
-        from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo
-
         if ref.checkpoint is not None:
             raise UsageError("--load-checkpoint loads one model; this run has one model per group (its checkpoints "
                              "are rl_model.<group>_<steps>_steps.zip)")

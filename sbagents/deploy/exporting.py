@@ -34,9 +34,9 @@ from sbagents.deploy.onnx_export import (
     quantize_int8,
 )
 from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
+from sbagents.env_factory import make_eval_vec
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import OBS_KEY
-from sbagents.pipeline.env_factory import make_eval_vec
 
 
 @dataclass

@@ -42,7 +42,10 @@ def require_flower() -> None:
 
     try:
         import flwr  # noqa: F401
-        import opacus  # noqa: F401
+
+        from sbagents.private import require_opacus
+
+        require_opacus()
     except ImportError as exc:
         needs = " (Flower needs Python >= 3.11)" if sys.version_info < (3, 11) else ""
         raise UsageError(f"federated homes need Flower and Opacus: pip install 'sbagents[private]'{needs} "

@@ -1,6 +1,6 @@
-"""The run pipeline: a validated experiment (:mod:`sbagents.core`) -> env factory -> model + callbacks -> run dir.
+"""The run pipeline: a validated experiment (:mod:`sbagents.core`) -> envs (:mod:`sbagents.env_factory`) -> model +
+callbacks -> run dir.
 
-- :mod:`~sbagents.pipeline.env_factory`: an experiment's vectorised envs.
 - :mod:`~sbagents.pipeline.models`: the SB3 model of an experiment.
 - :mod:`~sbagents.pipeline.training`, :mod:`~sbagents.pipeline.evaluation`, :mod:`~sbagents.pipeline.tuning`: SB3
   training, evaluation and Optuna search; :mod:`~sbagents.pipeline.backends` picks SB3 or RLlib.

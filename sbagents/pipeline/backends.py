@@ -11,11 +11,12 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.core.lifecycle import TrainResult
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.core.run_dir import RunRef, load_run
 from sbagents.errors import UsageError
 from sbagents.pipeline.evaluation import evaluate_sb3_run
-from sbagents.pipeline.training import TrainResult, train_sb3
+from sbagents.pipeline.training import train_sb3
 from sbagents.pipeline.trust import TrustOptions, parse_attacks
 from sbagents.private.options import PrivacyOptions
 

@@ -15,10 +15,10 @@ from stable_baselines3.common.vec_env import VecEnv
 from sbagents.algos import ALGOS, algos_for
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
+from sbagents.env_factory import make_vec
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
 from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
-from sbagents.pipeline.env_factory import make_vec
 from sbagents.safe_load import load_model
 
 if TYPE_CHECKING:

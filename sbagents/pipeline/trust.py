@@ -23,8 +23,8 @@ from sbagents.callbacks import (
 )
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.run_dir import LoadedRun
+from sbagents.env_factory import make_eval_vec
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_eval_vec
 from sbagents.pipeline.models import RunContext
 
 DEFAULT_TRANSPARENCY_FILE = "transparency.csv"

@@ -25,12 +25,19 @@ import ray
 import torch
 
 from sbagents.core.env_names import EnvRef, resolve_env
-from sbagents.core.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
+from sbagents.core.lifecycle import (
+    LearningClock,
+    TrainResult,
+    base_summary,
+    default_command,
+    draw_seed,
+    finish_run,
+    new_run_dir,
+)
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.progress import ProgressReporter
 from sbagents.errors import UsageError
 from sbagents.multiagent.env_copy import declared_metrics
-from sbagents.pipeline.console import ProgressReporter
-from sbagents.pipeline.training import TrainResult, default_command
 from sbagents.rllib import CHECKPOINT_DIR, CHECKPOINT_PREFIX, PROGRESS_FILE, check_address
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.experiment import RllibExperiment, build_config, build_experiment

@@ -273,7 +273,7 @@ def choose(compare_out: dict[str, Any] | None, tiny: bool) -> dict[str, Any]:
 def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadline: float, choice: dict[str, Any],
           tiny: bool, work: Path) -> Any:
     """Phase 2: PPO on EnvPool until ``deadline``; returns ``train_sb3``'s result (its final evaluation included)."""
-    from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
     from sbagents.pipeline.training import train_sb3
 
     params = dict(choice["params"])
@@ -307,7 +307,7 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
 
 def curve_points(run_dir: Path) -> list[list[float]]:
     """``[timestep, minutes since the start, game score]`` of every training game, in the order they ended."""
-    from sbagents.pipeline.monitor_files import read_monitor_files
+    from sbagents.core.monitor_files import read_monitor_files
     from sbagents.visualize.curves import load_run_curve
 
     curve = load_run_curve(run_dir, ENV_ID)
@@ -336,10 +336,10 @@ def evaluate_envpool(results: Results, model: Any, seed: int, tiny: bool) -> dic
     """Phase 3: greedy games on EnvPool (one per env, in parallel)."""
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from sbagents.pipeline.env_factory import make_eval_vec
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.experiment import build_experiment
-    from sbagents.pipeline.options import TrainSpec
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.experiment import build_experiment
+    from sbagents.core.options import TrainSpec
+    from sbagents.env_factory import make_eval_vec
 
     n = 4 if tiny else 16
     ref = resolve_env(ENV_ID)

@@ -106,10 +106,10 @@ def env_rate(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> float:
 def env_rates(kind: str, n_envs: int, n_steps: int, seed: int = 0) -> tuple[float, float]:
     """:func:`env_rate` and the same transitions per second of this process's CPU time (all its threads, EnvPool's
     included; not SubprocVecEnv's worker processes): what one free core would give, whatever the load."""
-    from sbagents.pipeline.env_factory import make_vec
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.experiment import build_experiment
-    from sbagents.pipeline.options import TrainSpec
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.experiment import build_experiment
+    from sbagents.core.options import TrainSpec
+    from sbagents.env_factory import make_vec
 
     ref = resolve_env(ENV_ID)
     exp = build_experiment(TrainSpec("ppo", ENV_ID), ref)
@@ -133,7 +133,7 @@ def train_clock(algo: str, kind: str, params: dict[str, Any], warmup: int, timed
                 seed: int = 0) -> StepClock:
     """Train ``algo`` on Pong through ``train_sb3`` (the CLI's code path, no evaluations) for ``warmup + timed``
     steps, the run dir in a temporary folder; the returned clock timed the steps after ``warmup``."""
-    from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
     from sbagents.pipeline.training import train_sb3
 
     clock = StepClock(warmup)

@@ -33,12 +33,12 @@ from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
 from benchmarks.speed import machine_info, publish  # noqa: E402
+from sbagents.core.env_names import resolve_env  # noqa: E402
+from sbagents.core.experiment import build_experiment  # noqa: E402
+from sbagents.core.options import TrainSpec  # noqa: E402
 from sbagents.deploy.exporting import ExportChecks, export_run  # noqa: E402
-from sbagents.pipeline.env_factory import make_vec, normalize_for_training  # noqa: E402
-from sbagents.pipeline.env_names import resolve_env  # noqa: E402
-from sbagents.pipeline.experiment import build_experiment  # noqa: E402
+from sbagents.env_factory import make_vec, normalize_for_training  # noqa: E402
 from sbagents.pipeline.models import make_model  # noqa: E402
-from sbagents.pipeline.options import TrainSpec  # noqa: E402
 
 ENV_ID = "sbagents/SmartHome-v0"
 ALGO = "ddpg"

@@ -35,13 +35,13 @@ from typing import Any
 import torch
 
 from benchmarks.speed import publish
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.federated.evaluation import evaluate_homes, for_home
 from sbagents.federated.homes import Home, client_homes, held_out_homes
 from sbagents.federated.local import home_experiment, make_env, new_model
 from sbagents.federated.personal import personalize
 from sbagents.federated.runner import federate
 from sbagents.federated.settings import FederatedSettings
-from sbagents.pipeline.zoo_config import parse_overrides
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "federated-homes"

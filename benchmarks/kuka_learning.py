@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sbagents.pipeline.zoo_config import load_yaml
+from sbagents.core.zoo_config import load_yaml
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_CONF = ROOT / "configs" / "kuka.yml"

@@ -22,7 +22,7 @@ from typing import Any
 
 from benchmarks.speed import write_section
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
-from sbagents.pipeline.run_dir import env_stem
+from sbagents.core.run_dir import env_stem
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

@@ -31,8 +31,8 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from benchmarks.speed import publish, recorded_argv
 from sbagents.algos import ALGOS
-from sbagents.pipeline.experiment import resolve
-from sbagents.pipeline.zoo_config import load_yaml
+from sbagents.core.experiment import resolve
+from sbagents.core.zoo_config import load_yaml
 
 CONFIG = Path(__file__).resolve().parent / "configs" / "kuka_pick.yml"
 OURS = "sbagents/KukaPickAndPlace-v0"

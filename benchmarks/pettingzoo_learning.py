@@ -89,10 +89,10 @@ def cli(module: str, *args: str) -> subprocess.CompletedProcess[str]:
 
 
 def config_experiment(task: Task) -> Any:
-    """The shipped config's :class:`~sbagents.pipeline.experiment.Experiment` for ``task``."""
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.experiment import build_experiment
-    from sbagents.pipeline.options import TrainSpec
+    """The shipped config's :class:`~sbagents.core.experiment.Experiment` for ``task``."""
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.experiment import build_experiment
+    from sbagents.core.options import TrainSpec
 
     return build_experiment(TrainSpec(task.algo, task.env), resolve_env(task.env))
 
@@ -136,7 +136,7 @@ def _evaluate_checkpoint(task: Task, run_dir: Path, summary: dict[str, Any], log
     A checkpoint's training time is ``train_seconds`` minus the time between it and the final model's save, so it
     counts ``model.learn`` up to that checkpoint (periodic evaluations included), as ``train_seconds`` does.
     """
-    from sbagents.pipeline.run_dir import saved_checkpoints
+    from sbagents.core.run_dir import saved_checkpoints
 
     final = run_dir / f"{summary['env']}.zip"
     assert task.checkpoint_seconds is not None
@@ -156,9 +156,9 @@ def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:
     """Catches per episode of random adversaries against the run's trained agent."""
     from benchmarks.team_baselines import random_actor
     from sbagents.api import RunRef
+    from sbagents.core.run_dir import load_run
+    from sbagents.env_factory import make_team_vecs
     from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
-    from sbagents.pipeline.env_factory import make_team_vecs
-    from sbagents.pipeline.run_dir import load_run
 
     loaded = load_run(RunRef(task.algo, task.env, logs, exp_id=int(run_dir.name.rsplit("_", 1)[1])))
     venvs = make_team_vecs(loaded.experiment, loaded.env, 1, None, vec_env="dummy")

@@ -34,9 +34,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecTransposeImage
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
-from sbagents.pipeline.env_factory import make_vec
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.env_factory import make_vec
 
 ENV_ID = "PongNoFrameskip-v4"
 PUBLISHED_BUDGET = 10_000_000
@@ -142,7 +142,7 @@ def report(
     run_dir: Path, md_path: Path, png_path: Path, throughput: Path | None, rss_log: Path | None
 ) -> str:
     """Write the learning curve PNG and a markdown table of a (possibly still running) Pong run."""
-    from sbagents.pipeline.run_dir import RunRef
+    from sbagents.core.run_dir import RunRef
     from sbagents.visualize.curves import load_run_curve, plot
 
     curve = load_run_curve(run_dir, ENV_ID)

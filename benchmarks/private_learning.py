@@ -22,7 +22,7 @@ from typing import Any
 
 from benchmarks.speed import publish
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, PrivacyOptions, TrainSpec, train
-from sbagents.pipeline.zoo_config import parse_overrides
+from sbagents.core.zoo_config import parse_overrides
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "private-smarthome"

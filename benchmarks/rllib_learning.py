@@ -32,10 +32,10 @@ from typing import Any
 
 from benchmarks.speed import write_section
 from sbagents.cli_common import run
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.run_dir import env_stem
-from sbagents.pipeline.zoo_config import parse_overrides
+from sbagents.core.env_names import resolve_env
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.run_dir import env_stem
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.training import train_rllib

@@ -37,11 +37,11 @@ from stable_baselines3.common.vec_env import VecEnv
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
 from benchmarks.noop_vec_env import NoOpVecEnv
 from sbagents.batched import make_batched_vec_env
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import Experiment, build_experiment
+from sbagents.core.options import TrainSpec
 from sbagents.envs.treasure_hunt_v0 import parallel_env
 from sbagents.multiagent.parameter_sharing import make_parameter_sharing_vec_env
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import Experiment, build_experiment
-from sbagents.pipeline.options import TrainSpec
 
 SIMPLE_SPREAD = "mpe2.simple_spread_v3"
 PURSUIT = "pettingzoo.sisl.pursuit_v5"

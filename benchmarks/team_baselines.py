@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.multiagent.options import TeamOptions
 from sbagents.multiagent.team_eval import Actor, run_team_episodes, slot_agents, team_summary
 
 #: Discrete simple_spread actions: no-op, -x, +x, -y, +y.

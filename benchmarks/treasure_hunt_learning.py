@@ -30,11 +30,11 @@ from stable_baselines3.common.utils import set_random_seed
 
 from benchmarks.speed import write_section
 from sbagents.batched import BatchedTreasureHuntVecEnv, make_batched_vec_env
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import TrainSpec
 from sbagents.envs.treasure_hunt_v0 import parallel_env
 from sbagents.multiagent.team_eval import evaluate_team
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.options import TrainSpec
 
 ENV = "treasure_hunt_v0"
 
@@ -42,7 +42,7 @@ ENV = "treasure_hunt_v0"
 def train_supports_batched() -> bool:
     """Whether the env factory builds a batched VecEnv for ``vec_env="batched"``."""
     try:
-        from sbagents.pipeline.env_factory import make_vec
+        from sbagents.env_factory import make_vec
 
         ref = resolve_env(ENV)
         probe = make_vec(build_experiment(TrainSpec("ppo", ENV), ref), ref, 1, None, vec_env="batched")

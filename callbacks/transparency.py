@@ -17,7 +17,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.preprocessing import is_image_space
 
 from sbagents.callbacks.common import (
-    INTERNAL_INFO_KEYS,
     acted_slots,
     agent_layout,
     env_attr,
@@ -26,7 +25,7 @@ from sbagents.callbacks.common import (
     is_scalar,
     remove_exception_hook,
 )
-from sbagents.multiagent.team import ACTED
+from sbagents.core.info_keys import ACTED, INTERNAL_INFO_KEYS
 
 #: zlib level of ``.csv.gz`` logs (1 is ~3x faster than gzip's default 9, files ~25% larger).
 GZIP_LEVEL = 1

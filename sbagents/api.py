@@ -8,13 +8,8 @@
 
 from sbagents.callbacks.extension import TrustOptions
 from sbagents.constrained.options import ConstraintSpec
-from sbagents.deploy.exporting import export, export_groups
-from sbagents.extensions import TrainingExtension, register_extension
-from sbagents.federated.personal import personalize
-from sbagents.federated.runner import federate
-from sbagents.federated.settings import FederatedSettings
-from sbagents.pipeline.backends import evaluate, train
-from sbagents.pipeline.options import (
+from sbagents.core.lifecycle import TrainResult
+from sbagents.core.options import (
     EvalOptions,
     EvaluateOptions,
     ExecOptions,
@@ -22,8 +17,13 @@ from sbagents.pipeline.options import (
     StudyOptions,
     TrainSpec,
 )
-from sbagents.pipeline.run_dir import RunRef
-from sbagents.pipeline.training import TrainResult
+from sbagents.core.run_dir import RunRef
+from sbagents.deploy.exporting import export, export_groups
+from sbagents.extensions import TrainingExtension, register_extension
+from sbagents.federated.personal import personalize
+from sbagents.federated.runner import federate
+from sbagents.federated.settings import FederatedSettings
+from sbagents.pipeline.backends import evaluate, train
 from sbagents.pipeline.tuning import tune
 from sbagents.private.options import PrivacyOptions
 from sbagents.replay.extension import ReplayBufferOptions

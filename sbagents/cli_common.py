@@ -11,8 +11,8 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any, NoReturn
 
+from sbagents.core.run_dir import RunRef
 from sbagents.errors import UsageError
-from sbagents.pipeline.run_dir import RunRef
 from sbagents.source_tree import shadowing_folder, shadowing_hint
 
 
@@ -28,7 +28,7 @@ def add_run_arguments(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, required: bool = True, exp_id: bool = True,
     load_best: bool = True, env_kwargs: bool = False, trust: bool = True,
 ) -> None:
-    """The flags that pick finished runs (a :class:`~sbagents.pipeline.run_dir.RunRef`, see :func:`run_ref`):
+    """The flags that pick finished runs (a :class:`~sbagents.core.run_dir.RunRef`, see :func:`run_ref`):
     ``--algo --env -f --gym-packages``, plus ``--exp-id`` and ``--load-best`` / ``--load-checkpoint`` for commands
     on one run.
 
@@ -60,10 +60,10 @@ def add_run_arguments(
 
 
 def run_ref(args: argparse.Namespace) -> RunRef:
-    """The :class:`~sbagents.pipeline.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
+    """The :class:`~sbagents.core.run_dir.RunRef` of the flags of :func:`add_run_arguments`."""
     env_kwargs: dict[str, Any] = {}
     if getattr(args, "env_kwargs", None):
-        from sbagents.pipeline.zoo_config import parse_overrides  # imports gymnasium: only when given
+        from sbagents.core.zoo_config import parse_overrides  # imports gymnasium: only when given
 
         env_kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
     return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),

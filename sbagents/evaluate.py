@@ -10,9 +10,9 @@ import json
 import torch
 
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
+from sbagents.core.options import EvaluateOptions
 from sbagents.pipeline.backends import evaluate
 from sbagents.pipeline.console import format_evaluation
-from sbagents.pipeline.options import EvaluateOptions
 
 
 def build_parser() -> ArgumentParser:

@@ -27,13 +27,16 @@ and, for any run (the spec is no longer there): :meth:`~TrainingExtension.summar
 ``train`` from ``summary.json``) and :meth:`~TrainingExtension.load_class` (the SB3 class that loads a run whose
 ``args.yml`` says it used the extension).
 
-Register one of your own with :func:`register_extension` (``sbagents.register_extension``) before building the
-``train`` parser or calling :func:`sbagents.pipeline.backends.train`; ``docs/extending.md`` has a worked example.
+The built-in extensions are named in :data:`sbagents.registration.TRAINING_EXTENSIONS` and imported the first time
+extensions are consulted. Register one of your own with :func:`register_extension` (``sbagents.register_extension``)
+before building the ``train`` parser or calling :func:`sbagents.pipeline.backends.train` (``train --gym-packages
+your_module`` imports it first); ``docs/extending.md`` has a worked example.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,7 +55,7 @@ SpecT = TypeVar("SpecT")
 class TrainingContext(Protocol):
     """What an extension's :meth:`~TrainingExtension.callbacks` / :meth:`~TrainingExtension.summary` see of an SB3 run.
 
-    ``exp`` is the resolved :class:`~sbagents.pipeline.experiment.Experiment`, ``ref`` the env reference.
+    ``exp`` is the resolved :class:`~sbagents.core.experiment.Experiment`, ``ref`` the env reference.
     """
 
     exp: Any
@@ -236,6 +239,25 @@ class TrainingExtension(Generic[SpecT]):
 
 
 _REGISTRY: dict[str, TrainingExtension[Any]] = {}
+_BUILTINS_LOADED = False
+
+
+def _load_builtins() -> None:
+    """Import the built-in extensions (:data:`sbagents.registration.TRAINING_EXTENSIONS`) once, ahead of any
+    registered before."""
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    _BUILTINS_LOADED = True
+    from sbagents.registration import TRAINING_EXTENSIONS
+
+    earlier = dict(_REGISTRY)
+    _REGISTRY.clear()
+    for path in TRAINING_EXTENSIONS:
+        module, _, name = path.partition(":")
+        extension = getattr(importlib.import_module(module), name)()
+        _REGISTRY[extension.name] = extension
+    _REGISTRY.update({name: ext for name, ext in earlier.items() if name not in _REGISTRY})
 
 
 def register_extension(extension: TrainingExtension[Any]) -> TrainingExtension[Any]:
@@ -257,7 +279,8 @@ def unregister_extension(name: str) -> None:
 
 
 def registered_extensions() -> list[TrainingExtension[Any]]:
-    """Every registered extension, in registration order (the pipeline registers the built-in ones first)."""
+    """Every registered extension: the built-in ones first (in hook order), then yours in registration order."""
+    _load_builtins()
     return list(_REGISTRY.values())
 
 
@@ -266,7 +289,7 @@ def extension_for(spec: object) -> TrainingExtension[Any]:
 
     :raises UsageError: a spec no registered extension takes.
     """
-    for extension in _REGISTRY.values():
+    for extension in registered_extensions():
         if isinstance(spec, extension.spec_type):
             return extension
     raise UsageError(f"{type(spec).__name__} is not the spec of a registered training extension "
@@ -276,7 +299,7 @@ def extension_for(spec: object) -> TrainingExtension[Any]:
 def specs_from_args(args: argparse.Namespace) -> list[Any]:
     """The specs of every registered extension the parsed flags ask for, in registration order."""
     specs = []
-    for extension in _REGISTRY.values():
+    for extension in registered_extensions():
         spec = extension.from_args(args)
         if spec is not None:
             specs.append(spec)
@@ -286,7 +309,7 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
 def config_keys() -> frozenset[str]:
     """The zoo entry keys the registered extensions read."""
     keys: frozenset[str] = frozenset()
-    for extension in _REGISTRY.values():
+    for extension in registered_extensions():
         keys |= extension.config_keys | ({extension.overrides_key} if extension.overrides_key else set())
     return keys
 
@@ -311,7 +334,7 @@ def activate(specs: Sequence[Any]) -> list[ActiveExtension]:
     :raises UsageError: a spec of no registered extension, or two specs of one extension.
     """
     given = {extension_for(spec).name for spec in specs}
-    defaults = [ext.default_spec() for name, ext in _REGISTRY.items() if name not in given]
+    defaults = [ext.default_spec() for ext in registered_extensions() if ext.name not in given]
     by_name: dict[str, ActiveExtension] = {}
     for spec in [*specs, *(d for d in defaults if d is not None)]:
         extension = extension_for(spec)
@@ -320,5 +343,5 @@ def activate(specs: Sequence[Any]) -> list[ActiveExtension]:
         if extension.name in by_name:
             raise UsageError(f"two {extension.name} specs given; a run takes one")
         by_name[extension.name] = ActiveExtension(extension, spec)
-    order = list(_REGISTRY)
+    order = [ext.name for ext in registered_extensions()]
     return sorted(by_name.values(), key=lambda active: order.index(active.name))

@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
                          "masks (e.g. pettingzoo.classic.connect_four_v3); use evaluate for other envs")
     import torch
 
+    from sbagents.core.run_dir import load_run
     from sbagents.games.aec import game_name, make_game
     from sbagents.games.players import ModelPlayer
     from sbagents.games.selfplay import SELFPLAY_KWARGS
@@ -81,7 +82,6 @@ def main(argv: list[str] | None = None) -> int:
         play_game,
         tally_line,
     )
-    from sbagents.pipeline.run_dir import load_run
 
     torch.set_num_threads(1)
     if args.seed is not None:

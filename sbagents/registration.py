@@ -34,6 +34,23 @@ def register_envs() -> None:
 PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_hunt_v0"}
 
 
+#: PettingZoo env modules with an equivalent array implementation -> the ``module:function`` that builds it from the
+#: env kwargs, or returns None for kwargs it does not reproduce (then the module's own env is built). Named by path,
+#: like :data:`GYM_ENVS`, so that resolving env names never imports the packages that implement them.
+ARRAY_IMPLEMENTATIONS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_env:array_parallel_env"}
+
+#: The built-in training extensions (:mod:`sbagents.extensions`), in hook order, as ``module:class`` paths like
+#: :data:`GYM_ENVS`: :func:`sbagents.extensions.registered_extensions` imports them the first time extensions are
+#: consulted, so that nothing below the pipeline imports the feature packages.
+TRAINING_EXTENSIONS: tuple[str, ...] = (
+    "sbagents.replay.extension:ReplayBufferExtension",
+    "sbagents.private.extension:PrivacyExtension",
+    "sbagents.robust.extension:RobustExtension",
+    "sbagents.constrained.extension:ConstraintExtension",
+    "sbagents.callbacks.extension:TrustExtension",
+)
+
+
 def register_pettingzoo_env(name: str, source: str) -> None:
     """Let ``--env NAME`` mean the PettingZoo env at ``source`` (``pkg.my_env_v0`` or ``pkg.module:make_env``).
 

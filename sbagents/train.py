@@ -13,12 +13,12 @@ from typing import Any
 
 from sbagents.algos import ALGOS, capability_table
 from sbagents.cli_common import ArgumentParser, run
+from sbagents.core.env_names import import_packages, sbagents_env_ids
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.extensions import registered_extensions, specs_from_args
-from sbagents.pipeline.backends import train  # registers the built-in training extensions
+from sbagents.pipeline.backends import train
 from sbagents.pipeline.console import train_summary_lines
-from sbagents.pipeline.env_names import import_packages, sbagents_env_ids
-from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.zoo_config import parse_overrides
 from sbagents.visualize.showcase import describe_policy
 
 

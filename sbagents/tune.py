@@ -6,7 +6,7 @@ Parses the flags and calls :func:`sbagents.pipeline.tuning.tune`.
 from __future__ import annotations
 
 from sbagents.cli_common import ArgumentParser, run
-from sbagents.pipeline.options import StudyOptions, TrainSpec
+from sbagents.core.options import StudyOptions, TrainSpec
 from sbagents.pipeline.tuning import PRUNERS, SAMPLERS, tune
 
 

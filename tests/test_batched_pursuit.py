@@ -19,13 +19,13 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.batched import BatchedPursuitVecEnv, batched_env_id, make_batched_vec_env, unbatchable_kwargs
 from sbagents.batched.pursuit import need_to_surround
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import TrainSpec
+from sbagents.core.team_options import TeamOptions
+from sbagents.env_factory import vec_env_kind
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.multiagent.options import TeamOptions
-from sbagents.pipeline.env_factory import vec_env_kind
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.options import TrainSpec
 
 pursuit_v5 = pytest.importorskip("pettingzoo.sisl.pursuit_v5")
 

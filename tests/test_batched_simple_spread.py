@@ -23,14 +23,14 @@ from stable_baselines3.common.vec_env import VecEnv
 import sbagents.batched
 from sbagents.batched import BatchedSimpleSpreadVecEnv, batched_env_id, make_batched_vec_env, unbatchable_kwargs
 from sbagents.cli_common import run
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import TrainSpec
+from sbagents.core.team_options import TeamOptions
+from sbagents.env_factory import vec_env_kind
 from sbagents.errors import UsageError
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.multiagent.options import TeamOptions
-from sbagents.pipeline.env_factory import vec_env_kind
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.options import TrainSpec
 
 mpe2_spread = pytest.importorskip("mpe2.simple_spread_v3")
 

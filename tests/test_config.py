@@ -9,10 +9,10 @@ import torch.nn as nn
 from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 
+from sbagents.core.env_names import PETTINGZOO_DEFAULT_ENTRY, resolve_env
+from sbagents.core.experiment import resolve
+from sbagents.core.zoo_config import lookup_entry, parse_overrides
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import PETTINGZOO_DEFAULT_ENTRY, resolve_env
-from sbagents.pipeline.experiment import resolve
-from sbagents.pipeline.zoo_config import lookup_entry, parse_overrides
 
 GRID = "sbagents/GridWorld-v0"
 
@@ -129,7 +129,7 @@ def test_shipped_configs_parse() -> None:
         algo = path.stem
         if algo.startswith("rllib_"):
             continue  # Ray RLlib entries (--backend rllib), checked in tests/test_rllib.py
-        from sbagents.pipeline.zoo_config import load_yaml
+        from sbagents.core.zoo_config import load_yaml
 
         for env_id, entry in load_yaml(path).items():
             game = env_id not in ("default", "atari", PETTINGZOO_DEFAULT_ENTRY) and resolve_env(env_id).game

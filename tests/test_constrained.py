@@ -23,8 +23,8 @@ from sbagents.constrained import (
 )
 from sbagents.constrained.lagrangian import MULTIPLIERS
 from sbagents.constrained.options import CONSTRAINED_CLASSES, constrained_class, constraint_spec, own_keywords
+from sbagents.core.run_dir import RunRef, config_path, load_run
 from sbagents.errors import UsageError
-from sbagents.pipeline.run_dir import RunRef, config_path, load_run
 from tests.cli_helpers import check_error, run_main, summary
 
 torch.set_num_threads(1)

@@ -618,7 +618,7 @@ def test_monitor_files_stream_in_bounded_memory(tmp_path: Path, monkeypatch: pyt
 
 def test_monitor_files_merge_by_end_time_like_the_plots(tmp_path: Path) -> None:
     """Without decimation the dashboard's curve is what :func:`read_monitor_files` (the plots' reader) gives."""
-    from sbagents.pipeline.monitor_files import read_monitor_files
+    from sbagents.core.monitor_files import read_monitor_files
 
     logs = tmp_path / "logs"
     run_dir = write_run(logs)

@@ -14,10 +14,10 @@ import stable_baselines3.common.callbacks as sb3_callbacks
 import sbagents.multiagent.team_eval as team_eval
 import sbagents.pipeline.evaluation as evaluation
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import EvaluateOptions
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.options import EvaluateOptions
 
 GRID = "sbagents/GridWorld-v0"
 GRID_PARAMS = {"n_envs": 2, "n_steps": 32, "batch_size": 64, "n_epochs": 1}

@@ -28,12 +28,12 @@ from stable_baselines3.common.vec_env import VecFrameStack
 
 from sbagents.atari import envpool_support
 from sbagents.atari.envpool_support import AtariSettings, check_envpool, envpool_installed, training_vec_env
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.monitor_files import read_monitor_files
+from sbagents.core.options import TrainSpec
+from sbagents.env_factory import make_vec
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_vec
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.monitor_files import read_monitor_files
-from sbagents.pipeline.options import TrainSpec
 
 PONG, BREAKOUT = "PongNoFrameskip-v4", "BreakoutNoFrameskip-v4"
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"

@@ -12,9 +12,9 @@ import yaml
 from cli_helpers import summary
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
 from sbagents.private.options import PrivacyOptions
 from sbagents.robust.options import parse_robust
 

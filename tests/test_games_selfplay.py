@@ -11,11 +11,12 @@ from pettingzoo.classic import connect_four_v3, tictactoe_v3
 from sb3_contrib import MaskablePPO
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
+from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
 from sbagents.games.elo import fit_elo
 from sbagents.games.matches import match_summary, play_games
 from sbagents.games.players import RandomPlayer, load_player
-from sbagents.games.pool import OpponentPool, SelfPlayOptions, SnapshotCallback, snapshots
+from sbagents.games.pool import OpponentPool, SnapshotCallback, snapshots
 from sbagents.games.selfplay import SelfPlayEnv, make_selfplay_env
 
 C4 = "pettingzoo.classic.connect_four_v3"
@@ -173,8 +174,8 @@ def test_fit_elo_orders_players_and_anchors_random() -> None:
 def test_numpy_actor_matches_the_torch_policy(activation: str) -> None:
     import torch as th
 
+    from sbagents.core.experiment import ACTIVATIONS
     from sbagents.games.numpy_policy import numpy_actor
-    from sbagents.pipeline.experiment import ACTIVATIONS
 
     env = make_selfplay_env(C4, opponent="random")
     model = MaskablePPO("MlpPolicy", env, seed=0, policy_kwargs={"net_arch": [32, 16],

@@ -13,7 +13,7 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sbagents.pipeline.lifecycle import LearningClock
+from sbagents.core.lifecycle import LearningClock
 from sbagents.pipeline.training import StopOnRequestCallback
 
 

@@ -15,7 +15,7 @@ import yaml
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import SubprocVecEnv
 
-from sbagents.pipeline.env_names import resolve_env
+from sbagents.core.env_names import resolve_env
 
 USER_ENVS = Path(__file__).resolve().parent / "user_envs"
 

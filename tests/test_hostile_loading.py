@@ -250,7 +250,7 @@ def test_a_run_config_cannot_import_code(logs: Path, tmp_path: Path, capsys: pyt
     ("callback:[{subprocess.call: {args: [touch, MARKER]}}]", "allow-list"),
     ("callback:[{os.system: {command: touch MARKER}}]", "allow-list"),
     ("callback:[{stable_baselines3.common.save_util.load_from_pkl: {path: MARKER}}]", "not a BaseCallback class"),
-    ("env_wrapper:[sbagents.pipeline.experiment.importlib]", "not a Wrapper"),
+    ("env_wrapper:[sbagents.core.experiment.importlib]", "not a Wrapper"),
     ("policy_kwargs:{activation_fn: builtins.exec}", "allow-list"),
 ])
 def test_overrides_cannot_import_code(override: str, expected: str, tmp_path: Path,

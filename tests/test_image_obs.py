@@ -23,14 +23,14 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecFrameStack
 
 from sbagents.cli_common import run
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import TrainSpec
+from sbagents.core.zoo_config import default_config_path, lookup_entry
+from sbagents.env_factory import make_team_vecs
 from sbagents.errors import UsageError
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.preprocessing import GrayscaleObservation, ImagePreprocessing, ResizeObservation
-from sbagents.pipeline.env_factory import make_team_vecs
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import default_config_path, lookup_entry
 
 PONG = "pettingzoo.butterfly.cooperative_pong_v6"
 RAW_SHAPE = (280, 480, 3)  # cooperative_pong_v6's screen, (H, W, RGB) uint8; both paddles observe all of it

@@ -1,4 +1,6 @@
-"""The package's module-level imports form no cycle, and an SB3 run never loads the RLlib backend."""
+"""The package's module-level imports form no cycle (one would fail at import time), and an SB3 run never loads the
+RLlib backend. The layers and the package-level graph, imports inside functions included, are checked by
+tests/test_layers.py."""
 
 from __future__ import annotations
 

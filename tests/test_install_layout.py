@@ -27,7 +27,7 @@ def test_checkout_maps_envs_callbacks_and_configs(tmp_path: Path) -> None:
     code = NO_EDITABLE + (
         f"sys.path.insert(0, {str(REPO)!r})\n"
         "import sbagents, sbagents.callbacks, sbagents.envs.kuka, sbagents.zoo_configs\n"
-        "from sbagents.pipeline.zoo_config import default_config_path\n"
+        "from sbagents.core.zoo_config import default_config_path\n"
         "for m in (sbagents, sbagents.callbacks, sbagents.envs.kuka):\n"
         "    print(m.__file__)\n"
         "print(default_config_path('ppo'))\n"

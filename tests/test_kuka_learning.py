@@ -14,8 +14,8 @@ import torch
 from stable_baselines3 import DDPG, HerReplayBuffer
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
-from sbagents.pipeline.experiment import resolve
-from sbagents.pipeline.zoo_config import lookup_entry
+from sbagents.core.experiment import resolve
+from sbagents.core.zoo_config import lookup_entry
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "benchmarks" / "configs"

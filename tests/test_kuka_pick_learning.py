@@ -9,8 +9,8 @@ import torch
 from stable_baselines3 import HerReplayBuffer
 
 from benchmarks import kuka_learning, learning_speed
-from sbagents.pipeline.experiment import resolve
-from sbagents.pipeline.zoo_config import load_yaml
+from sbagents.core.experiment import resolve
+from sbagents.core.zoo_config import load_yaml
 
 CONF = learning_speed.CONFIG
 OURS, PANDA = learning_speed.OURS, learning_speed.PANDA
@@ -93,8 +93,8 @@ def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) ->
 
 
 def test_in_hand_config_trains_with_the_aid_and_evaluates_the_plain_task() -> None:
-    from sbagents.pipeline.env_factory import make_eval_vec, make_vec
-    from sbagents.pipeline.env_names import resolve_env
+    from sbagents.core.env_names import resolve_env
+    from sbagents.env_factory import make_eval_vec, make_vec
 
     path = CONF.parent / "kuka_pick_in_hand.yml"
     entry = load_yaml(path)[OURS]

@@ -11,11 +11,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3 import HerReplayBuffer
 
+from sbagents.core.experiment import resolve
+from sbagents.core.zoo_config import load_yaml, lookup_entry
 from sbagents.envs.kuka import KukaPushEnv, PickAndPlaceEnv, PickAndPlaceGoalEnv
 from sbagents.envs.kuka.scripted import ScriptedPusher, run_episode
 from sbagents.envs.kuka.tasks import BLOCK_HALF_HEIGHT, CUBE_SIZE
-from sbagents.pipeline.experiment import resolve
-from sbagents.pipeline.zoo_config import load_yaml, lookup_entry
 
 CONF = Path(__file__).resolve().parents[1] / "benchmarks" / "configs" / "kuka_random.yml"
 GOAL_ID = "sbagents/PickAndPlaceGoal-v0"

@@ -16,9 +16,9 @@ from cli_helpers import check_error, last_json, run_main, summary
 from gymnasium import spaces
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import build_experiment
-from sbagents.pipeline.run_dir import env_stem
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.run_dir import env_stem
 
 GRID = "sbagents/GridWorld-v0"
 USER_ENVS = Path(__file__).resolve().parent / "user_envs"

@@ -1,5 +1,5 @@
 """Property-based tests of the ``-params`` / ``--env-kwargs`` parser
-(:func:`sbagents.pipeline.zoo_config.parse_overrides`).
+(:func:`sbagents.core.zoo_config.parse_overrides`).
 
 Any text either parses to plain data (None, bool, str, float, int64, lists and mappings of them) or raises the
 one-line :class:`~sbagents.errors.UsageError`; it never evaluates or imports anything, and never raises anything
@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
+from sbagents.core.zoo_config import INT64_RANGE, MAX_OVERRIDE_CHARS, parse_overrides
 from sbagents.errors import UsageError
-from sbagents.pipeline.zoo_config import INT64_RANGE, MAX_OVERRIDE_CHARS, parse_overrides
 
 hypothesis = pytest.importorskip("hypothesis", reason="the test extra's hypothesis runs these fuzz tests")
 st = hypothesis.strategies

@@ -25,7 +25,7 @@ from sbagents.api import (
     record_video,
     train,
 )
-from sbagents.pipeline.env_names import resolve_env
+from sbagents.core.env_names import resolve_env
 
 TINY = {"n_envs": 1, "n_steps": 16, "batch_size": 16, "n_epochs": 1}
 

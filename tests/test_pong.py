@@ -18,9 +18,9 @@ from stable_baselines3.common.atari_wrappers import AtariWrapper
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecFrameStack
 
-from sbagents.pipeline.env_factory import make_vec
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.run_dir import load_experiment
+from sbagents.core.env_names import resolve_env
+from sbagents.core.run_dir import load_experiment
+from sbagents.env_factory import make_vec
 
 PONG = "PongNoFrameskip-v4"
 torch.set_num_threads(1)

@@ -85,7 +85,7 @@ def test_zoo_entry_is_validated_and_lr_schedule_resolved() -> None:
 
 @needs_ray
 def test_shipped_rllib_configs_resolve() -> None:
-    from sbagents.pipeline.zoo_config import load_yaml
+    from sbagents.core.zoo_config import load_yaml
     from sbagents.rllib.experiment import resolve_entry
 
     paths = sorted((Path(__file__).resolve().parents[1] / "zoo_configs").glob("rllib_*.yml"))
@@ -127,8 +127,8 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
     assert sorted(p.name for p in run_dir.glob("checkpoint_*")) == ["checkpoint_1000", "checkpoint_2000"]
     seconds = [float(r["train_seconds"]) for r in rows]
     assert 0 < seconds[0] < seconds[1] < seconds[2] <= s["train_seconds"]
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.options import EvaluateOptions
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.options import EvaluateOptions
     from sbagents.rllib.evaluation import evaluate_checkpoint
 
     early = evaluate_checkpoint(run_dir / "checkpoint_1000", resolve_env(RUN), "ppo", {"observation": "egocentric"},
@@ -153,8 +153,8 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
 
 @needs_ray
 def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: Path) -> None:
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.options import EvaluateOptions
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.options import EvaluateOptions
     from sbagents.rllib.evaluation import evaluate_run, load_modules
 
     proc = popen("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "1000000", "--num-env-runners",
@@ -233,8 +233,8 @@ def test_lean_env_runner_samples_what_rllib_samples() -> None:
     import numpy as np
     from ray.rllib.env.multi_agent_env_runner import MultiAgentEnvRunner
 
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.options import TrainSpec
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.options import TrainSpec
     from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
     from sbagents.rllib.experiment import build_config, build_experiment
 

@@ -27,8 +27,8 @@ USER_ENVS = Path(__file__).resolve().parent / "user_envs"
 def relay_config(monkeypatch: pytest.MonkeyPatch) -> Any:
     """The RLlib backend's PPO config for tiny_marl_pkg.relay_v0 (one module per group), sampling in-process."""
     monkeypatch.syspath_prepend(str(USER_ENVS))
-    from sbagents.pipeline.env_names import resolve_env
-    from sbagents.pipeline.options import TrainSpec
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.options import TrainSpec
     from sbagents.rllib.experiment import build_config, build_experiment
 
     ref = resolve_env("tiny_marl_pkg.relay_v0")

@@ -26,10 +26,10 @@ from stable_baselines3 import DQN, PPO
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, export_groups, train
 from sbagents.callbacks.extension import TrustOptions
+from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.masking import ActedMaskCallback, MaskedReplayBuffer, MaskedRolloutBuffer
-from sbagents.multiagent.options import TeamOptions
 from sbagents.registration import PETTINGZOO_ENVS
 
 USER_ENVS = Path(__file__).resolve().parent / "user_envs"

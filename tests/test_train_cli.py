@@ -14,8 +14,8 @@ from cli_helpers import cli, last_json, popen, summary
 from stable_baselines3 import PPO
 
 from sbagents.api import RunRef, export
+from sbagents.core.run_dir import load_run
 from sbagents.errors import UsageError
-from sbagents.pipeline.run_dir import load_run
 
 GRID = "sbagents/GridWorld-v0"
 RUN = "sbagents_GridWorld-v0"

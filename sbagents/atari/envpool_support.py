@@ -15,8 +15,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from sbagents.core.env_names import EnvRef
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import EnvRef
 
 #: How to install EnvPool (the ``atari`` extra), for error messages.
 ATARI_EXTRA_HINT = 'pip install "sbagents[atari]" (EnvPool: Linux, Python >= 3.11)'
@@ -96,7 +96,7 @@ def _atari_wrapper_class() -> type:
 def envpool_problems(exp: Any, ref: EnvRef, env_kwargs: dict[str, Any] | None = None) -> list[str]:
     """Why ``exp`` on ``ref`` cannot run on EnvPool (empty: it can).
 
-    :param exp: the :class:`~sbagents.pipeline.experiment.Experiment`.
+    :param exp: the :class:`~sbagents.core.experiment.Experiment`.
     :param env_kwargs: the env kwargs the VecEnv would be built with (the experiment's and the call's).
     """
     spec = _ale_spec(ref)

@@ -45,7 +45,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
 from sbagents.atari.envpool_support import AtariSettings, atari_settings, check_envpool
-from sbagents.pipeline.env_names import EnvRef
+from sbagents.core.env_names import EnvRef
 
 #: EnvPool's C++ seeds are ints: base seeds are taken modulo this (env ``i`` gets ``seed + i``).
 _SEED_MODULUS = 2**31 - 2**16
@@ -291,7 +291,7 @@ def make_envpool_vec_env(exp: Any, ref: EnvRef, n_envs: int, seed: int | None, e
                          monitor_dir: str | None) -> EnvPoolAtariVecEnv:
     """The EnvPool VecEnv of an experiment whose env wrapper is ``AtariWrapper`` (before frame stacking).
 
-    :param exp: the :class:`~sbagents.pipeline.experiment.Experiment`.
+    :param exp: the :class:`~sbagents.core.experiment.Experiment`.
     :param env_kwargs: the env kwargs it would be built with (none are supported).
     :raises UsageError: the experiment cannot run on EnvPool, or EnvPool is not installed.
     """

@@ -43,7 +43,7 @@ from sbagents.batched.base import BatchedTeamVecEnv, check_batchable, unreproduc
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 PURSUIT_ID = "pettingzoo.sisl.pursuit_v5"
-#: PettingZoo sources (:class:`~sbagents.pipeline.env_names.EnvRef.source`) this batched env reproduces.
+#: PettingZoo sources (:class:`~sbagents.core.env_names.EnvRef.source`) this batched env reproduces.
 PURSUIT_SOURCES: tuple[str, ...] = (PURSUIT_ID, f"{PURSUIT_ID}:parallel_env")
 #: What the batched env supports, for error messages.
 PURSUIT_SUPPORT = "any pursuit kwargs but surround=False, freeze_evaders=True, custom controllers or a render_mode"

@@ -46,7 +46,7 @@ from sbagents.batched.base import BatchedTeamVecEnv, check_batchable, unreproduc
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 SIMPLE_SPREAD_ID = "mpe2.simple_spread_v3"
-#: PettingZoo sources (:class:`~sbagents.pipeline.env_names.EnvRef.source`) this batched env reproduces.
+#: PettingZoo sources (:class:`~sbagents.core.env_names.EnvRef.source`) this batched env reproduces.
 SIMPLE_SPREAD_SOURCES: tuple[str, ...] = (SIMPLE_SPREAD_ID, f"{SIMPLE_SPREAD_ID}:parallel_env")
 #: What the batched env supports, for error messages.
 SIMPLE_SPREAD_SUPPORT = ("N, local_ratio, max_cycles, dynamic_rescaling; no continuous_actions, render_mode, "

@@ -6,7 +6,8 @@ observations, float64 rewards, terminations (never), truncations at ``max_cycles
 infos, ``state()`` and seeding (``reset(seed=s)`` seeds the generator as mpe2 does; ``reset()`` continues it). It
 skips mpe2's AEC round trip and per-agent Python loops, which makes every path that steps PettingZoo env copies
 (``per_group``, ``agent_id``, ``critic: centralized``, RLlib's env runners) several times faster on this env.
-:func:`sbagents.pipeline.env_names.make_parallel_env` uses it wherever the kwargs allow.
+:func:`sbagents.core.env_names.make_parallel_env` uses it wherever the kwargs allow (:func:`array_parallel_env`,
+listed in :data:`sbagents.registration.ARRAY_IMPLEMENTATIONS`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from sbagents.batched.simple_spread import BatchedSimpleSpreadVecEnv
+from sbagents.batched.simple_spread import BatchedSimpleSpreadVecEnv, unsupported_kwargs
 
 
 class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -85,3 +86,14 @@ class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
 
     def close(self) -> None:
         self._vec.close()
+
+
+def array_parallel_env(**env_kwargs: Any) -> SimpleSpreadParallelEnv | None:
+    """:class:`SimpleSpreadParallelEnv` of ``env_kwargs``, or None when they ask for something it does not reproduce
+    (or the installed mpe2's world differs from the one reproduced): then mpe2's own env is the one to build."""
+    if unsupported_kwargs(env_kwargs):
+        return None
+    try:
+        return SimpleSpreadParallelEnv(**env_kwargs)
+    except NotImplementedError:  # an mpe2 whose world differs from the one reproduced
+        return None

@@ -2,7 +2,7 @@
 file's size, and read incrementally across requests.
 
 A monitor file is ``#{"t_start": ...}``, then ``r,l,t`` (return, length, seconds since ``t_start`` at the episode's
-end) and one row per finished episode (the format :mod:`sbagents.pipeline.monitor_files` reads whole for the plots);
+end) and one row per finished episode (the format :mod:`sbagents.core.monitor_files` reads whole for the plots);
 a row with a cell that is not a finite number is malformed. Each file has one :class:`MonitorFile`, shared
 process-wide and continued on every read: each reads at most :data:`READ_BYTES` more of it,
 :data:`CHUNK_BYTES` at a time (rows parsed by numpy, a chunk with a malformed row line by line). Totals (episodes,

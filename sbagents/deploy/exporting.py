@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.atomic import raise_disk_error, write_json
 from sbagents.callbacks.common import env_attr
+from sbagents.core.run_dir import RunRef, load_run
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
     OBS_INPUT,
@@ -33,10 +34,9 @@ from sbagents.deploy.onnx_export import (
     quantize_int8,
 )
 from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
+from sbagents.env_factory import make_eval_vec
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import OBS_KEY
-from sbagents.pipeline.env_factory import make_eval_vec
-from sbagents.pipeline.run_dir import RunRef, load_run
 
 
 @dataclass

@@ -18,11 +18,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.callbacks.common import find_vec_normalize
+from sbagents.core.run_dir import LoadedRun
 from sbagents.deploy.exporting import ExportChecks, ExportReport, export_run
+from sbagents.env_factory import make_team_vecs, normalize_for_eval
 from sbagents.multiagent.centralized import OBS_KEY
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
-from sbagents.pipeline.env_factory import make_team_vecs, normalize_for_eval
-from sbagents.pipeline.run_dir import LoadedRun
 
 
 def _actor_part(obs: Any) -> np.ndarray:

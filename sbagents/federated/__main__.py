@@ -11,8 +11,8 @@ import shlex
 import sys
 
 from sbagents.cli_common import ArgumentParser, run
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.federated.settings import FEDERATED_ALGOS, STRATEGIES, FederatedSettings
-from sbagents.pipeline.zoo_config import parse_overrides
 
 
 def build_parser() -> ArgumentParser:
@@ -51,7 +51,7 @@ def build_parser() -> ArgumentParser:
 
 def settings_from_args(args: argparse.Namespace) -> FederatedSettings:
     """The :class:`FederatedSettings` of the flags (env names resolved)."""
-    from sbagents.pipeline.env_names import resolve_env
+    from sbagents.core.env_names import resolve_env
 
     return FederatedSettings(
         algo=args.algo, env=resolve_env(args.env).env_id, homes=args.homes, rounds=args.rounds,

@@ -11,10 +11,10 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 
+from sbagents.core.experiment import Experiment
 from sbagents.envs.smart_home import SmartHomeEnv
 from sbagents.federated.homes import Home
 from sbagents.federated.local import make_env
-from sbagents.pipeline.experiment import Experiment
 
 
 def for_home(exp: Experiment, home: Home) -> Experiment:

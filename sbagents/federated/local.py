@@ -21,13 +21,13 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_model
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import Experiment, build_experiment
+from sbagents.core.options import TrainSpec
+from sbagents.env_factory import make_vec, normalize_for_training
 from sbagents.federated.homes import Home
 from sbagents.federated.settings import FederatedSettings
-from sbagents.pipeline.env_factory import make_vec, normalize_for_training
-from sbagents.pipeline.env_names import resolve_env
-from sbagents.pipeline.experiment import Experiment, build_experiment
 from sbagents.pipeline.models import make_model
-from sbagents.pipeline.options import TrainSpec
 from sbagents.safe_load import load_model
 from sbagents.state_files import existing, load_replay_buffer, load_vecnormalize, save_replay_buffer
 

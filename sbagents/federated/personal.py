@@ -14,12 +14,12 @@ from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_model, write_with
+from sbagents.core.lifecycle import LearningClock, base_summary, finish_run, new_run_dir
+from sbagents.core.run_dir import env_stem, load_experiment, model_path
 from sbagents.errors import UsageError
 from sbagents.federated.evaluation import evaluate_home, for_home
 from sbagents.federated.homes import Home
 from sbagents.federated.local import make_env
-from sbagents.pipeline.lifecycle import LearningClock, base_summary, finish_run, new_run_dir
-from sbagents.pipeline.run_dir import env_stem, load_experiment, model_path
 from sbagents.safe_load import load_model
 from sbagents.state_files import VECNORMALIZE_FILE, existing
 

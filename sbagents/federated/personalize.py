@@ -27,12 +27,12 @@ def build_parser() -> ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from sbagents.cli_common import run_ref
+    from sbagents.core.run_dir import config_path, find_run_dir
+    from sbagents.core.zoo_config import load_yaml
     from sbagents.federated.console import personal_line
     from sbagents.federated.homes import Home, client_homes
     from sbagents.federated.personal import personalize
     from sbagents.federated.settings import FederatedSettings
-    from sbagents.pipeline.run_dir import config_path, find_run_dir
-    from sbagents.pipeline.zoo_config import load_yaml
 
     own = args.preferred_temp is not None or args.preferred_light is not None
     if (args.home is not None) == own or (own and (args.preferred_temp is None or args.preferred_light is None)):

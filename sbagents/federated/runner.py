@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sbagents.core.lifecycle import LearningClock, base_summary, finish_run, new_run_dir
 from sbagents.errors import UsageError
 from sbagents.federated.settings import FederatedSettings
-from sbagents.pipeline.lifecycle import LearningClock, base_summary, finish_run, new_run_dir
 
 #: Flower's telemetry stays off unless the user turned it on.
 os.environ.setdefault("FLWR_TELEMETRY_ENABLED", "0")
@@ -42,7 +42,10 @@ def require_flower() -> None:
 
     try:
         import flwr  # noqa: F401
-        import opacus  # noqa: F401
+
+        from sbagents.private import require_opacus
+
+        require_opacus()
     except ImportError as exc:
         needs = " (Flower needs Python >= 3.11)" if sys.version_info < (3, 11) else ""
         raise UsageError(f"federated homes need Flower and Opacus: pip install 'sbagents[private]'{needs} "
@@ -149,9 +152,9 @@ def quiet_flower(verbose: int) -> None:
 def finish(settings: FederatedSettings, run_dir: Path, clock: LearningClock, final_eval_episodes: int
            ) -> FederatedResult:
     """``summary.json`` (with the final evaluation on SmartHome's random users), the rounds plot, the result."""
+    from sbagents.core.run_dir import RunRef, env_stem, load_run
     from sbagents.federated.plots import plot_rounds
     from sbagents.federated.server import FEDERATED_FILE, ROUNDS_FILE
-    from sbagents.pipeline.run_dir import RunRef, env_stem, load_run
 
     record_path = run_dir / FEDERATED_FILE
     record = json.loads(record_path.read_text()) if record_path.exists() else {}  # written after every round
@@ -172,8 +175,8 @@ def finish(settings: FederatedSettings, run_dir: Path, clock: LearningClock, fin
         summary["interrupted"] = True
 
     def final_eval() -> dict[str, Any]:
+        from sbagents.core.options import EvaluateOptions
         from sbagents.pipeline.evaluation import evaluate_sb3_run
-        from sbagents.pipeline.options import EvaluateOptions
 
         exp_id = int(run_dir.name.rsplit("_", 1)[1])
         run = load_run(RunRef(settings.algo, settings.env, str(run_dir.parent.parent), exp_id))

@@ -17,13 +17,13 @@ import torch
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.atomic import save_model, write_csv, write_json
+from sbagents.core.run_dir import env_stem
 from sbagents.federated.audit import audit_replies
 from sbagents.federated.evaluation import evaluate_homes
 from sbagents.federated.homes import client_homes, held_out_homes
 from sbagents.federated.local import home_experiment, load_shared_state, make_env, new_model, shared_state
 from sbagents.federated.settings import FederatedSettings
 from sbagents.federated.strategies import build_strategy, dp_epsilon
-from sbagents.pipeline.run_dir import env_stem
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 ROUNDS_FILE = "rounds.csv"

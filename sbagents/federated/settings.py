@@ -8,8 +8,8 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from sbagents.algos import algos_with
+from sbagents.core.zoo_config import parse_overrides
 from sbagents.errors import UsageError
-from sbagents.pipeline.zoo_config import parse_overrides
 
 #: The aggregation strategies (:mod:`sbagents.federated.strategies`).
 STRATEGIES = ("fedavg", "fedprox", "dp-fedavg")

@@ -56,11 +56,6 @@ def base_game_name(name: str) -> str:
     return re.sub(r"_v\d+$", "", name)
 
 
-def is_aec_env(env: Any) -> bool:
-    """Whether ``env`` is a PettingZoo AEC env (it has ``agent_iter`` and ``observe``)."""
-    return callable(getattr(env, "agent_iter", None)) and callable(getattr(env, "observe", None))
-
-
 def masked_spaces(env: Any, name: str, algo_hint: str = "ppo_mask") -> tuple[spaces.Box, spaces.Discrete]:
     """The learner's spaces of an AEC game: its ``observation`` sub-space as float32, and its Discrete actions.
 

@@ -167,13 +167,14 @@ def make_selfplay_env(source: str, modules: tuple[str, ...] = (), opponent: Any 
     """A picklable constructor of :class:`SelfPlayEnv` for the game ``source`` (SB3's ``make_vec_env``).
 
     :param opponent: a fixed opponent spec (used when ``pool_dir`` is None, and as the pool's mixed-in player).
-    :param pool: the self-play pool settings (:class:`~sbagents.games.pool.SelfPlayOptions` as a mapping).
+    :param pool: the self-play pool settings (:class:`~sbagents.core.selfplay_options.SelfPlayOptions` as a mapping).
     :param pool_dir: the run's snapshot folder: opponents are drawn from it every game.
     """
     name = game_name(source)
     game_fn = _GameFn(source, modules)
     if pool_dir is not None:
-        from sbagents.games.pool import OpponentPool, SelfPlayOptions
+        from sbagents.core.selfplay_options import SelfPlayOptions
+        from sbagents.games.pool import OpponentPool
 
         options = SelfPlayOptions.from_mapping(pool or {})
         return SelfPlayEnv(game_fn, OpponentPool(pool_dir, options, name), seat=seat, name=name, **game_kwargs)

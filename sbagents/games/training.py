@@ -9,6 +9,7 @@ pool's :class:`~sbagents.games.pool.SnapshotCallback`, sb3-contrib's ``MaskableE
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -16,19 +17,20 @@ import numpy as np
 from sb3_contrib.common.maskable.callbacks import MaskableEvalCallback
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.run_files import AtomicEvalOutputs
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
 from sbagents.games.numpy_policy import numpy_actor
 from sbagents.games.players import ModelPlayer, Player, load_player
-from sbagents.games.pool import SNAPSHOT_DIR, IllegalMovesCallback, SelfPlayOptions, SnapshotCallback
+from sbagents.games.pool import SNAPSHOT_DIR, IllegalMovesCallback, SnapshotCallback
 from sbagents.games.selfplay import SelfPlayEnv, make_selfplay_env
-from sbagents.pipeline.env_factory import make_eval_vec
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.experiment import Experiment
-from sbagents.pipeline.options import EvaluateOptions
 
 #: Seed offset of the rating matches (apart from training and evaluation envs).
 ELO_SEED_OFFSET = 20_000
@@ -62,15 +64,20 @@ class AtomicMaskableEvalCallback(AtomicEvalOutputs, MaskableEvalCallback):
 
 
 def game_callbacks(exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, n_envs: int,
-                   eval_calls: int, eval_episodes: int, after_eval: BaseCallback | None) -> list[BaseCallback]:
+                   eval_calls: int, eval_episodes: int, after_eval: BaseCallback | None, *,
+                   make_eval_env: Callable[..., VecEnv]) -> list[BaseCallback]:
     """Snapshot pool, illegal-move count, periodic evaluation against ``eval_opponent`` (every ``eval_calls``
-    callback calls; 0: none) and rating rounds (every ``elo_freq`` env steps while evaluations are on)."""
+    callback calls; 0: none) and rating rounds (every ``elo_freq`` env steps while evaluations are on).
+
+    :param make_eval_env: builds the evaluation env as training wraps it
+        (:func:`sbagents.env_factory.make_eval_vec`, which knows every kind of env and so sits above this package).
+    """
     options = self_play_options(exp)
     snapshots = SnapshotCallback(run_dir / SNAPSHOT_DIR, options.snapshot_freq)
     callbacks: list[BaseCallback] = [snapshots, IllegalMovesCallback()]
     if eval_calls <= 0:
         return callbacks
-    eval_env = make_eval_vec(exp, ref, 1, seed + ELO_SEED_OFFSET // 2, vec_env="dummy",
+    eval_env = make_eval_env(exp, ref, 1, seed + ELO_SEED_OFFSET // 2, vec_env="dummy",
                              env_kwargs={"opponent": options.eval_opponent})
     callbacks.append(AtomicMaskableEvalCallback(
         eval_env, n_eval_episodes=eval_episodes, eval_freq=eval_calls, log_path=str(run_dir),

@@ -13,8 +13,8 @@ from typing import Any
 import gymnasium as gym
 from pettingzoo import AECEnv
 
+from sbagents.core.env_names import make_parallel_env
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import make_parallel_env
 
 
 def check_parallel_wrappers(wrappers: Sequence[tuple[Any, dict[str, Any]]]) -> None:

@@ -12,10 +12,10 @@ from collections.abc import Callable
 
 from pettingzoo import ParallelEnv
 
+from sbagents.core.team_options import TeamOptions
 from sbagents.errors import UsageError
 from sbagents.multiagent.group_env import GroupVecEnv, ObsLayout
 from sbagents.multiagent.joint import JointStepper
-from sbagents.multiagent.options import TeamOptions
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team import Team, monitor_path
 
@@ -92,13 +92,3 @@ def team_vec_envs(
 def describe_groups(groups: dict[str, list[str]]) -> str:
     """``adversary: adversary_0, adversary_1; agent: agent_0`` (for logs and errors)."""
     return "; ".join(f"{g}: {', '.join(a)}" for g, a in groups.items())
-
-
-def group_model_name(stem: str, group: str) -> str:
-    """The model file of a group in a run dir: ``<EnvStem>.<group>.zip`` (``shared``: ``<EnvStem>.zip``)."""
-    return f"{stem}.zip" if group == SHARED_GROUP else f"{stem}.{group}.zip"
-
-
-def group_stats_name(group: str) -> str:
-    """The VecNormalize statistics file of a group: ``vecnormalize.npz`` (shared) or ``vecnormalize.<group>.npz``."""
-    return "vecnormalize.npz" if group == SHARED_GROUP else f"vecnormalize.{group}.npz"

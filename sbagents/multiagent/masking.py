@@ -23,7 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import DictRolloutBufferSamples, ReplayBufferSamples, RolloutBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sbagents.multiagent.team import ACTED
+from sbagents.core.info_keys import ACTED
 
 
 def acted_mask(infos: list[dict[str, Any]]) -> np.ndarray:

@@ -19,11 +19,10 @@ from typing import Any
 
 from pettingzoo import ParallelEnv
 
+from sbagents.core.run_dir import SHARED_GROUP
 from sbagents.multiagent.group_env import GroupVecEnv, ObsLayout
 from sbagents.multiagent.joint import JointStepper
 from sbagents.multiagent.team import Team, monitor_path
-
-SHARED_GROUP = "shared"
 
 
 class ParameterSharingVecEnv(GroupVecEnv):

@@ -11,12 +11,13 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.core.lifecycle import TrainResult
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.run_dir import RunRef, load_run
 from sbagents.errors import UsageError
 from sbagents.extensions import activate
 from sbagents.pipeline.evaluation import evaluate_sb3_run
-from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.run_dir import RunRef, load_run
-from sbagents.pipeline.training import TrainResult, train_sb3
+from sbagents.pipeline.training import train_sb3
 from sbagents.pipeline.trust import parse_attacks
 
 
@@ -44,7 +45,7 @@ def train(
     execution = execution or ExecOptions()
     execution.validate()
     if execution.backend == "rllib":
-        from sbagents.pipeline.env_names import resolve_env
+        from sbagents.core.env_names import resolve_env
         from sbagents.rllib import check_options, require_ray
 
         if resolve_env(spec.env, spec.gym_packages).game:

@@ -17,14 +17,14 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.safety import step_violation
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.run_dir import LoadedRun
+from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
 from sbagents.errors import UsageError
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
-from sbagents.pipeline.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.experiment import Experiment
-from sbagents.pipeline.options import EvaluateOptions
-from sbagents.pipeline.run_dir import LoadedRun
 from sbagents.visualize.text_render import ParallelTextStepPrinter, TextStepPrinter, supports_text
 
 

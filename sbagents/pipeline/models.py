@@ -14,13 +14,13 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.algos import ALGOS, algos_for, algos_with
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
+from sbagents.env_factory import make_eval_vec, make_vec
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
 from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
-from sbagents.pipeline.env_factory import make_eval_vec, make_vec
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.experiment import Experiment
 from sbagents.safe_load import load_model
 
 

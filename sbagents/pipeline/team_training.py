@@ -26,19 +26,19 @@ from sbagents.atomic import save_model
 from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback
 from sbagents.callbacks.extension import TrustOptions
 from sbagents.callbacks.run_files import AtomicCheckpointCallback
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
+from sbagents.core.lifecycle import LearningClock
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions
+from sbagents.core.progress import ProgressReporter
+from sbagents.core.run_dir import CHECKPOINT_PREFIX, group_model_name, group_stats_name
+from sbagents.env_factory import make_team_vecs, normalize_for_eval, normalize_for_training
 from sbagents.errors import UsageError
-from sbagents.multiagent.groups import group_model_name, group_stats_name
 from sbagents.multiagent.lockstep import learn_in_lockstep
 from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.multiagent.team_eval import TeamEvalCallback, slot_agents
-from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
-from sbagents.pipeline.env_factory import make_team_vecs, normalize_for_eval, normalize_for_training
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.experiment import Experiment
-from sbagents.pipeline.lifecycle import LearningClock
+from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.models import make_model
-from sbagents.pipeline.options import EvalOptions, ExecOptions, OutputOptions
-from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX
 from sbagents.state_files import save_vecnormalize
 
 #: Seed offset of the evaluation team (as single-model runs).

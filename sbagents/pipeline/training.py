@@ -8,9 +8,7 @@ failure removes the half-made run dir; an interrupted run (Ctrl-C, SIGTERM) stil
 from __future__ import annotations
 
 import contextlib
-import shlex
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,62 +22,39 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
+from sbagents.core.env_names import EnvRef, resolve_env
+from sbagents.core.experiment import Experiment, build_experiment
+from sbagents.core.lifecycle import (
+    LearningClock,
+    TrainResult,
+    base_summary,
+    default_command,
+    draw_seed,
+    finish_run,
+    new_run_dir,
+)
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.progress import ProgressReporter
+from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem, group_stats_name
+from sbagents.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, registered_extensions
-from sbagents.multiagent.groups import group_stats_name, team_groups
+from sbagents.multiagent.groups import team_groups
 from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.pipeline.budget import budget_warnings
-from sbagents.pipeline.console import EvalReportCallback, ProgressCallback, ProgressReporter
-from sbagents.pipeline.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
-from sbagents.pipeline.env_names import EnvRef, resolve_env
+from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.evaluation import evaluate_model
-from sbagents.pipeline.experiment import Experiment, build_experiment
-from sbagents.pipeline.features import register_builtin_extensions
-from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
-from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
 EVAL_SEED_OFFSET = 10_000
 
-register_builtin_extensions()
-
-
-@dataclass
-class TrainResult:
-    """What a training run produced (either backend).
-
-    :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``, and for runs
-        of one model per group, which are in :attr:`models`).
-    :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
-    :param results: what the run's extensions report of their callbacks
-        (:meth:`sbagents.extensions.TrainingExtension.results`; e.g. ``safety``, ``adversarial``, ``fairness``).
-    """
-
-    run_dir: Path
-    model: BaseAlgorithm | None
-    experiment: Any
-    summary: dict[str, Any] = field(default_factory=dict)
-    interrupted: bool = False
-    results: dict[str, Any] = field(default_factory=dict)
-    models: dict[str, BaseAlgorithm] = field(default_factory=dict)
-
-
-def default_command(spec: TrainSpec, execution: ExecOptions, extensions: Sequence[ActiveExtension] = ()) -> str:
-    """The command line recorded when the caller gave none (the Python API)."""
-    args = ["--algo", spec.algo, "--env", spec.env]
-    for active in extensions:
-        args += active.extension.command_args(active.spec)
-    if execution.backend != "sb3":
-        args += ["--backend", execution.backend]
-    return "python -m sbagents.train " + shlex.join(args)
 
 
 class StopOnRequestCallback(BaseCallback):
     """Ends ``learn`` between two steps once ``clock.stop_requested`` (the first Ctrl-C / SIGTERM of a graceful
-    :class:`~sbagents.pipeline.lifecycle.LearningClock`)."""
+    :class:`~sbagents.core.lifecycle.LearningClock`)."""
 
     def __init__(self, clock: LearningClock) -> None:
         super().__init__(verbose=0)
@@ -100,7 +75,7 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
 
         eval_calls = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else 0
         callbacks += game_callbacks(exp, ref, run_dir, ctx.seed, ctx.train_env.num_envs, eval_calls,
-                                    ctx.eval_episodes, EvalReportCallback(reporter))
+                                    ctx.eval_episodes, EvalReportCallback(reporter), make_eval_env=make_eval_vec)
     elif ctx.eval_freq > 0:
         common: dict[str, Any] = dict(
             n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.calls(ctx.eval_freq), log_path=str(run_dir),

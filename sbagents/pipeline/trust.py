@@ -7,10 +7,10 @@ from typing import Any
 
 from sbagents.callbacks import adversarial_report, fairness_report
 from sbagents.callbacks.extension import check_attacks, parse_attacks, parse_keys
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.run_dir import LoadedRun
+from sbagents.env_factory import make_eval_vec
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_eval_vec
-from sbagents.pipeline.options import EvaluateOptions
-from sbagents.pipeline.run_dir import LoadedRun
 
 
 def trust_report(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]:

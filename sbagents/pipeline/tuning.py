@@ -22,13 +22,13 @@ from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_figure, write_text
+from sbagents.core.env_names import EnvRef, resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import StudyOptions, TrainSpec
+from sbagents.core.run_dir import env_stem
+from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import make_eval_vec, make_vec, normalize_for_training
-from sbagents.pipeline.env_names import EnvRef, resolve_env
-from sbagents.pipeline.experiment import build_experiment
 from sbagents.pipeline.models import check_spaces, make_model
-from sbagents.pipeline.options import StudyOptions, TrainSpec
-from sbagents.pipeline.run_dir import env_stem
 from sbagents.pipeline.training import EVAL_SEED_OFFSET
 
 SAMPLERS = {"tpe": optuna.samplers.TPESampler, "random": optuna.samplers.RandomSampler}

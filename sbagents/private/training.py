@@ -16,8 +16,8 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
-from sbagents.pipeline.experiment import Experiment
 from sbagents.private.dp_sgd import DP_ALGOS, OFF_POLICY_DP_ALGOS
 from sbagents.private.options import PrivacyOptions
 

@@ -20,14 +20,14 @@ from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.multi_rl_module import MultiRLModule
 from ray.rllib.core.rl_module.rl_module import RLModule
 
+from sbagents.core.env_names import EnvRef
+from sbagents.core.options import EvaluateOptions
+from sbagents.core.run_dir import load_run_config, run_groups
+from sbagents.core.team_options import TeamOptions
 from sbagents.errors import UsageError
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.multiagent.options import TeamOptions
 from sbagents.multiagent.team_eval import run_team_episodes, team_summary
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.options import EvaluateOptions
-from sbagents.pipeline.run_dir import load_run_config, run_groups
 from sbagents.rllib import CHECKPOINT_DIR, MODULE_SUBDIR, SHARED_MODULE
 from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
 

@@ -18,12 +18,12 @@ from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 from ray.tune.registry import register_env
 
+from sbagents.core.env_names import EnvRef, make_parallel_env
+from sbagents.core.options import TrainSpec
+from sbagents.core.team_options import TeamOptions
+from sbagents.core.zoo_config import spec_entry
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import team_groups
-from sbagents.multiagent.options import TeamOptions
-from sbagents.pipeline.env_names import EnvRef, make_parallel_env
-from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import spec_entry
 from sbagents.registration import PETTINGZOO_ENVS
 from sbagents.rllib import SHARED_MODULE, rllib_algos
 from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner

@@ -4,7 +4,7 @@ Flow: :class:`TrainSpec` + ``zoo_configs/rllib_<algo>.yml`` -> :class:`~sbagents
 -> RLlib ``AlgorithmConfig`` -> Ray (a local instance sized for this machine, or the cluster at ``address``) -> run
 dir with ``rllib_checkpoint/``, ``progress.csv``, ``summary.json`` and, with ``--save-freq N``, a module checkpoint
 ``checkpoint_<env steps>/`` every N env steps (:func:`save_module_checkpoint`), through the same run life as SB3 runs
-(:mod:`sbagents.pipeline.lifecycle`). Ctrl-C / SIGTERM stop training but still leave a checkpoint and
+(:mod:`sbagents.core.lifecycle`). Ctrl-C / SIGTERM stop training but still leave a checkpoint and
 ``summary.json`` (``interrupted: true``); Ray is shut down in every case.
 """
 
@@ -24,13 +24,20 @@ from typing import Any
 import ray
 import torch
 
+from sbagents.core.env_names import EnvRef, resolve_env
+from sbagents.core.lifecycle import (
+    LearningClock,
+    TrainResult,
+    base_summary,
+    default_command,
+    draw_seed,
+    finish_run,
+    new_run_dir,
+)
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.progress import ProgressReporter
 from sbagents.errors import UsageError
 from sbagents.multiagent.env_copy import declared_metrics
-from sbagents.pipeline.console import ProgressReporter
-from sbagents.pipeline.env_names import EnvRef, resolve_env
-from sbagents.pipeline.lifecycle import LearningClock, base_summary, draw_seed, finish_run, new_run_dir
-from sbagents.pipeline.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
-from sbagents.pipeline.training import TrainResult, default_command
 from sbagents.rllib import CHECKPOINT_DIR, CHECKPOINT_PREFIX, PROGRESS_FILE, check_address
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.experiment import RllibExperiment, build_config, build_experiment

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from sbagents.core.monitor_files import read_monitor_files
+from sbagents.core.run_dir import RunRef, env_stem, read_settings_file
 from sbagents.errors import UsageError
-from sbagents.pipeline.monitor_files import read_monitor_files
-from sbagents.pipeline.run_dir import RunRef, env_stem, read_settings_file
 
 _RUN_DIR = re.compile(r"^(?P<stem>.+)_(?P<k>\d+)$")
 
@@ -99,7 +99,7 @@ def timesteps_per_monitor_step(run_dir: Path, stem: str) -> float:
     from sbagents.registration import PETTINGZOO_ENVS
 
     if stem in PETTINGZOO_ENVS:  # runs made before that record: all agents share one model
-        from sbagents.pipeline.env_names import make_parallel_env
+        from sbagents.core.env_names import make_parallel_env
 
         env = make_parallel_env(PETTINGZOO_ENVS[stem], **(entry.get("env_kwargs") or {}))
         n_agents = len(env.possible_agents)
@@ -131,7 +131,7 @@ def find_runs(runs: RunRef) -> dict[tuple[str, str], list[Path]]:
     if env is not None:
         wanted_stem = env_stem(env)
         try:
-            from sbagents.pipeline.env_names import resolve_env
+            from sbagents.core.env_names import resolve_env
 
             wanted_stem = env_stem(resolve_env(env, runs.gym_packages).env_id)
         except UsageError:

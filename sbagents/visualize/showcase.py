@@ -5,7 +5,7 @@ from __future__ import annotations
 import gymnasium as gym
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sbagents.pipeline.experiment import Experiment
+from sbagents.core.experiment import Experiment
 
 
 def greedy_path(model: BaseAlgorithm, env: gym.Env, max_steps: int = 1000) -> tuple[list[tuple[int, int]], float]:

@@ -2,7 +2,7 @@
 ``python -m sbagents.record_video``.
 
 The env is built exactly as in training (the run's ``config.yml`` through
-:func:`sbagents.pipeline.env_factory.make_vec`, frozen ``VecNormalize`` statistics when the run has them) with
+:func:`sbagents.env_factory.make_vec`, frozen ``VecNormalize`` statistics when the run has them) with
 ``render_mode="rgb_array"``, and SB3's :class:`~stable_baselines3.common.vec_env.VecVideoRecorder` writes
 the frames (it needs ``moviepy``, whose ``imageio-ffmpeg`` dependency ships an ffmpeg binary, so no system
 ffmpeg is needed). PettingZoo runs step one team copy on which every group's model acts (the shared policy for
@@ -27,9 +27,9 @@ from sbagents.atomic import write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
+from sbagents.core.run_dir import LoadedRun, RunRef, env_stem, load_run
+from sbagents.env_factory import MissingDependencyError, make_team_vecs, make_vec, normalize_for_eval
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_factory import MissingDependencyError, make_team_vecs, make_vec, normalize_for_eval
-from sbagents.pipeline.run_dir import LoadedRun, RunRef, env_stem, load_run
 
 
 class _Recorder(VecVideoRecorder):

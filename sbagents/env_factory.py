@@ -1,7 +1,14 @@
-"""Building the vectorised training and evaluation envs of an :class:`~sbagents.pipeline.experiment.Experiment`."""
+"""Building the vectorised training and evaluation envs of an :class:`~sbagents.core.experiment.Experiment`.
+
+It knows every kind of env (Gymnasium ids, PettingZoo teams, turn-based games, batched and EnvPool vec envs), so it
+sits among the feature packages it composes (:mod:`sbagents.multiagent`, :mod:`sbagents.games`,
+:mod:`sbagents.batched`, :mod:`sbagents.atari`), below those that play a finished run (:mod:`sbagents.deploy`,
+:mod:`sbagents.visualize`) and the pipeline; none of the packages it composes imports it.
+"""
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 from collections.abc import Callable
@@ -18,9 +25,9 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
+from sbagents.core.env_names import EnvRef, pettingzoo_factory
+from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import EnvRef, pettingzoo_factory
-from sbagents.pipeline.experiment import Experiment
 from sbagents.state_files import existing, load_vecnormalize
 
 VEC_ENV_CLASSES: dict[str, type[DummyVecEnv] | type[SubprocVecEnv]] = {
@@ -45,6 +52,15 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
         return gym.envs.registration.load_env_creator(str(entry_point))
     except gym.error.DependencyNotInstalled as exc:
         raise missing_dependency_error(ref, exc) from None
+
+
+def _env_fn(ref: EnvRef) -> str | Callable[..., gym.Env]:
+    """The ``env_id`` argument of SB3's ``make_vec_env`` for a Gymnasium env or a game's seat env (picklable)."""
+    if ref.game:
+        from sbagents.games.selfplay import make_selfplay_env
+
+        return functools.partial(make_selfplay_env, ref.source, ref.modules)
+    return ref.make_fn()
 
 
 class MissingDependencyError(UsageError):
@@ -259,7 +275,7 @@ def _make_base_vec(
         venv = next(iter(venvs.values()))
     else:
         venv = make_vec_env(
-            ref.make_fn(),  # imports the env's modules first, also in SubprocVecEnv workers
+            _env_fn(ref),  # imports the env's modules first, also in SubprocVecEnv workers
             n_envs=n_envs,
             seed=seed,
             monitor_dir=monitor,

@@ -22,10 +22,10 @@ from typing import Any
 from gymnasium import spaces
 
 from sbagents.algos import ALGOS
+from sbagents.core.env_names import PETTINGZOO_DEFAULT_ENTRY, EnvRef
+from sbagents.core.options import TrainSpec
+from sbagents.core.zoo_config import default_config_path, entry_name
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import PETTINGZOO_DEFAULT_ENTRY, EnvRef
-from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import default_config_path, entry_name
 
 #: Entries that serve envs without one of their own.
 FALLBACK_ENTRIES = frozenset({"default", PETTINGZOO_DEFAULT_ENTRY})
@@ -51,7 +51,7 @@ def observation_spaces(ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any] | N
             env = ref.parallel_env(**env_kwargs)
             found = [env.observation_space(agent) for agent in env.possible_agents]
         else:
-            from sbagents.pipeline.env_names import make_registered
+            from sbagents.core.env_names import make_registered
 
             env = make_registered(ref.env_id, ref.modules, **env_kwargs)
             found = [env.observation_space]

@@ -17,13 +17,13 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
+from sbagents.core.env_names import EnvRef
+from sbagents.core.options import TrainSpec
+from sbagents.core.selfplay_options import SelfPlayOptions
+from sbagents.core.team_options import CRITICS, POLICY_MODES, TeamOptions
+from sbagents.core.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 from sbagents.errors import UsageError
 from sbagents.extensions import config_keys
-from sbagents.multiagent.options import CRITICS, POLICY_MODES, TeamOptions
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.features import register_builtin_extensions
-from sbagents.pipeline.options import TrainSpec
-from sbagents.pipeline.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     "tanh": nn.Tanh,
@@ -48,7 +48,6 @@ KNOWN_CLASSES: dict[str, str] = {
     "NatureCNN": "stable_baselines3.common.torch_layers.NatureCNN",
 }
 
-register_builtin_extensions()  # their config keys (constraint_kwargs, ...) are accepted in zoo entries
 
 _SCHEDULABLE = ("learning_rate", "clip_range", "clip_range_vf")
 _CLASS_KWARGS = ("replay_buffer_class", "features_extractor_class", "optimizer_class")
@@ -162,7 +161,7 @@ class Experiment:
     hyperparams: dict[str, Any] = field(default_factory=dict)
     team: TeamOptions | None = None  # set for PettingZoo envs
     deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
-    self_play: Any = None  # sbagents.games.pool.SelfPlayOptions for turn-based games
+    self_play: SelfPlayOptions | None = None  # set for turn-based games
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -315,15 +314,13 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
     )
 
 
-def _self_play(value: Any, source: str) -> Any:
-    from sbagents.games.pool import SelfPlayOptions
-
+def _self_play(value: Any, source: str) -> SelfPlayOptions:
     return SelfPlayOptions.from_mapping(value, source)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef, overrides: tuple[str, ...] = ()) -> Experiment:
     """The :class:`Experiment` of ``spec`` on the env ``ref``: its zoo entry (``zoo_configs/<algo>.yml`` or
-    ``spec.conf_file``, looked up by :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`) with the overrides,
+    ``spec.conf_file``, looked up by :attr:`~sbagents.core.env_names.EnvRef.config_keys`) with the overrides,
     validated.
 
     :param overrides: entry keys of hyperparameter overrides to apply (the run's extensions'
@@ -332,7 +329,7 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, overrides: tuple[str, ...] = 
     if spec.algo not in ALGOS:
         raise UsageError(f"unknown algo {spec.algo!r}; available: {', '.join(ALGOS)}")
     entry, where = spec_entry(spec, spec.algo, ref, overrides)
-    from sbagents.pipeline.image_obs import image_entry
+    from sbagents.core.image_obs import image_entry
 
     entry = image_entry(spec, ref, entry)
     return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game, ref.trusted_modules())

@@ -22,7 +22,7 @@ from typing import Any
 import gymnasium as gym
 
 from sbagents.errors import UsageError
-from sbagents.registration import PETTINGZOO_ENVS
+from sbagents.registration import ARRAY_IMPLEMENTATIONS, PETTINGZOO_ENVS
 
 #: Zoo-config entry that every PettingZoo env without an entry of its own gets (before ``default``).
 PETTINGZOO_DEFAULT_ENTRY = "pettingzoo"
@@ -69,12 +69,9 @@ class EnvRef:
         return tuple(dict.fromkeys(m for m in (*self.modules, source) if m))
 
     def make_fn(self) -> str | Callable[..., gym.Env]:
-        """The ``env_id`` argument for SB3's ``make_vec_env``: the id itself, or (when :attr:`modules` is not
-        empty) a picklable callable that imports them first, so subprocess workers find the env."""
-        if self.game:
-            from sbagents.games.selfplay import make_selfplay_env
-
-            return functools.partial(make_selfplay_env, self.source, self.modules)
+        """The ``env_id`` argument for SB3's ``make_vec_env`` of a Gymnasium env: the id itself, or (when
+        :attr:`modules` is not empty) a picklable callable that imports them first, so subprocess workers find the
+        env. (A game's seat env is :func:`sbagents.games.selfplay.make_selfplay_env`.)"""
         if not self.modules:
             return self.env_id
         return functools.partial(make_registered, self.env_id, self.modules)
@@ -114,27 +111,20 @@ def pettingzoo_factory(source: str) -> Callable[..., Any]:
     return getattr(module, attr or "parallel_env")  # type: ignore[no-any-return]
 
 
-#: PettingZoo envs with an equivalent array implementation (:mod:`sbagents.batched.spread_env`), by module.
-_ARRAY_IMPLEMENTED = ("mpe2.simple_spread_v3",)
-
-
 def make_parallel_env(source: str, modules: tuple[str, ...] = (), **kwargs: Any) -> Any:
     """Import ``modules``, then build the PettingZoo env ``source`` names with ``kwargs``.
 
-    ``mpe2.simple_spread_v3`` with kwargs its array implementation reproduces (discrete actions, no rendering) is
-    :class:`sbagents.batched.spread_env.SimpleSpreadParallelEnv`: step for step the same env, several times faster.
+    An env module of :data:`~sbagents.registration.ARRAY_IMPLEMENTATIONS` is built by its array implementation
+    where the kwargs allow (``mpe2.simple_spread_v3`` with discrete actions and no rendering is
+    :class:`sbagents.batched.spread_env.SimpleSpreadParallelEnv`: step for step the same env, several times faster).
     """
     import_packages(modules)
     module, _, attr = source.partition(":")
-    if module in _ARRAY_IMPLEMENTED and attr in ("", "parallel_env"):
-        from sbagents.batched.simple_spread import unsupported_kwargs
-        from sbagents.batched.spread_env import SimpleSpreadParallelEnv
-
-        if not unsupported_kwargs(kwargs):
-            try:
-                return SimpleSpreadParallelEnv(**kwargs)
-            except NotImplementedError:  # an mpe2 whose world differs from the one reproduced: use mpe2's own
-                pass
+    array = ARRAY_IMPLEMENTATIONS.get(module) if attr in ("", "parallel_env") else None
+    if array is not None:
+        env = pettingzoo_factory(array)(**kwargs)
+        if env is not None:
+            return env
     return pettingzoo_factory(source)(**kwargs)
 
 
@@ -174,11 +164,14 @@ def _returns_aec_env(fn: Callable[..., Any]) -> bool:
         env = fn()
     except Exception:  # noqa: BLE001 - a function that needs arguments: treated as a ParallelEnv source
         return False
-    from sbagents.games.aec import is_aec_env
-
     is_aec = is_aec_env(env)
     env.close()
     return is_aec
+
+
+def is_aec_env(env: Any) -> bool:
+    """Whether ``env`` is a PettingZoo AEC env (it has ``agent_iter`` and ``observe``)."""
+    return callable(getattr(env, "agent_iter", None)) and callable(getattr(env, "observe", None))
 
 
 def callable_env_id(module_name: str, attr: str) -> str:

@@ -14,9 +14,9 @@ from typing import Any
 
 import yaml
 
+from sbagents.core.env_names import EnvRef
+from sbagents.core.options import TrainSpec
 from sbagents.errors import UsageError
-from sbagents.pipeline.env_names import EnvRef
-from sbagents.pipeline.options import TrainSpec
 
 #: Keys of a zoo entry that configure the experiment rather than the algorithm constructor.
 ZOO_KEYS: frozenset[str] = frozenset(
@@ -82,7 +82,7 @@ def lookup_entry(path: str | Path, keys: str | tuple[str, ...], atari: bool = Fa
     """The hyperparameters for an env in the zoo file ``path``.
 
     :param keys: the env id, or the entries to try in order (an env's
-        :attr:`~sbagents.pipeline.env_names.EnvRef.config_keys`); ``default`` comes last.
+        :attr:`~sbagents.core.env_names.EnvRef.config_keys`); ``default`` comes last.
     :param atari: with a single id: try RL Zoo's ``atari`` entry after it.
 
     Lookup order as RL Zoo: the exact env id, then ``atari`` for Atari ids (``pettingzoo`` for PettingZoo envs),

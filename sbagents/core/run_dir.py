@@ -23,10 +23,12 @@ from sbagents.state_files import VECNORMALIZE_FILE
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-    from sbagents.pipeline.experiment import Experiment
+    from sbagents.core.experiment import Experiment
 
 SUMMARY_FILE = "summary.json"
 BEST_MODEL_FILE = "best_model.zip"
+#: The group of a run whose agents share one model (its files carry no group name).
+SHARED_GROUP = "shared"
 
 
 def env_stem(env_id: str) -> str:
@@ -148,7 +150,7 @@ def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
 def read_settings_file(path: Path) -> dict[str, Any]:
     """A run's YAML file that must hold a mapping (``config.yml``, ``args.yml``; safe YAML); one line for anything
     else (malformed, binary, a list)."""
-    from sbagents.pipeline.zoo_config import load_yaml
+    from sbagents.core.zoo_config import load_yaml
 
     try:
         data = load_yaml(path)
@@ -169,13 +171,13 @@ def run_args(run_dir: Path, env_id: str) -> dict[str, Any]:
 
 def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False,
                     game: bool = False, trusted_modules: tuple[str, ...] = ()) -> Experiment:
-    """The :class:`~sbagents.pipeline.experiment.Experiment` a run was trained with (so evaluation wraps the
+    """The :class:`~sbagents.core.experiment.Experiment` a run was trained with (so evaluation wraps the
     env identically); ``multi_agent`` for PettingZoo envs, ``game`` for turn-based games.
 
     :param trusted_modules: modules the user named (``--env module:...``, ``--gym-packages``) whose classes the
-        run's config may name besides the import allow-list (:data:`~sbagents.pipeline.experiment.ALLOWED_IMPORTS`).
+        run's config may name besides the import allow-list (:data:`~sbagents.core.experiment.ALLOWED_IMPORTS`).
     """
-    from sbagents.pipeline.experiment import resolve
+    from sbagents.core.experiment import resolve
 
     return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent,
                    game, trusted_modules)
@@ -226,8 +228,8 @@ class RunRef:
             raise UsageError("load_best and checkpoint each name a model of the run: give one of them")
 
     def env_ref(self) -> Any:
-        """The resolved env (:class:`~sbagents.pipeline.env_names.EnvRef`; imports gymnasium)."""
-        from sbagents.pipeline.env_names import resolve_env
+        """The resolved env (:class:`~sbagents.core.env_names.EnvRef`; imports gymnasium)."""
+        from sbagents.core.env_names import resolve_env
 
         if self.env is None:
             raise UsageError("this command needs --env")
@@ -274,6 +276,16 @@ def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
     return {str(g): [str(x) for x in a] for g, a in groups.items()}
 
 
+def group_model_name(stem: str, group: str) -> str:
+    """The model file of a group in a run dir: ``<EnvStem>.<group>.zip`` (``shared``: ``<EnvStem>.zip``)."""
+    return f"{stem}.zip" if group == SHARED_GROUP else f"{stem}.{group}.zip"
+
+
+def group_stats_name(group: str) -> str:
+    """The VecNormalize statistics file of a group: ``vecnormalize.npz`` (shared) or ``vecnormalize.<group>.npz``."""
+    return "vecnormalize.npz" if group == SHARED_GROUP else f"vecnormalize.{group}.npz"
+
+
 def group_model_path(run_dir: Path, env_id: str, group: str, load_best: bool = False) -> Path:
     """A group's model file (``<EnvId>.<group>.zip`` or ``best_model.<group>.zip``), or :class:`UsageError`."""
     name = f"best_model.{group}.zip" if load_best else f"{env_stem(env_id)}.{group}.zip"
@@ -318,8 +330,6 @@ def load_run(ref: RunRef) -> LoadedRun:
 
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:
-        from sbagents.multiagent.groups import group_stats_name  # imports PettingZoo
-
         if ref.checkpoint is not None:
             raise UsageError("--load-checkpoint loads one model; this run has one model per group (its checkpoints "
                              "are rl_model.<group>_<steps>_steps.zip)")

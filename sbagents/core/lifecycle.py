@@ -15,19 +15,27 @@ A backend does::
 from __future__ import annotations
 
 import contextlib
+import shlex
 import shutil
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sbagents.atomic import write_json
-from sbagents.pipeline.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
+from sbagents.core.options import ExecOptions, TrainSpec
+from sbagents.core.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    from sbagents.extensions import ActiveExtension
 
 
 def draw_seed(seed: int) -> int:
@@ -127,3 +135,34 @@ def finish_run(
         summary["eval"] = final_eval()
         write_summary(run_dir, summary)
     return summary
+
+
+@dataclass
+class TrainResult:
+    """What a training run produced (either backend).
+
+    :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``, and for runs
+        of one model per group, which are in :attr:`models`).
+    :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
+    :param results: what the run's extensions report of their callbacks
+        (:meth:`sbagents.extensions.TrainingExtension.results`; e.g. ``safety``, ``adversarial``, ``fairness``).
+    """
+
+    run_dir: Path
+    model: BaseAlgorithm | None
+    experiment: Any
+    summary: dict[str, Any] = field(default_factory=dict)
+    interrupted: bool = False
+    results: dict[str, Any] = field(default_factory=dict)
+    models: dict[str, BaseAlgorithm] = field(default_factory=dict)
+
+
+def default_command(spec: TrainSpec, execution: ExecOptions, extensions: Sequence[ActiveExtension] = ()) -> str:
+    """The command line recorded when the caller gave none (the Python API): the spec's, the extensions' flags
+    (:meth:`~sbagents.extensions.TrainingExtension.command_args`) and the backend."""
+    args = ["--algo", spec.algo, "--env", spec.env]
+    for active in extensions:
+        args += active.extension.command_args(active.spec)
+    if execution.backend != "sb3":
+        args += ["--backend", execution.backend]
+    return "python -m sbagents.train " + shlex.join(args)

@@ -25,6 +25,7 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
 from sbagents.core.env_names import EnvRef, pettingzoo_factory
 from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
@@ -39,12 +40,12 @@ VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched", "envpool")
 
 def env_constructor(ref: EnvRef) -> Callable[..., Any]:
     """The class or function that builds one env of ``ref`` (for keyword checks)."""
-    if ref.multi_agent:
-        return pettingzoo_factory(ref.source)
-    if ref.game:
-        from sbagents.games.aec import game_factory
+    return _constructor(ref.kind, ref)
 
-        return game_factory(ref.source)
+
+@functools.singledispatch
+def _constructor(kind: EnvKind, ref: EnvRef) -> Callable[..., Any]:
+    """A Gymnasium env: its registered entry point."""
     entry_point = gym.spec(ref.env_id).entry_point
     if callable(entry_point):
         return entry_point
@@ -54,13 +55,30 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
         raise missing_dependency_error(ref, exc) from None
 
 
-def _env_fn(ref: EnvRef) -> str | Callable[..., gym.Env]:
-    """The ``env_id`` argument of SB3's ``make_vec_env`` for a Gymnasium env or a game's seat env (picklable)."""
-    if ref.game:
-        from sbagents.games.selfplay import make_selfplay_env
+@_constructor.register
+def _(kind: TeamKind, ref: EnvRef) -> Callable[..., Any]:
+    return pettingzoo_factory(ref.source)
 
-        return functools.partial(make_selfplay_env, ref.source, ref.modules)
+
+@_constructor.register
+def _(kind: GameKind, ref: EnvRef) -> Callable[..., Any]:
+    from sbagents.games.aec import game_factory
+
+    return game_factory(ref.source)
+
+
+@functools.singledispatch
+def _env_fn(kind: EnvKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
+    """The ``env_id`` argument of SB3's ``make_vec_env`` for a Gymnasium env (picklable)."""
     return ref.make_fn()
+
+
+@_env_fn.register
+def _(kind: GameKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
+    """A game's seat env (picklable)."""
+    from sbagents.games.selfplay import make_selfplay_env
+
+    return functools.partial(make_selfplay_env, ref.source, ref.modules)
 
 
 class MissingDependencyError(UsageError):
@@ -77,7 +95,7 @@ def missing_dependency_error(ref: EnvRef, exc: Exception) -> MissingDependencyEr
 def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
     """The keyword arguments ``ref``'s constructor takes, when they can be known (None: any)."""
     candidates: list[Any] = [env_constructor(ref)]
-    if (ref.multi_agent or ref.game) and ":" not in ref.source:  # PettingZoo's (parallel_)env forwards to raw_env
+    if ref.kind.pettingzoo and ":" not in ref.source:  # PettingZoo's (parallel_)env forwards to raw_env
         module = importlib.import_module(ref.source)
         declared = getattr(module, "ACCEPTED_KWARGS", None)
         if declared is not None:
@@ -93,12 +111,22 @@ def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
     return None
 
 
+@functools.singledispatch
+def _env_kwargs_of_env(kind: EnvKind, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The env kwargs the env's constructor takes (a game's seat env takes self-play settings of its own)."""
+    return env_kwargs
+
+
+@_env_kwargs_of_env.register
+def _(kind: GameKind, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    from sbagents.games.selfplay import SELFPLAY_KWARGS
+
+    return {k: v for k, v in env_kwargs.items() if k not in SELFPLAY_KWARGS}
+
+
 def check_env_kwargs(ref: EnvRef, env_kwargs: dict[str, Any]) -> None:
     """Raise :class:`UsageError` listing the accepted keys if ``env_kwargs`` has a key the env does not take."""
-    if ref.game:
-        from sbagents.games.selfplay import SELFPLAY_KWARGS
-
-        env_kwargs = {k: v for k, v in env_kwargs.items() if k not in SELFPLAY_KWARGS}
+    env_kwargs = _env_kwargs_of_env(ref.kind, env_kwargs)
     if not env_kwargs:
         return
     names = _accepted_kwargs(ref)
@@ -197,7 +225,7 @@ def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[st
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {vec_env!r}")
     plain_team = exp.team is None or (exp.team.policies == "shared" and not exp.team.agent_id
                                       and exp.team.critic == "local")
-    batched_id = batched_env_id(ref.env_id, ref.source if ref.multi_agent else "")
+    batched_id = batched_env_id(ref.env_id, ref.kind.batched_source(ref))
     problems = [] if batched_id is None else unbatchable_kwargs(batched_id, env_kwargs or {})
     batchable = (batched_id is not None and not problems and not exp.env_wrapper and not exp.monitor_kwargs
                  and plain_team)
@@ -264,27 +292,43 @@ def _make_base_vec(
     elif kind == "batched":
         from sbagents.batched import batched_env_id, make_batched_vec_env
 
-        batched_id = batched_env_id(ref.env_id, ref.source if ref.multi_agent else "")
+        batched_id = batched_env_id(ref.env_id, ref.kind.batched_source(ref))
         assert batched_id is not None, "vec_env_kind chose batched for an env without a batched VecEnv"
         venv = make_batched_vec_env(batched_id, n_envs, seed, kwargs, monitor)
-    elif ref.multi_agent:
-        venvs = _team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
-        if len(venvs) != 1:
-            raise UsageError(f"{exp.team.policies if exp.team else ''} experiments train one model per group: "
-                             "use make_team_vecs")
-        venv = next(iter(venvs.values()))
     else:
-        venv = make_vec_env(
-            _env_fn(ref),  # imports the env's modules first, also in SubprocVecEnv workers
-            n_envs=n_envs,
-            seed=seed,
-            monitor_dir=monitor,
-            wrapper_class=_chain([*exp.env_wrapper, *([(wrapper, {})] if wrapper is not None else [])]),
-            env_kwargs=kwargs,
-            vec_env_cls=VEC_ENV_CLASSES[kind],
-            monitor_kwargs=exp.monitor_kwargs or None,
-        )
+        venv = _plain_vec(ref.kind, exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
     return venv
+
+
+@functools.singledispatch
+def _plain_vec(
+    env_kind: EnvKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor: str | None,
+    kind: str, kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
+) -> VecEnv:
+    """SB3's ``make_vec_env`` of ``kind`` (``dummy`` or ``subproc``) for a Gymnasium env or a game's seat env."""
+    return make_vec_env(
+        _env_fn(ref.kind, ref),  # imports the env's modules first, also in SubprocVecEnv workers
+        n_envs=n_envs,
+        seed=seed,
+        monitor_dir=monitor,
+        wrapper_class=_chain([*exp.env_wrapper, *([(wrapper, {})] if wrapper is not None else [])]),
+        env_kwargs=kwargs,
+        vec_env_cls=VEC_ENV_CLASSES[kind],
+        monitor_kwargs=exp.monitor_kwargs or None,
+    )
+
+
+@_plain_vec.register
+def _(
+    env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor: str | None,
+    kind: str, kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
+) -> VecEnv:
+    """A team: the one VecEnv of a parameter-sharing team (:func:`make_team_vecs` for one model per group)."""
+    venvs = _team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
+    if len(venvs) != 1:
+        raise UsageError(f"{exp.team.policies if exp.team else ''} experiments train one model per group: "
+                         "use make_team_vecs")
+    return next(iter(venvs.values()))
 
 
 def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | None = None,
@@ -348,9 +392,17 @@ def make_eval_vec(
 
 def render_modes(exp: Experiment, ref: EnvRef) -> list[str]:
     """The render modes an env of ``exp`` declares (``metadata["render_modes"]``)."""
-    if ref.multi_agent:
-        env = ref.parallel_env(**exp.env_kwargs)
-        modes = list(env.metadata.get("render_modes", []))
-        env.close()
-        return modes
+    return _render_modes(ref.kind, exp, ref)
+
+
+@functools.singledispatch
+def _render_modes(kind: EnvKind, exp: Experiment, ref: EnvRef) -> list[str]:
     return list((getattr(env_constructor(ref), "metadata", None) or {}).get("render_modes", []))
+
+
+@_render_modes.register
+def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> list[str]:
+    env = ref.parallel_env(**exp.env_kwargs)
+    modes = list(env.metadata.get("render_modes", []))
+    env.close()
+    return modes

@@ -12,6 +12,7 @@ import sys
 import numpy as np
 
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
+from sbagents.core.env_kinds import GAME
 from sbagents.errors import UsageError
 
 #: ``--seat`` choices (default: alternate between games, starting first).
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"--games must be >= 1, got {args.games}")
     ref = run_ref(args)
     env_ref = ref.env_ref()
-    if not env_ref.game:
+    if env_ref.kind is not GAME:
         raise UsageError(f"{env_ref.env_id} is not a turn-based game; play needs a PettingZoo AEC game with action "
                          "masks (e.g. pettingzoo.classic.connect_four_v3); use evaluate for other envs")
     import torch

@@ -9,7 +9,8 @@ import torch.nn as nn
 from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 
-from sbagents.core.env_names import PETTINGZOO_DEFAULT_ENTRY, resolve_env
+from sbagents.core.env_kinds import GAME, PETTINGZOO_DEFAULT_ENTRY, SINGLE_AGENT, TEAM
+from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import lookup_entry, parse_overrides
 from sbagents.errors import UsageError
@@ -132,8 +133,9 @@ def test_shipped_configs_parse() -> None:
         from sbagents.core.zoo_config import load_yaml
 
         for env_id, entry in load_yaml(path).items():
-            game = env_id not in ("default", "atari", PETTINGZOO_DEFAULT_ENTRY) and resolve_env(env_id).game
-            exp = resolve(algo, env_id, dict(entry), str(path), multi_agent=_is_pettingzoo_entry(env_id), game=game)
+            game = env_id not in ("default", "atari", PETTINGZOO_DEFAULT_ENTRY) and resolve_env(env_id).kind is GAME
+            kind = GAME if game else TEAM if _is_pettingzoo_entry(env_id) else SINGLE_AGENT
+            exp = resolve(algo, env_id, dict(entry), str(path), kind)
             assert exp.n_timesteps > 0, (path, env_id)
             assert (exp.self_play is not None) == game, (path, env_id)
 
@@ -142,4 +144,4 @@ def _is_pettingzoo_entry(key: str) -> bool:
     """Whether a zoo-config key names a PettingZoo env (or is the entry every PettingZoo env gets)."""
     if key in ("default", "atari"):
         return False
-    return key == PETTINGZOO_DEFAULT_ENTRY or resolve_env(key).multi_agent
+    return key == PETTINGZOO_DEFAULT_ENTRY or resolve_env(key).kind is TEAM

@@ -78,7 +78,7 @@ def envpool_installed() -> bool:
 
 
 def _ale_spec(ref: EnvRef) -> gym.envs.registration.EnvSpec | None:
-    if ref.multi_agent or ref.game or not ref.is_atari:
+    if not ref.is_atari:  # a Gymnasium env with an ALE id
         return None
     try:
         spec = gym.spec(ref.env_id)

@@ -21,11 +21,9 @@ from typing import Any
 
 import gymnasium as gym
 
+from sbagents.core.env_kinds import GAME, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.errors import UsageError
 from sbagents.registration import ARRAY_IMPLEMENTATIONS, PETTINGZOO_ENVS
-
-#: Zoo-config entry that every PettingZoo env without an entry of its own gets (before ``default``).
-PETTINGZOO_DEFAULT_ENTRY = "pettingzoo"
 
 
 @dataclass(frozen=True)
@@ -33,34 +31,28 @@ class EnvRef:
     """A resolved env name.
 
     :param env_id: canonical id: a Gymnasium ID, or the PettingZoo env's name (``pursuit_v5``).
-    :param multi_agent: True for PettingZoo envs.
+    :param kind: what kind of env it is (:mod:`sbagents.core.env_kinds`): a Gymnasium env, a PettingZoo team, or
+        a turn-based (AEC) game with action masks, trained and evaluated from one seat against opponents.
     :param modules: modules to import before building the env in any process (``--gym-packages``, the ``module``
         of ``module:EnvId``, ``ale_py`` for Atari ids): a worker process starts with none of them imported.
     :param source: where a PettingZoo env comes from: ``pkg.module`` (with ``parallel_env``, or ``env`` for a
         turn-based game) or ``pkg.module:callable``.
-    :param game: a turn-based (AEC) game with action masks: trained and evaluated from one seat against opponents
-        (:class:`sbagents.games.selfplay.SelfPlayEnv`, a Gymnasium env; ``multi_agent`` is False).
     """
 
     env_id: str
-    multi_agent: bool = False
+    kind: EnvKind = SINGLE_AGENT
     modules: tuple[str, ...] = ()
     source: str = ""
-    game: bool = False
 
     @property
     def is_atari(self) -> bool:
         """Whether this is an ALE id (RL Zoo's ``atari`` config entry applies)."""
-        return "NoFrameskip" in self.env_id or self.env_id.startswith("ALE/")
+        return not self.kind.pettingzoo and ("NoFrameskip" in self.env_id or self.env_id.startswith("ALE/"))
 
     @property
     def config_keys(self) -> tuple[str, ...]:
         """Zoo-config entries to look up, in order (``default`` comes after them)."""
-        if self.multi_agent:
-            return tuple(dict.fromkeys((self.source, self.env_id, PETTINGZOO_DEFAULT_ENTRY)))
-        if self.game:
-            return tuple(dict.fromkeys((self.source, self.env_id)))
-        return (self.env_id, "atari") if self.is_atari else (self.env_id,)
+        return self.kind.config_entries(self)
 
     def trusted_modules(self) -> tuple[str, ...]:
         """The modules the user named for this env (``--gym-packages``, ``--env module:...``, a PettingZoo env's
@@ -151,9 +143,9 @@ def _pettingzoo_module_ref(name: str, modules: tuple[str, ...]) -> EnvRef | None
     if module is None:
         return None
     if callable(getattr(module, "parallel_env", None)):
-        return EnvRef(name.rpartition(".")[2], multi_agent=True, modules=modules, source=name)
+        return EnvRef(name.rpartition(".")[2], TEAM, modules=modules, source=name)
     if callable(getattr(module, "env", None)):
-        return EnvRef(name.rpartition(".")[2], modules=modules, source=name, game=True)
+        return EnvRef(name.rpartition(".")[2], GAME, modules=modules, source=name)
     raise UsageError(f"module {name} has no parallel_env(**kwargs); name a PettingZoo env module, or "
                      f"'{name}:<function>' for a function that returns a ParallelEnv")
 
@@ -194,7 +186,7 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     modules = tuple(gym_packages)
     if name in PETTINGZOO_ENVS:
         source = PETTINGZOO_ENVS[name]
-        return EnvRef(name, multi_agent=True, modules=modules, source=source)
+        return EnvRef(name, TEAM, modules=modules, source=source)
     if ":" in name:
         module_name, _, attr = name.partition(":")
         module = _import(module_name)
@@ -206,8 +198,8 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
         if callable(getattr(module, attr, None)):
             env_id = callable_env_id(module_name, attr)
             if _returns_aec_env(getattr(module, attr)):
-                return EnvRef(env_id, modules=modules, source=name, game=True)
-            return EnvRef(env_id, multi_agent=True, modules=modules, source=name)
+                return EnvRef(env_id, GAME, modules=modules, source=name)
+            return EnvRef(env_id, TEAM, modules=modules, source=name)
         raise UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
     atari = "NoFrameskip" in name or name.startswith("ALE/")
     if atari:

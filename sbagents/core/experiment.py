@@ -17,11 +17,12 @@ from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckA
 from stable_baselines3.common.utils import LinearSchedule
 
 from sbagents.algos import ALGOS
+from sbagents.core.env_kinds import SINGLE_AGENT, EnvKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.options import TrainSpec
 from sbagents.core.selfplay_options import SelfPlayOptions
-from sbagents.core.team_options import CRITICS, POLICY_MODES, TeamOptions
-from sbagents.core.zoo_config import GAME_KEYS, MULTI_AGENT_KEYS, ZOO_KEYS, spec_entry
+from sbagents.core.team_options import TeamOptions
+from sbagents.core.zoo_config import ZOO_KEYS, spec_entry
 from sbagents.errors import UsageError
 from sbagents.extensions import config_keys
 
@@ -113,26 +114,6 @@ def import_object(path: str, what: str = "object", trusted_modules: tuple[str, .
         raise UsageError(f"{what} {path!r} is not a {kinds} class (a config names classes of that kind from the "
                          "allow-list; functions and other objects only from packages you name with --gym-packages)")
     return obj
-
-
-def _team_options(entry: dict[str, Any], source: str) -> TeamOptions:
-    policies = entry.get("policies", "shared")
-    if policies not in POLICY_MODES:
-        raise UsageError(f"policies must be one of {', '.join(POLICY_MODES)}, got {policies!r} ({source})")
-    critic = entry.get("critic", "local")
-    if critic not in CRITICS:
-        raise UsageError(f"critic must be one of {', '.join(CRITICS)}, got {critic!r} ({source})")
-    groups = entry.get("groups")
-    if groups is not None:
-        if not isinstance(groups, dict) or not all(isinstance(v, list) and v for v in groups.values()):
-            raise UsageError(f"groups must map group names to lists of agents, got {groups!r} ({source})")
-        if policies != "per_group":
-            raise UsageError(f"groups needs policies: per_group, got policies: {policies} ({source})")
-        groups = {str(k): [str(a) for a in v] for k, v in groups.items()}
-    agent_id = entry.get("agent_id", False)
-    if not isinstance(agent_id, bool):
-        raise UsageError(f"agent_id must be true or false, got {agent_id!r} ({source})")
-    return TeamOptions(policies, groups, agent_id, critic)
 
 
 @dataclass
@@ -236,23 +217,16 @@ def _positive_int(entry: dict[str, Any], key: str, default: int | None) -> int |
     return value
 
 
-def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_agent: bool = False,
-            game: bool = False, trusted_modules: tuple[str, ...] = ()) -> Experiment:
+def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, kind: EnvKind = SINGLE_AGENT,
+            trusted_modules: tuple[str, ...] = ()) -> Experiment:
     """Validate a zoo entry (after CLI overrides) and build the :class:`Experiment`.
 
     :param source: where the entry came from, for error messages (file and env id).
-    :param multi_agent: a PettingZoo env (the multi-agent keys apply; ``monitor_kwargs`` does not).
-    :param game: a turn-based game (``self_play`` applies).
+    :param kind: the env's kind, which owns its zoo keys (``policies``, ... for teams; ``self_play`` for games).
     :param trusted_modules: modules the user named, whose objects import paths may name (:func:`import_object`).
     """
     trusted = trusted_modules
-    misplaced = sorted(set(entry) & (MULTI_AGENT_KEYS if not multi_agent else {"monitor_kwargs", "eval_env_kwargs"}))
-    if misplaced:
-        kind = ("PettingZoo envs only" if not multi_agent
-                else "Gymnasium envs only (team VecEnvs write their own monitor and evaluate with env_kwargs)")
-        raise UsageError(f"{', '.join(misplaced)} apply to {kind} ({source})")
-    if not game and set(entry) & GAME_KEYS:
-        raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only ({source})")
+    kind.check_entry(entry, source)
     accepted = accepted_algo_kwargs(algo)
     zoo_keys = ZOO_KEYS | config_keys()  # RL Zoo's keys, sbagents' own and the training extensions'
     unknown = sorted(k for k in entry if k not in zoo_keys and k not in accepted)
@@ -308,14 +282,9 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, multi_ag
         noise_std=float(entry.get("noise_std", 0.1)),
         algo_kwargs=algo_kwargs,
         hyperparams=dict(entry),
-        team=_team_options(entry, source) if multi_agent else None,
         deterministic_eval=deterministic_eval,
-        self_play=_self_play(entry.get("self_play"), source) if game else None,
+        **kind.experiment_settings(entry, source),
     )
-
-
-def _self_play(value: Any, source: str) -> SelfPlayOptions:
-    return SelfPlayOptions.from_mapping(value, source)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef, overrides: tuple[str, ...] = ()) -> Experiment:
@@ -332,4 +301,4 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, overrides: tuple[str, ...] = 
     from sbagents.core.image_obs import image_entry
 
     entry = image_entry(spec, ref, entry)
-    return resolve(spec.algo, ref.env_id, entry, where, ref.multi_agent, ref.game, ref.trusted_modules())
+    return resolve(spec.algo, ref.env_id, entry, where, ref.kind, ref.trusted_modules())

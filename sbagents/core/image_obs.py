@@ -22,7 +22,8 @@ from typing import Any
 from gymnasium import spaces
 
 from sbagents.algos import ALGOS
-from sbagents.core.env_names import PETTINGZOO_DEFAULT_ENTRY, EnvRef
+from sbagents.core.env_kinds import PETTINGZOO_DEFAULT_ENTRY
+from sbagents.core.env_names import EnvRef
 from sbagents.core.options import TrainSpec
 from sbagents.core.zoo_config import default_config_path, entry_name
 from sbagents.errors import UsageError
@@ -30,9 +31,6 @@ from sbagents.errors import UsageError
 #: Entries that serve envs without one of their own.
 FALLBACK_ENTRIES = frozenset({"default", PETTINGZOO_DEFAULT_ENTRY})
 #: The preprocessing wrappers an image env without an entry gets (as a zoo entry's ``env_wrapper``).
-PARALLEL_IMAGE_WRAPPER = {"sbagents.multiagent.preprocessing.ImagePreprocessing": {"grayscale": True,
-                                                                                   "shape": [84, 84]}}
-GYM_IMAGE_WRAPPER = {"stable_baselines3.common.atari_wrappers.WarpFrame": {"width": 84, "height": 84}}
 FRAME_STACK = 4
 
 
@@ -47,23 +45,14 @@ def observation_spaces(ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any] | N
     """The observation space of every agent (one for a Gymnasium env) of one env built with ``env_kwargs``; None
     when it cannot be built here (the env checks that follow then report why)."""
     try:
-        if ref.multi_agent:
-            env = ref.parallel_env(**env_kwargs)
-            found = [env.observation_space(agent) for agent in env.possible_agents]
-        else:
-            from sbagents.core.env_names import make_registered
-
-            env = make_registered(ref.env_id, ref.modules, **env_kwargs)
-            found = [env.observation_space]
-        env.close()
+        return ref.kind.observation_spaces(ref, env_kwargs)
     except Exception:  # noqa: BLE001 - bad kwargs, a missing dependency: reported by the env checks that follow
         return None
-    return found
 
 
 def _uses_fallback(spec: TrainSpec, ref: EnvRef, entry: dict[str, Any]) -> bool:
     """Whether ``entry`` came from a fallback entry with ``MlpPolicy`` that nobody chose for this env."""
-    if ref.game or "policy" in spec.hyperparams or entry.get("policy", "MlpPolicy") != "MlpPolicy":
+    if "policy" in spec.hyperparams or entry.get("policy", "MlpPolicy") != "MlpPolicy":
         return False
     path = Path(spec.conf_file) if spec.conf_file is not None else default_config_path(spec.algo)
     name = entry_name(path, ref.config_keys)
@@ -76,7 +65,8 @@ def image_entry(spec: TrainSpec, ref: EnvRef, entry: dict[str, Any]) -> dict[str
 
     :raises UsageError: (one line) such an env with an algorithm the recipe does not fit.
     """
-    if not _uses_fallback(spec, ref, entry):
+    wrapper = ref.kind.image_wrapper
+    if wrapper is None or not _uses_fallback(spec, ref, entry):
         return entry
     found = observation_spaces(ref, dict(entry.get("env_kwargs") or {}))
     if not found or not all(is_image_space(space) for space in found):
@@ -88,6 +78,5 @@ def image_entry(spec: TrainSpec, ref: EnvRef, entry: dict[str, Any]) -> dict[str
             f"would train an MLP on raw pixels; give it an entry with policy: CnnPolicy, env_wrapper (image "
             "preprocessing), frame_stack and buffer_size (see cooperative_pong_v6 in zoo_configs/ppo.yml), train "
             "ppo or a2c (they get that recipe), or pass -params policy:MlpPolicy to insist")
-    wrapper = PARALLEL_IMAGE_WRAPPER if ref.multi_agent else GYM_IMAGE_WRAPPER
     return {**entry, "policy": "CnnPolicy", "env_wrapper": [wrapper],
             "frame_stack": entry.get("frame_stack") or FRAME_STACK}

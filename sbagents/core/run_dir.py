@@ -23,6 +23,7 @@ from sbagents.state_files import VECNORMALIZE_FILE
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
+    from sbagents.core.env_kinds import EnvKind
     from sbagents.core.experiment import Experiment
 
 SUMMARY_FILE = "summary.json"
@@ -169,18 +170,20 @@ def run_args(run_dir: Path, env_id: str) -> dict[str, Any]:
     return read_settings_file(path) if path.exists() else {}
 
 
-def load_experiment(run_dir: Path, algo: str, env_id: str, multi_agent: bool = False,
-                    game: bool = False, trusted_modules: tuple[str, ...] = ()) -> Experiment:
+def load_experiment(run_dir: Path, algo: str, env_id: str, kind: EnvKind | None = None,
+                    trusted_modules: tuple[str, ...] = ()) -> Experiment:
     """The :class:`~sbagents.core.experiment.Experiment` a run was trained with (so evaluation wraps the
-    env identically); ``multi_agent`` for PettingZoo envs, ``game`` for turn-based games.
+    env identically).
 
+    :param kind: the env's kind (default: a single-agent Gymnasium env).
     :param trusted_modules: modules the user named (``--env module:...``, ``--gym-packages``) whose classes the
         run's config may name besides the import allow-list (:data:`~sbagents.core.experiment.ALLOWED_IMPORTS`).
     """
+    from sbagents.core.env_kinds import SINGLE_AGENT
     from sbagents.core.experiment import resolve
 
-    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)), multi_agent,
-                   game, trusted_modules)
+    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)),
+                   kind or SINGLE_AGENT, trusted_modules)
 
 
 def check_model_file(path: str | Path) -> Path:
@@ -316,7 +319,7 @@ def load_run(ref: RunRef) -> LoadedRun:
     env = ref.env_ref()
     run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
     trusted = env.trusted_modules()
-    exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.multi_agent, env.game, trusted),
+    exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.kind, trusted),
                           ref.env_kwargs)
     from sbagents.extensions import registered_extensions  # (registered by load_experiment's import)
 

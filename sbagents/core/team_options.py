@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
+
+from sbagents.errors import UsageError
 
 POLICY_MODES = ("shared", "per_agent", "per_group")
 CRITICS = ("local", "centralized")
@@ -24,3 +28,27 @@ class TeamOptions:
     groups: dict[str, list[str]] | None = None
     agent_id: bool = False
     critic: str = "local"
+
+
+def team_options(entry: Mapping[str, Any], source: str) -> TeamOptions:
+    """The team settings of a PettingZoo entry (``policies``, ``groups``, ``agent_id``, ``critic``), checked.
+
+    :raises UsageError: (one line naming ``source``) a value out of range.
+    """
+    policies = entry.get("policies", "shared")
+    if policies not in POLICY_MODES:
+        raise UsageError(f"policies must be one of {', '.join(POLICY_MODES)}, got {policies!r} ({source})")
+    critic = entry.get("critic", "local")
+    if critic not in CRITICS:
+        raise UsageError(f"critic must be one of {', '.join(CRITICS)}, got {critic!r} ({source})")
+    groups = entry.get("groups")
+    if groups is not None:
+        if not isinstance(groups, dict) or not all(isinstance(v, list) and v for v in groups.values()):
+            raise UsageError(f"groups must map group names to lists of agents, got {groups!r} ({source})")
+        if policies != "per_group":
+            raise UsageError(f"groups needs policies: per_group, got policies: {policies} ({source})")
+        groups = {str(k): [str(a) for a in v] for k, v in groups.items()}
+    agent_id = entry.get("agent_id", False)
+    if not isinstance(agent_id, bool):
+        raise UsageError(f"agent_id must be true or false, got {agent_id!r} ({source})")
+    return TeamOptions(policies, groups, agent_id, critic)

@@ -14,6 +14,7 @@ from typing import Any
 
 import yaml
 
+from sbagents.core.env_kinds import GAME_KEYS, MULTI_AGENT_KEYS
 from sbagents.core.env_names import EnvRef
 from sbagents.core.options import TrainSpec
 from sbagents.errors import UsageError
@@ -34,18 +35,9 @@ ZOO_KEYS: frozenset[str] = frozenset(
         "callback",
         "noise_type",
         "noise_std",
-        "policies",
-        "groups",
-        "agent_id",
-        "critic",
         "deterministic_eval",
-        "self_play",
     }
-)
-#: The keys of :data:`ZOO_KEYS` that only PettingZoo envs take.
-MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
-#: The keys of :data:`ZOO_KEYS` that only turn-based games take.
-GAME_KEYS: frozenset[str] = frozenset({"self_play"})
+) | MULTI_AGENT_KEYS | GAME_KEYS  # and the keys the env kinds own (sbagents.core.env_kinds)
 
 
 class ZooLoader(yaml.SafeLoader):

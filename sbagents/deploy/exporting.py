@@ -8,6 +8,7 @@ partial export.
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 import tempfile
@@ -24,7 +25,8 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.atomic import raise_disk_error, write_json
 from sbagents.callbacks.common import env_attr
-from sbagents.core.run_dir import RunRef, load_run
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.run_dir import LoadedRun, RunRef, load_run
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
     OBS_INPUT,
@@ -253,28 +255,49 @@ def export_groups(
     if n_observations < 1:
         raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
     loaded = load_run(run)
+    target = Path(out) if out is not None else loaded.run_dir / default_export_dir(run)
+    return _export_kind(loaded.env.kind, loaded, target, int8, ExportChecks(n_observations=n_observations))
+
+
+def _check_exportable_run(loaded: LoadedRun) -> None:
+    """Refuse (one line) a run whose wrappers or models export cannot reproduce."""
     exp, ref = loaded.experiment, loaded.env
-    if ref.game:
-        raise UsageError(f"cannot export {run.algo} on {ref.env_id} yet: its policy needs the action mask as an input, "
-                         "which the ONNX policy and serve do not take (an exported argmax could pick illegal moves)")
     if exp.frame_stack or exp.env_wrapper:
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
     for model in loaded.models.values():
         try:
             check_exportable(model)
         except TypeError as exc:
-            raise UsageError(f"cannot export {run.algo}: {exc}") from None
-    target = Path(out) if out is not None else loaded.run_dir / default_export_dir(run)
-    if ref.multi_agent:
-        from sbagents.deploy.team_export import export_team
+            raise UsageError(f"cannot export {exp.algo}: {exc}") from None
 
-        return export_team(loaded, target, int8, ExportChecks(n_observations=n_observations))
-    venv = make_eval_vec(exp, ref, 1, seed=0, stats_path=loaded.stats_path, trust=loaded.trust)
+
+@functools.singledispatch
+def _export_kind(kind: EnvKind, loaded: LoadedRun, target: Path, int8: bool,
+                 checks: ExportChecks) -> dict[str, ExportReport]:
+    """A Gymnasium env's run: its one model, with parity observations from its evaluation env."""
+    _check_exportable_run(loaded)
+    venv = make_eval_vec(loaded.experiment, loaded.env, 1, seed=0, stats_path=loaded.stats_path, trust=loaded.trust)
     try:
-        return {"shared": export_run(loaded.model, target, ref.env_id, env=venv, int8=int8,
-                                     checks=ExportChecks(n_observations=n_observations))}
+        return {"shared": export_run(loaded.model, target, loaded.env.env_id, env=venv, int8=int8, checks=checks)}
     finally:
         venv.close()
+
+
+@_export_kind.register
+def _(kind: TeamKind, loaded: LoadedRun, target: Path, int8: bool, checks: ExportChecks) -> dict[str, ExportReport]:
+    """A team's run: every group's model (parity observations from a team in which each acts)."""
+    from sbagents.deploy.team_export import export_team
+
+    _check_exportable_run(loaded)
+    return export_team(loaded, target, int8, checks)
+
+
+@_export_kind.register
+def _(kind: GameKind, loaded: LoadedRun, target: Path, int8: bool, checks: ExportChecks) -> dict[str, ExportReport]:
+    """A turn-based game's run: refused."""
+    raise UsageError(f"cannot export {loaded.experiment.algo} on {loaded.env.env_id} yet: its policy needs the action "
+                     "mask as an input, which the ONNX policy and serve do not take (an exported argmax could pick "
+                     "illegal moves)")
 
 
 def format_report(report: ExportReport) -> str:

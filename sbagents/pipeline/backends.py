@@ -48,10 +48,8 @@ def train(
         from sbagents.core.env_names import resolve_env
         from sbagents.rllib import check_options, require_ray
 
-        if resolve_env(spec.env, spec.gym_packages).game:
-            raise UsageError(f"{spec.env} is a turn-based game: it trains with --backend sb3 and ppo_mask (self-play "
-                             "with action masks)")
-
+        ref = resolve_env(spec.env, spec.gym_packages)
+        ref.kind.refuse_backend(ref, "rllib")
         refused = [flag for a in activate(features) for flag in a.extension.unsupported_flags(a.spec, "rllib")]
         check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution}, refused)
         if callbacks:

@@ -6,6 +6,7 @@ one with :func:`summarize`.
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -17,6 +18,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.safety import step_violation
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
@@ -74,14 +76,15 @@ def evaluate_model(
     """
     options = options or EvaluateOptions()
     options.validate()
-    if ref.game:
-        from sbagents.games.training import evaluate_game
+    return _evaluate_kind(ref.kind, model, exp, ref, options, stats_path, trust)
 
-        return evaluate_game(model, exp, ref, options)
+
+@functools.singledispatch
+def _evaluate_kind(kind: EnvKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
+                   stats_path: Path | None, trust: bool) -> dict[str, Any]:
+    """A Gymnasium env: episodes on one reference env (rendered when asked)."""
     if options.opponent is not None:
         raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
-    if ref.multi_agent:
-        return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path}, trust)
     text = options.render and supports_text(render_modes(exp, ref))  # labelled text states, else 'human' mode
     extra = {"render_mode": "ansi" if text else "human"} if options.render else {}
     # the reference envs (not the batched ones) render every step
@@ -119,6 +122,27 @@ def evaluate_model(
         venv.close()
     return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics,  # type: ignore[arg-type]
                      costs)
+
+
+@_evaluate_kind.register
+def _(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
+      stats_path: Path | None, trust: bool) -> dict[str, Any]:
+    """A team: whole-team episodes (team return, per-agent returns)."""
+    if options.opponent is not None:
+        raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
+    return evaluate_groups({SHARED_GROUP: model}, exp, ref, options, {SHARED_GROUP: stats_path}, trust)
+
+
+@_evaluate_kind.register
+def _(kind: GameKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
+      stats_path: Path | None, trust: bool) -> dict[str, Any]:
+    """A turn-based game: matches against ``options.opponent`` (seats alternating); no attacks or fairness."""
+    from sbagents.games.training import evaluate_game
+
+    if options.attacks or options.fairness:
+        raise UsageError("--attack and --fairness are not available for turn-based games; --opponent picks who to "
+                         "play against")
+    return evaluate_game(model, exp, ref, options)
 
 
 def evaluate_groups(
@@ -159,9 +183,6 @@ def evaluate_sb3_run(run: LoadedRun, options: EvaluateOptions) -> dict[str, Any]
         if options.attacks or options.fairness:
             raise UsageError("--attack and --fairness evaluate one model; this run has one model per group")
         return evaluate_groups(run.models, run.experiment, run.env, options, run.stats_paths, run.trust)
-    if run.env.game and (options.attacks or options.fairness):
-        raise UsageError("--attack and --fairness are not available for turn-based games; --opponent picks who to "
-                         "play against")
     summary = evaluate_model(run.model, run.experiment, run.env, options, run.stats_path, run.trust)
     if options.attacks or options.fairness:
         summary.update(trust_report(run, options))

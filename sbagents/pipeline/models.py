@@ -28,7 +28,7 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
     """Build one env to read its spaces; raise :class:`UsageError` if the algorithm cannot handle them."""
     probe = make_vec(exp, ref, 1, seed=None)
     obs_space, act_space = probe.observation_space, probe.action_space
-    masks = ref.game or probe.has_attr("action_masks")
+    masks = ref.kind.masked or probe.has_attr("action_masks")
     probe.close()
     if ALGOS[exp.algo].masked != masks:
         able = ", ".join(algos_for(obs_space, act_space, masks)) or "none"

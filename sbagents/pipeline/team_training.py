@@ -38,11 +38,9 @@ from sbagents.multiagent.lockstep import learn_in_lockstep
 from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.multiagent.team_eval import TeamEvalCallback, slot_agents
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
+from sbagents.pipeline.kinds import EVAL_SEED_OFFSET
 from sbagents.pipeline.models import make_model
 from sbagents.state_files import save_vecnormalize
-
-#: Seed offset of the evaluation team (as single-model runs).
-EVAL_SEED_OFFSET = 10_000
 
 
 def team_groups_of(venvs: dict[str, VecEnv]) -> dict[str, list[str]]:

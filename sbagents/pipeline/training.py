@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -21,7 +20,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
-from sbagents.callbacks.run_files import AtomicCheckpointCallback, AtomicEvalCallback
+from sbagents.callbacks.run_files import AtomicCheckpointCallback
 from sbagents.core.env_names import EnvRef, resolve_env
 from sbagents.core.experiment import Experiment, build_experiment
 from sbagents.core.lifecycle import (
@@ -36,7 +35,7 @@ from sbagents.core.lifecycle import (
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem, group_stats_name
-from sbagents.env_factory import check_env_kwargs, make_eval_vec, make_vec, normalize_for_training
+from sbagents.env_factory import check_env_kwargs, make_vec, normalize_for_training
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, registered_extensions
 from sbagents.multiagent.groups import team_groups
@@ -44,12 +43,9 @@ from sbagents.multiagent.masking import ActedMaskCallback
 from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.evaluation import evaluate_model
+from sbagents.pipeline.kinds import periodic_evaluation, training_env_kwargs
 from sbagents.pipeline.models import RunContext, check_spaces, make_model
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
-
-#: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
-EVAL_SEED_OFFSET = 10_000
-
 
 
 class StopOnRequestCallback(BaseCallback):
@@ -70,26 +66,7 @@ def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: Prog
     that is ``envpool``), checkpoints, config callbacks."""
     exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
     callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
-    if ref.game:
-        from sbagents.games.training import game_callbacks
-
-        eval_calls = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else 0
-        callbacks += game_callbacks(exp, ref, run_dir, ctx.seed, ctx.train_env.num_envs, eval_calls,
-                                    ctx.eval_episodes, EvalReportCallback(reporter), make_eval_env=make_eval_vec)
-    elif ctx.eval_freq > 0:
-        common: dict[str, Any] = dict(
-            n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.calls(ctx.eval_freq), log_path=str(run_dir),
-            best_model_save_path=str(run_dir), verbose=0, callback_after_eval=EvalReportCallback(reporter))
-        if ref.multi_agent:
-            from sbagents.multiagent.team_eval import TeamEvalCallback
-
-            team_env = make_eval_vec(exp, ref, 1, None, vec_env="dummy")
-            callbacks.append(TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET,
-                                              deterministic=exp.deterministic_eval, **common))
-        else:
-            eval_env = make_eval_vec(exp, ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET,
-                                     vec_env="envpool" if vec_env == "envpool" else "auto")
-            callbacks.append(AtomicEvalCallback(eval_env, deterministic=exp.deterministic_eval, **common))
+    callbacks += periodic_evaluation(ref.kind, ctx, n_eval_envs, EvalReportCallback(reporter), vec_env)
     if save_freq > 0:
         callbacks.append(AtomicCheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
                                                   save_vecnormalize=True))
@@ -157,9 +134,9 @@ def train_sb3(
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
+        extra_kwargs = training_env_kwargs(ref.kind, exp, ref, run_dir)
         train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env,
-                                                    env_kwargs=_selfplay_kwargs(exp, ref, run_dir)), exp, stats,
-                                           spec.trust_run)
+                                                    env_kwargs=extra_kwargs), exp, stats, spec.trust_run)
         for active in actives:
             train_env = active.extension.wrap_train_env(active.spec, train_env)
         model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
@@ -229,15 +206,6 @@ def _prepare(plan: ExtensionPlan) -> list[ActiveExtension]:
         plan.replace(extension.name, spec)
         plan.exp = extension.adjust_experiment(spec, plan.exp)
     return activate(list(plan.specs.values()))
-
-
-def _selfplay_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
-    """Turn-based games: the training envs draw opponents from the run's snapshot pool."""
-    if not ref.game:
-        return None
-    from sbagents.games.training import selfplay_env_kwargs
-
-    return selfplay_env_kwargs(exp, ref, run_dir)
 
 
 def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:

@@ -28,8 +28,8 @@ from sbagents.core.options import StudyOptions, TrainSpec
 from sbagents.core.run_dir import env_stem
 from sbagents.env_factory import make_eval_vec, make_vec, normalize_for_training
 from sbagents.errors import UsageError
+from sbagents.pipeline.kinds import EVAL_SEED_OFFSET
 from sbagents.pipeline.models import check_spaces, make_model
-from sbagents.pipeline.training import EVAL_SEED_OFFSET
 
 SAMPLERS = {"tpe": optuna.samplers.TPESampler, "random": optuna.samplers.RandomSampler}
 PRUNERS = {"median": optuna.pruners.MedianPruner, "halving": optuna.pruners.SuccessiveHalvingPruner,

@@ -24,7 +24,6 @@ from sbagents.core.team_options import TeamOptions
 from sbagents.core.zoo_config import spec_entry
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import team_groups
-from sbagents.registration import PETTINGZOO_ENVS
 from sbagents.rllib import SHARED_MODULE, rllib_algos
 from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
 from sbagents.rllib.truncation import PettingZooEnv, keep_truncation
@@ -111,9 +110,7 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
     """
     if spec.algo not in rllib_algos():
         raise UsageError(f"--backend rllib supports --algo {', '.join(rllib_algos())}; got {spec.algo!r}")
-    if not ref.multi_agent:
-        raise UsageError(f"--backend rllib trains PettingZoo envs (e.g. {', '.join(PETTINGZOO_ENVS)} or a module "
-                         f"such as mpe2.simple_spread_v3); got {ref.env_id}")
+    ref.kind.refuse_backend(ref, "rllib")
     entry, where = spec_entry(spec, f"rllib_{spec.algo}", ref)
     if num_env_runners is not None:
         entry["num_env_runners"] = num_env_runners

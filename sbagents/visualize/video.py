@@ -15,6 +15,7 @@ step, so each decision can be shown with the frame it was taken in (see :func:`r
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,8 +28,11 @@ from sbagents.atomic import write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_names import EnvRef
+from sbagents.core.experiment import Experiment
 from sbagents.core.run_dir import LoadedRun, RunRef, env_stem, load_run
-from sbagents.env_factory import MissingDependencyError, make_team_vecs, make_vec, normalize_for_eval
+from sbagents.env_factory import make_team_vecs, make_vec, normalize_for_eval
 from sbagents.errors import UsageError
 
 
@@ -159,13 +163,10 @@ def record_video(
     if fps is not None and not fps > 0:
         raise UsageError(f"--fps must be > 0, got {fps}")
     loaded = load_run(run)
-    if loaded.env.game:
-        raise UsageError(f"record_video does not record turn-based games yet; play {loaded.env.env_id} against the "
-                         "agent with python -m sbagents.play, or measure it with sbagents.evaluate --opponent")
-    if deterministic is None:
-        deterministic = loaded.experiment.deterministic_eval
     ref = loaded.env
     venvs = _render_vecs(loaded, seed)
+    if deterministic is None:
+        deterministic = loaded.experiment.deterministic_eval
     first = next(iter(venvs))
     if venvs[first].render_mode != "rgb_array":
         venvs[first].close()
@@ -184,7 +185,7 @@ def record_video(
         venvs[first], str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix
     )
     recorder.frames_per_sec = frame_rate  # type: ignore[assignment]  # SB3 annotates it too narrowly
-    log = None if ref.multi_agent else _DecisionLog(recorder)
+    log = _decision_log(ref.kind, recorder)
     try:
         _play(recorder, venvs, loaded, n_steps, deterministic, log)
     finally:
@@ -207,15 +208,43 @@ def sidecar_path(video: str | Path) -> Path:
 def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
     """One env copy rendering ``rgb_array`` frames: group -> VecEnv for PettingZoo runs (one team), else one VecEnv."""
     exp, ref = loaded.experiment, loaded.env
-    kwargs = {"render_mode": "rgb_array"}
     try:
-        if ref.multi_agent:
-            return make_team_vecs(exp, ref, 1, seed, vec_env="dummy", env_kwargs=kwargs)
-        return {"shared": make_vec(exp, ref, 1, seed, env_kwargs=kwargs)}
-    except MissingDependencyError:
+        return _kind_render_vecs(ref.kind, exp, ref, seed, {"render_mode": "rgb_array"})
+    except UsageError:  # MissingDependencyError included
         raise
     except (TypeError, ValueError, AssertionError) as exc:
         raise UsageError(f"{ref.env_id} cannot be created with render_mode='rgb_array': {exc}") from None
+
+
+@functools.singledispatch
+def _kind_render_vecs(kind: EnvKind, exp: Experiment, ref: EnvRef, seed: int,
+                      kwargs: dict[str, Any]) -> dict[str, VecEnv]:
+    """A Gymnasium env: one VecEnv."""
+    return {"shared": make_vec(exp, ref, 1, seed, env_kwargs=kwargs)}
+
+
+@_kind_render_vecs.register
+def _(kind: TeamKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str, Any]) -> dict[str, VecEnv]:
+    """A team: one team, group -> VecEnv."""
+    return make_team_vecs(exp, ref, 1, seed, vec_env="dummy", env_kwargs=kwargs)
+
+
+@_kind_render_vecs.register
+def _(kind: GameKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str, Any]) -> dict[str, VecEnv]:
+    """A turn-based game: not recorded."""
+    raise UsageError(f"record_video does not record turn-based games yet; play {ref.env_id} against the agent with "
+                     "python -m sbagents.play, or measure it with sbagents.evaluate --opponent")
+
+
+@functools.singledispatch
+def _decision_log(kind: EnvKind, recorder: VecEnv) -> _DecisionLog | None:
+    """The decisions sidecar of a one-agent video (teams have none)."""
+    return _DecisionLog(recorder)
+
+
+@_decision_log.register
+def _(kind: TeamKind, recorder: VecEnv) -> _DecisionLog | None:
+    return None
 
 
 def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], loaded: LoadedRun, n_steps: int,

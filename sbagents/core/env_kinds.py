@@ -1,0 +1,180 @@
+"""The three kinds of env sbagents trains, as objects resolved once with the env's name.
+
+- :data:`SINGLE_AGENT`: a Gymnasium env (one agent; SB3's VecEnvs, EvalCallback, ONNX export).
+- :data:`TEAM`: a PettingZoo ``ParallelEnv`` trained as a team of agents (parameter sharing or one model per group;
+  the zoo keys ``policies``, ``groups``, ``agent_id``, ``critic``).
+- :data:`GAME`: a turn-based PettingZoo (AEC) game with action masks, trained from one seat against opponents
+  (self-play; the zoo key ``self_play``).
+
+:class:`~sbagents.core.env_names.EnvRef` holds its kind (``ref.kind``). What a kind means in this layer (config
+entries, the keys it owns, the experiment settings it adds, how to probe its observation spaces) lives on the kind;
+what it means in a higher layer (building its VecEnvs, periodic and final evaluation, export, video) is registered
+for the kind's class where that code lives, with :func:`functools.singledispatch` (e.g.
+``sbagents.env_factory``, ``sbagents.pipeline.kinds``), so no layer tests booleans to tell kinds apart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from sbagents.errors import UsageError
+
+if TYPE_CHECKING:
+    from sbagents.core.env_names import EnvRef
+
+#: Zoo keys only PettingZoo teams take (:class:`TeamKind`).
+MULTI_AGENT_KEYS: frozenset[str] = frozenset({"policies", "groups", "agent_id", "critic"})
+#: Zoo keys only turn-based games take (:class:`GameKind`).
+GAME_KEYS: frozenset[str] = frozenset({"self_play"})
+#: Zoo entry of every PettingZoo team env without an entry of its own (before ``default``).
+PETTINGZOO_DEFAULT_ENTRY = "pettingzoo"
+#: The preprocessing wrapper an image env without an entry gets (as a zoo entry's ``env_wrapper`` item;
+#: :mod:`sbagents.core.image_obs`): a PettingZoo parallel wrapper for teams, a Gymnasium wrapper otherwise.
+PARALLEL_IMAGE_WRAPPER = {"sbagents.multiagent.preprocessing.ImagePreprocessing": {"grayscale": True,
+                                                                                   "shape": [84, 84]}}
+GYM_IMAGE_WRAPPER = {"stable_baselines3.common.atari_wrappers.WarpFrame": {"width": 84, "height": 84}}
+
+
+class EnvKind:
+    """What kind of env an :class:`~sbagents.core.env_names.EnvRef` names (see the module docstring).
+
+    :cvar name: a short name for messages.
+    :cvar pettingzoo: built from a PettingZoo module (``ref.source``).
+    :cvar masked: its agents act with action masks (``action_masks()``).
+    :cvar backends: the training backends that take it.
+    :cvar image_wrapper: the wrapper of the image recipe for pixel observations (None: no recipe).
+    """
+
+    name: ClassVar[str] = ""
+    pettingzoo: ClassVar[bool] = False
+    masked: ClassVar[bool] = False
+    backends: ClassVar[tuple[str, ...]] = ("sb3",)
+    image_wrapper: ClassVar[Mapping[str, Any] | None] = None
+
+    def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
+        """Zoo-config entries to look up, in order (``default`` comes after them)."""
+        raise NotImplementedError
+
+    def batched_source(self, ref: EnvRef) -> str:
+        """The PettingZoo module a batched implementation is looked up by (``""``: by the Gymnasium id)."""
+        return ""
+
+    def check_entry(self, entry: Mapping[str, Any], source: str) -> None:
+        """Refuse, in one line, zoo keys that belong to another kind.
+
+        :param source: where the entry came from (file and entry), for the message.
+        """
+        misplaced = sorted(set(entry) & MULTI_AGENT_KEYS)
+        if misplaced:
+            raise UsageError(f"{', '.join(misplaced)} apply to PettingZoo envs only ({source})")
+        self._check_game_keys(entry, source)
+
+    @staticmethod
+    def _check_game_keys(entry: Mapping[str, Any], source: str) -> None:
+        if set(entry) & GAME_KEYS:
+            raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only "
+                             f"({source})")
+
+    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
+        """The :class:`~sbagents.core.experiment.Experiment` fields this kind reads from its own zoo keys."""
+        return {}
+
+    def observation_spaces(self, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any]:
+        """The observation space of every agent (one for a Gymnasium env) of one env built with ``env_kwargs``."""
+        from sbagents.core.env_names import make_registered
+
+        env = make_registered(ref.env_id, ref.modules, **env_kwargs)
+        found = [env.observation_space]
+        env.close()
+        return found
+
+    def refuse_backend(self, ref: EnvRef, backend: str) -> None:
+        """Raise :class:`UsageError` when ``backend`` does not train this kind."""
+        if backend not in self.backends:
+            raise UsageError(f"{ref.env_id} is a {self.name} env: it trains with --backend "
+                             f"{' / '.join(self.backends)}")
+
+    def __repr__(self) -> str:
+        return f"<env kind {self.name}>"
+
+
+class SingleAgentKind(EnvKind):
+    """A Gymnasium env."""
+
+    name = "single-agent"
+    image_wrapper = GYM_IMAGE_WRAPPER
+
+    def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
+        return (ref.env_id, "atari") if ref.is_atari else (ref.env_id,)
+
+    def refuse_backend(self, ref: EnvRef, backend: str) -> None:
+        if backend not in self.backends:
+            from sbagents.registration import PETTINGZOO_ENVS
+
+            raise UsageError(f"--backend {backend} trains PettingZoo envs (e.g. {', '.join(PETTINGZOO_ENVS)} or a "
+                             f"module such as mpe2.simple_spread_v3); got {ref.env_id}")
+
+
+class TeamKind(EnvKind):
+    """A PettingZoo ``ParallelEnv`` trained as a team."""
+
+    name = "team"
+    pettingzoo = True
+    backends = ("sb3", "rllib")
+    image_wrapper = PARALLEL_IMAGE_WRAPPER
+
+    def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
+        return tuple(dict.fromkeys((ref.source, ref.env_id, PETTINGZOO_DEFAULT_ENTRY)))
+
+    def batched_source(self, ref: EnvRef) -> str:
+        return ref.source
+
+    def check_entry(self, entry: Mapping[str, Any], source: str) -> None:
+        misplaced = sorted(set(entry) & {"monitor_kwargs", "eval_env_kwargs"})
+        if misplaced:
+            raise UsageError(f"{', '.join(misplaced)} apply to Gymnasium envs only (team VecEnvs write their own "
+                             f"monitor and evaluate with env_kwargs) ({source})")
+        self._check_game_keys(entry, source)
+
+    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
+        from sbagents.core.team_options import team_options
+
+        return {"team": team_options(entry, source)}
+
+    def observation_spaces(self, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any]:
+        env = ref.parallel_env(**env_kwargs)
+        found = [env.observation_space(agent) for agent in env.possible_agents]
+        env.close()
+        return found
+
+
+class GameKind(EnvKind):
+    """A turn-based PettingZoo (AEC) game with action masks, played from one seat."""
+
+    name = "turn-based game"
+    pettingzoo = True
+    masked = True
+
+    def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
+        return tuple(dict.fromkeys((ref.source, ref.env_id)))
+
+    def check_entry(self, entry: Mapping[str, Any], source: str) -> None:
+        misplaced = sorted(set(entry) & MULTI_AGENT_KEYS)
+        if misplaced:
+            raise UsageError(f"{', '.join(misplaced)} apply to PettingZoo envs only ({source})")
+
+    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
+        from sbagents.core.selfplay_options import SelfPlayOptions
+
+        return {"self_play": SelfPlayOptions.from_mapping(entry.get("self_play"), source)}
+
+    def refuse_backend(self, ref: EnvRef, backend: str) -> None:
+        if backend not in self.backends:
+            raise UsageError(f"{ref.env_id} is a turn-based game: it trains with --backend sb3 and ppo_mask "
+                             "(self-play with action masks)")
+
+
+SINGLE_AGENT = SingleAgentKind()
+TEAM = TeamKind()
+GAME = GameKind()

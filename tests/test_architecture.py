@@ -68,3 +68,13 @@ def test_env_kinds_are_dispatched_on_not_tested() -> None:
             tests += [where] * len(kind_tests.findall(line))
     assert not old, f"EnvRef has no multi_agent/game flags any more: {old}"
     assert len(tests) <= 5, tests
+
+
+def test_the_docs_capability_table_is_the_algorithm_table() -> None:
+    from sbagents.algos import capability_table
+
+    page = (REPO / "docs" / "architecture.md").read_text()
+    start, end = "<!-- capability-table:start -->\n", "\n<!-- capability-table:end -->"
+    shown = page[page.index(start) + len(start):page.index(end)]
+    assert shown == capability_table(markdown=True), "docs/architecture.md's table differs; paste:\n" + \
+        capability_table(markdown=True)

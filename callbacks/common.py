@@ -13,7 +13,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecNormalize
 
-from sbagents.multiagent.team import ACTED
+from sbagents.callbacks.episodes import ACTED
 
 #: Keys that SB3 / Gymnasium wrappers (and sbagents' team VecEnvs) put in ``info``: never treated as env data.
 INTERNAL_INFO_KEYS = frozenset(

@@ -26,7 +26,7 @@ from sbagents.callbacks.common import (
     is_scalar,
     remove_exception_hook,
 )
-from sbagents.multiagent.team import ACTED
+from sbagents.callbacks.episodes import ACTED
 
 #: zlib level of ``.csv.gz`` logs (1 is ~3x faster than gzip's default 9, files ~25% larger).
 GZIP_LEVEL = 1

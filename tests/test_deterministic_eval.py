@@ -1,7 +1,7 @@
 """The ``deterministic_eval`` zoo key: every evaluation of a run (periodic, final, ``evaluate``, ``record_video``)
 acts greedily unless the run's config says ``deterministic_eval: false``; ``--deterministic``/``--stochastic``
-override it. Checked on what the evaluation code is asked to do (spies on SB3's ``evaluate_policy`` and the team's
-``model_actor``), for a single-agent run and a PettingZoo team run, and on the config's validation."""
+override it. Checked on what the evaluation code is asked to do (spies on SB3's ``evaluate_policy`` and the episode
+runner's ``model_actor``), for a single-agent run and a PettingZoo team run, and on the config's validation."""
 
 from __future__ import annotations
 
@@ -38,10 +38,10 @@ def test_the_key_is_validated() -> None:
 
 
 def _spy(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    """Record the ``deterministic`` flag of every evaluation: SB3's ``evaluate_policy`` (as EvalCallback and
-    :func:`sbagents.pipeline.evaluation.evaluate_model` call it) and the team evaluation's ``model_actor``."""
+    """Record the ``deterministic`` flag of every evaluation: SB3's ``evaluate_policy`` (as EvalCallback calls it)
+    and ``model_actor`` (as :func:`sbagents.pipeline.evaluation.evaluate_model` and the team evaluation call it)."""
     seen: list[bool] = []
-    real_policy, real_actor = evaluation.evaluate_policy, team_eval.model_actor
+    real_policy, real_actor = sb3_callbacks.evaluate_policy, team_eval.model_actor
 
     def policy_spy(*args: Any, **kwargs: Any) -> Any:
         seen.append(bool(kwargs["deterministic"]))
@@ -52,7 +52,6 @@ def _spy(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
         return real_actor(model, deterministic)
 
     monkeypatch.setattr(sb3_callbacks, "evaluate_policy", policy_spy)
-    monkeypatch.setattr(evaluation, "evaluate_policy", policy_spy)
     monkeypatch.setattr(team_eval, "model_actor", actor_spy)
     monkeypatch.setattr(evaluation, "model_actor", actor_spy)
     return seen

@@ -28,11 +28,9 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.monitor import ResultsWriter
 
+from sbagents.callbacks.episodes import ACTED  # the info-key contract (re-exported)
 from sbagents.multiagent.copies import LocalCopies, SubprocCopies
 from sbagents.multiagent.env_copy import CopyStep, declared_metrics
-
-#: Info key marking a slot whose action was not used (its agent was absent); absent means it acted.
-ACTED = "sbagents_acted"
 
 
 @dataclass

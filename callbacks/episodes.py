@@ -346,15 +346,13 @@ def summarize_records(records: Sequence[EpisodeRecord], groups: Mapping[str, Seq
     successes = [bool(r.success) for r in records if r.success is not None]
     costs = [r.cost for r in records if r.cost is not None]
     metrics: dict[str, Any] = {}
+    by_agent = [r.agent_returns for r in records if r.agent_returns is not None]
     if records and records[0].agent_returns is not None:
         metrics["episode_length"] = _mean([r.length for r in records])
-        agents = list(records[0].agent_returns)
-        metrics["per_agent_return"] = {a: _mean([r.agent_returns[a] for r in records])  # type: ignore[index]
-                                       for a in agents}
+        metrics["per_agent_return"] = {a: _mean([ret[a] for ret in by_agent]) for a in records[0].agent_returns}
         if groups is not None and len(groups) > 1:
-            metrics["per_group_return"] = {
-                g: _mean([sum(r.agent_returns[a] for a in members) for r in records])  # type: ignore[index]
-                for g, members in groups.items()}
+            metrics["per_group_return"] = {g: _mean([sum(ret[a] for a in members) for ret in by_agent])
+                                           for g, members in groups.items()}
     declared: dict[str, list[float]] = {}
     for r in records:
         for key, value in r.metrics.items():

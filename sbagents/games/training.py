@@ -17,6 +17,7 @@ from sb3_contrib.common.maskable.callbacks import MaskableEvalCallback
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.callbacks.run_files import AtomicEvalOutputs
 from sbagents.errors import UsageError
 from sbagents.games.elo import EloCallback, fixed_opponents
@@ -57,7 +58,7 @@ def game_env(exp: Experiment, ref: EnvRef, opponent: Player | str, seat: int | N
     return make_selfplay_env(ref.source, ref.modules, opponent=opponent, seat=seat, **exp.env_kwargs)
 
 
-class AtomicMaskableEvalCallback(AtomicEvalOutputs, MaskableEvalCallback):
+class AtomicMaskableEvalCallback(AtomicEvalOutputs, EpisodeEvalCallback, MaskableEvalCallback):
     """sb3-contrib's ``MaskableEvalCallback`` with atomic ``evaluations.npz`` (:mod:`sbagents.callbacks.run_files`)."""
 
 

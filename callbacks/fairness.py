@@ -15,7 +15,8 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.atomic import save_figure, write_csv
 from sbagents.callbacks.common import PeriodicEvalCallback, env_attr, output_dir, split_keys
-from sbagents.callbacks.rollout import EpisodeResult, as_vec_env, run_episodes, sync_normalization
+from sbagents.callbacks.episodes import EpisodeRecord
+from sbagents.callbacks.rollout import as_vec_env, run_episodes, sync_normalization
 
 FAIRNESS_CSV = "fairness.csv"
 FAIRNESS_PNG = "fairness.png"
@@ -52,7 +53,7 @@ def _bucket(value: float, edges: np.ndarray) -> int:
 
 
 def fairness_from_episodes(
-    episodes: Sequence[EpisodeResult],
+    episodes: Sequence[EpisodeRecord],
     keys: Sequence[str],
     bins: int = 3,
     ranges: Mapping[str, Range] | None = None,
@@ -78,7 +79,7 @@ def fairness_from_episodes(
     values = {k: [float(e.info[k]) for e in episodes] for k in keys}
     edges = {k: bucket_edges(values[k], bins, ranges.get(k)) for k in keys}
     use_success = any(e.success is not None for e in episodes)
-    groups: dict[tuple[int, ...], list[EpisodeResult]] = {}
+    groups: dict[tuple[int, ...], list[EpisodeRecord]] = {}
     for i, ep in enumerate(episodes):
         idx = tuple(_bucket(values[k][i], edges[k]) for k in keys)
         groups.setdefault(idx, []).append(ep)

@@ -1,32 +1,24 @@
-"""Episode runner shared by the adversarial and fairness evaluations (works with multi-agent VecEnvs)."""
+"""Evaluating a model on a VecEnv with the episode runner (:mod:`sbagents.callbacks.episodes`): the front used by
+the adversarial and fairness evaluations (works with team VecEnvs), and :class:`EpisodeEvalCallback`, which makes
+SB3's periodic ``EvalCallback`` play its episodes with the runner."""
 
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, sync_envs_normalization
 
-from sbagents.callbacks.common import agent_layout, find_vec_normalize
-from sbagents.callbacks.safety import step_violation
+from sbagents.callbacks.common import find_vec_normalize
+from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
 
-
-@dataclass
-class EpisodeResult:
-    """One evaluation episode. With a multi-agent VecEnv the return is the team return (sum over agents)."""
-
-    ret: float
-    length: int
-    success: bool | None
-    violations: int
-    cost: float
-    info: dict[str, Any] = field(default_factory=dict)
-    agent_returns: dict[str, float] = field(default_factory=dict)
+#: The former name of :class:`~sbagents.callbacks.episodes.EpisodeRecord`.
+EpisodeResult = EpisodeRecord
 
 
 def as_vec_env(env: gym.Env | VecEnv) -> VecEnv:
@@ -51,96 +43,131 @@ def run_episodes(
     deterministic: bool = True,
     seed: int | None = None,
     act: Callable[[Any], np.ndarray] | None = None,
-) -> list[EpisodeResult]:
-    """Run ``n_episodes`` episodes of ``model`` on ``env`` and return them in completion order.
+) -> list[EpisodeRecord]:
+    """Run ``n_episodes`` episodes of ``model`` on ``env`` with :func:`~sbagents.callbacks.episodes.play_episodes`
+    and return their records in completion order.
 
-    This is the one episode runner of sbagents: evaluation of single-agent and team (parameter-sharing) VecEnvs,
-    attacks, fairness, and the RLlib backend's policies (``model=None`` with an ``act`` function).
-
-    Episodes are spread over the envs as in SB3's ``evaluate_policy`` (env ``i`` runs
-    ``(n_episodes + i) // n_envs`` of them) so short episodes do not dominate. Rewards are unnormalized
-    (``VecNormalize.get_original_reward``); a ``VecNormalize`` is frozen (``training=False``) meanwhile.
-
+    :param model: anything with SB3's ``predict`` (an SB3 policy is put in eval mode), or None with ``act``.
     :param act: maps a VecEnv observation batch to env actions (default ``model.predict``).
     :param seed: ``env.seed(seed)`` before the reset (same episodes for every call).
-    :return: per episode: return, length, ``is_success`` of the last step (None when absent), violation
-        steps and cost (:func:`step_violation`), the ``info`` of its last step (first agent's) and, for team
-        VecEnvs, each agent's return.
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-    n_agents, agents = agent_layout(env)
-    n_groups = env.num_envs // n_agents
-    targets = [(n_episodes + i) // n_groups for i in range(n_groups)]
-    counts = [0] * n_groups
-    ret, length = np.zeros(n_groups), np.zeros(n_groups, dtype=np.int64)
-    slot_ret = np.zeros(env.num_envs)
-    viol, cost = np.zeros(n_groups, dtype=np.int64), np.zeros(n_groups)
-    vn = find_vec_normalize(env)
-    was_training = vn.training if vn is not None else False
-    if vn is not None:
-        vn.training = False
     if act is None:
         if model is None:
             raise ValueError("run_episodes needs a model or an act function")
-        policy_model = model
-
-        def act(o: Any) -> np.ndarray:
-            return policy_model.predict(o, deterministic=deterministic)[0]
-
-    policy = getattr(model, "policy", None)  # any object with predict() will do; SB3 policies go to eval mode
-    if policy is not None:
-        policy.set_training_mode(False)
-    episodes: list[EpisodeResult] = []
-    try:
-        if seed is not None:
-            env.seed(seed)
-        obs = env.reset()
-        while sum(counts) < sum(targets):
-            obs, rewards, dones, infos = env.step(act(obs))
-            raw = vn.get_original_reward() if vn is not None else rewards
-            for k, info in enumerate(infos):
-                g = k // n_agents
-                ret[g] += float(raw[k])
-                slot_ret[k] += float(raw[k])
-                kind, c = step_violation(info)
-                viol[g] += kind is not None
-                cost[g] += c
-                if k % n_agents == n_agents - 1:
-                    length[g] += 1
-                    head = infos[k - n_agents + 1]
-                    # a team VecEnv marks the end of the team's episode on its first slot; agents may end earlier
-                    if ("episode" in head) if agents else dones[k]:
-                        if counts[g] < targets[g]:
-                            success = head.get("is_success")
-                            by_agent = dict(zip(agents, slot_ret[k - n_agents + 1 : k + 1].tolist(), strict=True)
-                                            ) if agents else {}
-                            episodes.append(
-                                EpisodeResult(
-                                    float(ret[g]), int(length[g]), None if success is None else bool(success),
-                                    int(viol[g]), float(cost[g]), dict(head), by_agent,
-                                )
-                            )
-                            counts[g] += 1
-                        ret[g], length[g], viol[g], cost[g] = 0.0, 0, 0, 0.0
-                        slot_ret[k - n_agents + 1 : k + 1] = 0.0
-    finally:
-        if vn is not None:
-            vn.training = was_training
-    return episodes
+        act = model_actor(model, deterministic)
+    else:
+        policy = getattr(model, "policy", None)
+        if policy is not None:
+            policy.set_training_mode(False)
+    return play_episodes(env, act, n_episodes, seed)
 
 
-def summarize_episodes(episodes: Sequence[EpisodeResult]) -> dict[str, Any]:
-    """``episodes``, ``mean_return``, ``std_return``, ``mean_length``, ``success_rate`` (NaN when the env
-    reports no ``is_success``), ``violations`` (total violation steps) and ``mean_ep_cost``."""
-    returns = np.array([e.ret for e in episodes])
-    succ = [e.success for e in episodes if e.success is not None]
+def summarize_episodes(episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
+    """The columns of an attack row: ``episodes``, ``mean_return``, ``std_return``, ``mean_length``,
+    ``success_rate`` (NaN when the env reports no ``is_success``), ``violations`` (total violation steps) and
+    ``mean_ep_cost`` (mean episode cost, 0 for an episode that reports none); the first four as in
+    :func:`~sbagents.callbacks.episodes.summarize_records`."""
+    summary = summarize_records(episodes)
+    success = summary["success_rate"]
     return {
-        "episodes": len(episodes),
-        "mean_return": float(returns.mean()),
-        "std_return": float(returns.std()),
-        "mean_length": float(np.mean([e.length for e in episodes])),
-        "success_rate": float(np.mean(succ)) if succ else float("nan"),
+        "episodes": summary["n_episodes"],
+        "mean_return": summary["mean_return"],
+        "std_return": summary["std_return"],
+        "mean_length": summary["mean_length"],
+        "success_rate": float("nan") if success is None else success,
         "violations": int(sum(e.violations for e in episodes)),
-        "mean_ep_cost": float(np.mean([e.cost for e in episodes])),
+        "mean_ep_cost": float(np.mean([e.cost or 0.0 for e in episodes])),
     }
+
+
+class EpisodeEvalCallback:
+    """Mixin for SB3's ``EvalCallback`` and sb3-contrib's ``MaskableEvalCallback`` (put it before them): the
+    periodic evaluation plays its episodes with :func:`~sbagents.callbacks.episodes.play_episodes` under
+    ``evaluate_policy``'s rules (``monitor_episodes=True``; legal-action masks when the callback has
+    ``use_masking``), the rest (``evaluations.npz``, logged keys, best model, child callbacks) as SB3 does it.
+    With ``render=True`` the parent's own loop runs (it draws every step)."""
+
+    eval_env: VecEnv
+    model: BaseAlgorithm
+    training_env: VecEnv
+    n_calls: int
+    num_timesteps: int
+    eval_freq: int
+    n_eval_episodes: int
+    deterministic: bool
+    render: bool
+    verbose: int
+    log_path: str | None
+    best_model_save_path: str | None
+    best_mean_reward: float
+    last_mean_reward: float
+    evaluations_timesteps: list[int]
+    evaluations_results: list[list[float]]
+    evaluations_length: list[list[int]]
+    evaluations_successes: list[list[bool]]
+    _is_success_buffer: list[bool]
+    callback: Any
+    callback_on_new_best: Any
+    logger: Any
+
+    def _episode_actor(self) -> Callable[[Any], np.ndarray]:
+        if not getattr(self, "use_masking", False):
+            return model_actor(self.model, self.deterministic)
+        model, env, deterministic = self.model, self.eval_env, self.deterministic
+
+        def masked(obs: Any) -> np.ndarray:
+            masks = np.stack(env.env_method("action_masks"))
+            return model.predict(obs, deterministic=deterministic, action_masks=masks)[0]  # type: ignore[call-arg]
+
+        return masked
+
+    def _on_step(self) -> bool:
+        if self.render or self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:
+            return super()._on_step()  # type: ignore[misc,no-any-return]
+        continue_training = True
+        if self.model.get_vec_normalize_env() is not None:
+            try:
+                sync_envs_normalization(self.training_env, self.eval_env)
+            except AttributeError as e:
+                raise AssertionError("Training and eval env are not wrapped the same way") from e
+        records = play_episodes(self.eval_env, self._episode_actor(), self.n_eval_episodes, monitor_episodes=True)
+        episode_rewards, episode_lengths = [r.ret for r in records], [r.length for r in records]
+        self._is_success_buffer = [r.info["is_success"] for r in records if r.info.get("is_success") is not None]
+        if self.log_path is not None:
+            self.evaluations_timesteps.append(self.num_timesteps)
+            self.evaluations_results.append(episode_rewards)
+            self.evaluations_length.append(episode_lengths)
+            kwargs = {}
+            if len(self._is_success_buffer) > 0:
+                self.evaluations_successes.append(self._is_success_buffer)
+                kwargs = {"successes": self.evaluations_successes}
+            np.savez(self.log_path, timesteps=self.evaluations_timesteps, results=self.evaluations_results,
+                     ep_lengths=self.evaluations_length, **kwargs)  # type: ignore[arg-type]
+        mean_reward, std_reward = np.mean(episode_rewards), np.std(episode_rewards)
+        mean_ep_length, std_ep_length = np.mean(episode_lengths), np.std(episode_lengths)
+        self.last_mean_reward = float(mean_reward)
+        if self.verbose >= 1:
+            print(f"Eval num_timesteps={self.num_timesteps}, episode_reward={mean_reward:.2f} +/- {std_reward:.2f}")
+            print(f"Episode length: {mean_ep_length:.2f} +/- {std_ep_length:.2f}")
+        self.logger.record("eval/mean_reward", float(mean_reward))
+        self.logger.record("eval/mean_ep_length", mean_ep_length)
+        if len(self._is_success_buffer) > 0:
+            success_rate = np.mean(self._is_success_buffer)
+            if self.verbose >= 1:
+                print(f"Success rate: {100 * success_rate:.2f}%")
+            self.logger.record("eval/success_rate", success_rate)
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        self.logger.dump(self.num_timesteps)
+        if mean_reward > self.best_mean_reward:
+            if self.verbose >= 1:
+                print("New best mean reward!")
+            if self.best_model_save_path is not None:
+                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
+            self.best_mean_reward = float(mean_reward)
+            if self.callback_on_new_best is not None:
+                continue_training = self.callback_on_new_best.on_step()
+        if self.callback is not None:
+            continue_training = continue_training and self._on_event()  # type: ignore[attr-defined]
+        return continue_training

@@ -18,6 +18,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from sbagents.atomic import save_model
+from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.state_files import save_vecnormalize
 
 #: Hidden staging names inside the run dir (never read by anything; removed when training ends).
@@ -71,8 +72,9 @@ class AtomicEvalOutputs:
         super()._on_training_end()  # type: ignore[misc]
 
 
-class AtomicEvalCallback(AtomicEvalOutputs, EvalCallback):
-    """SB3's ``EvalCallback`` (same arguments) with atomic ``evaluations.npz`` and ``best_model.zip``."""
+class AtomicEvalCallback(AtomicEvalOutputs, EpisodeEvalCallback, EvalCallback):
+    """SB3's ``EvalCallback`` (same arguments) with atomic ``evaluations.npz`` and ``best_model.zip``, playing its
+    episodes with the episode runner (:class:`~sbagents.callbacks.rollout.EpisodeEvalCallback`)."""
 
 
 class AtomicCheckpointCallback(CheckpointCallback):

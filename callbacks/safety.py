@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections import Counter, deque
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,25 +17,11 @@ from sbagents.callbacks.common import (
     output_dir,
     remove_exception_hook,
 )
+from sbagents.callbacks.episodes import step_violation  # the info-key contract; re-exported
+
+__all__ = ["SAFETY_FILE", "SafetyViolationCallback", "step_violation"]
 
 SAFETY_FILE = "safety.json"
-
-
-def step_violation(info: Mapping[str, Any]) -> tuple[str | None, float]:
-    """``(violation type or None, cost)`` of one step's ``info`` (the info-key contract in docs/architecture.md).
-
-    A step violates when ``info["violation"]`` is truthy (its ``str`` is the type) or ``info["cost"] > 0``
-    (type ``"cost"`` when no ``violation`` names it). The cost is ``info["cost"]``, or 1.0 for a named
-    violation without a ``cost`` key (Safety-Gymnasium: 1.0 per violation step).
-    """
-    violation = info.get("violation")
-    raw_cost = info.get("cost")
-    cost = float(raw_cost) if raw_cost is not None else (1.0 if violation else 0.0)
-    if violation:
-        return str(violation), cost
-    if cost > 0:
-        return "cost", cost
-    return None, cost
 
 
 class SafetyViolationCallback(BaseCallback):

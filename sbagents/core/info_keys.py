@@ -19,6 +19,11 @@ VIOLATION = "violation"
 #: Whether the episode succeeded (Gymnasium's and SB3's ``is_success``, read at the episode's last step).
 IS_SUCCESS = "is_success"
 
+#: Info keys of a turn-based game (``SelfPlayEnv``): at a reset, the ``(seat, return)`` of games that ended before
+#: the player's seat moved; at every step, 1 for an illegal move of the player; at a game's last step, the player's
+#: seat index, return and outcome (-1, 0, 1).
+UNPLAYED_KEY = "unplayed_games"
+OUTCOME_KEY, RETURN_KEY, SEAT_KEY, ILLEGAL_KEY = "game_outcome", "game_return", "seat", "illegal_moves"
 #: Keys that SB3 / Gymnasium wrappers (and sbagents' team VecEnvs) put in ``info``: never treated as env data.
 INTERNAL_INFO_KEYS = frozenset(
     {"terminal_observation", "episode", "TimeLimit.truncated", "final_observation", "final_info", ACTED}

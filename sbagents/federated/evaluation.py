@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.evaluation import evaluate_policy
 
+from sbagents.callbacks.episodes import model_actor, play_episodes
 from sbagents.core.experiment import Experiment
 from sbagents.envs.smart_home import SmartHomeEnv
 from sbagents.federated.homes import Home
@@ -28,27 +28,15 @@ def evaluate_home(model: BaseAlgorithm, exp: Experiment, home: Home, episodes: i
     training): ``criterion_share`` (comfortable share of the steps after the warm-up), ``success_rate`` (episodes
     with share >= 0.97), ``mean_return`` and ``mean_energy``."""
     env = make_env(for_home(exp, home), seed, stats_path=stats_path)
-    infos: list[dict[str, Any]] = []
-    shares: list[float] = []
-    energy: list[float] = []
-    successes: list[bool] = []
-
-    def on_step(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
-        infos.append(locals_["info"])
-        if locals_["done"]:
-            metrics = SmartHomeEnv.episode_metrics(infos)
-            shares.append(metrics["criterion_share"])
-            energy.append(metrics.get("mean_energy", float("nan")))
-            successes.append(bool(locals_["info"].get("is_success", False)))
-            infos.clear()
-
     try:
-        returns, _ = evaluate_policy(model, env, n_eval_episodes=episodes, deterministic=True,
-                                     return_episode_rewards=True, callback=on_step, warn=False)
+        records = play_episodes(env, model_actor(model, deterministic=True), episodes, monitor_episodes=True,
+                                episode_metrics=SmartHomeEnv.episode_metrics)
     finally:
         env.close()
-    return {"criterion_share": float(np.mean(shares)), "success_rate": float(np.mean(successes)),
-            "mean_return": float(np.mean(returns)), "mean_energy": float(np.mean(energy))}
+    return {"criterion_share": float(np.mean([r.metrics["criterion_share"] for r in records])),
+            "success_rate": float(np.mean([bool(r.success) for r in records])),
+            "mean_return": float(np.mean([r.ret for r in records])),
+            "mean_energy": float(np.mean([r.metrics.get("mean_energy", float("nan")) for r in records]))}
 
 
 def evaluate_homes(model: BaseAlgorithm, exp: Experiment, homes: Sequence[Home], episodes: int, seed: int

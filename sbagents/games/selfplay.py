@@ -16,15 +16,13 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+# the game keys of the info-key contract: UNPLAYED_KEY at a reset, the others at a game's last step
+from sbagents.core.info_keys import ILLEGAL_KEY, OUTCOME_KEY, RETURN_KEY, SEAT_KEY, UNPLAYED_KEY
 from sbagents.games.aec import MASK_KEY, OBS_KEY, game_name, make_game, masked_spaces
 from sbagents.games.players import Player, load_player
 
 #: Keyword arguments of :func:`make_selfplay_env` that are not the game's own.
 SELFPLAY_KWARGS = frozenset({"opponent", "pool", "pool_dir", "seat", "greedy_opponent"})
-#: ``reset`` info key: ``(seat, learner's return)`` of games that ended before its seat moved (they are skipped).
-UNPLAYED_KEY = "unplayed_games"
-#: ``info`` keys of the last step of a game: +1 win / 0 draw / -1 loss by the sign of the learner's return.
-OUTCOME_KEY, RETURN_KEY, SEAT_KEY, ILLEGAL_KEY = "game_outcome", "game_return", "seat", "illegal_moves"
 
 
 class OpponentDraw(Protocol):

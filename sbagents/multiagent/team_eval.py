@@ -2,7 +2,8 @@
 group, or RLlib's modules), :func:`evaluate_team` and :class:`TeamEvalCallback`.
 
 Team return = the sum of all agents' rewards over an episode; one result per team episode. A team episode ends when
-the first group's VecEnv reports SB3's ``episode`` info on its first slot (agents may end earlier).
+the first group's VecEnv reports SB3's ``episode`` info on its first slot (agents may end earlier). Episodes are
+played and summarized by :mod:`sbagents.callbacks.episodes` (``model_actor`` is re-exported from there).
 """
 
 from __future__ import annotations
@@ -19,35 +20,25 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
 from sbagents.atomic import save_model, write_npz
-from sbagents.callbacks.common import find_vec_normalize
-from sbagents.callbacks.rollout import EpisodeResult
-from sbagents.callbacks.safety import step_violation
+from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
+from sbagents.callbacks.episodes import slot_agents as episode_slot_agents
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP, ParameterSharingVecEnv
 
 Actor = Callable[[Any], np.ndarray]
-#: Keys of an SB3 ``episode`` info that are not episode metrics.
-_EPISODE_KEYS = frozenset({"r", "l", "t"})
-
-
-def model_actor(model: Any, deterministic: bool = True) -> Actor:
-    """``obs -> actions`` of anything with SB3's ``predict`` (SB3 policies are put in eval mode)."""
-    policy = getattr(model, "policy", None)
-    if policy is not None:
-        policy.set_training_mode(False)
-    return lambda obs: model.predict(obs, deterministic=deterministic)[0]
+#: The former name of :class:`~sbagents.callbacks.episodes.EpisodeRecord`.
+EpisodeResult = EpisodeRecord
 
 
 def slot_agents(venv: VecEnv, default: str) -> list[str]:
     """The agents behind a team VecEnv's slots (one copy), or ``[default]`` for a plain VecEnv."""
-    agents = getattr(venv.unwrapped, "possible_agents", None)
-    return [str(a) for a in agents] if agents else [default]
+    return episode_slot_agents(venv) or [default]
 
 
 def run_team_episodes(
     venvs: Mapping[str, VecEnv], actors: Mapping[str, Actor], n_episodes: int, seed: int | None = None
-) -> list[EpisodeResult]:
-    """Play ``n_episodes`` team episodes on the group VecEnvs of one team with one copy (a single VecEnv for a
-    shared policy), every group acting with its actor.
+) -> list[EpisodeRecord]:
+    """Play ``n_episodes`` team episodes on the group VecEnvs of one team (a single VecEnv for a shared policy),
+    every group acting with its actor (:func:`~sbagents.callbacks.episodes.play_episodes`).
 
     Rewards are unnormalized; each ``VecNormalize`` is frozen meanwhile.
 
@@ -55,78 +46,19 @@ def run_team_episodes(
     :param actors: group -> ``obs -> actions``.
     :param seed: seed of the first reset (then the env's RNG continues) -> reproducible returns.
     :return: per episode: team return, length, ``is_success``, violation steps and cost (every agent's), the first
-        slot's last ``info`` and each agent's return.
+        slot's last ``info``, each agent's return and the env's declared metrics.
     """
-    if n_episodes < 1:
-        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-    order = list(venvs)
-    norms = {g: find_vec_normalize(v) for g, v in venvs.items()}
-    frozen = {g: vn.training for g, vn in norms.items() if vn is not None}
-    for g in frozen:
-        norms[g].training = False  # type: ignore[union-attr]
-    names = {g: slot_agents(v, g) for g, v in venvs.items()}
-    if any(v.num_envs != len(names[g]) for g, v in venvs.items()):
-        raise ValueError("run_team_episodes plays one team copy: build its VecEnvs with n_envs=1")
-    episodes: list[EpisodeResult] = []
-    try:
-        if seed is not None:
-            venvs[order[0]].seed(seed)
-        obs = {g: venvs[g].reset() for g in order}
-        returns = {a: 0.0 for g in order for a in names[g]}
-        length, violations, cost = 0, 0, 0.0
-        while len(episodes) < n_episodes:
-            for g in order:
-                venvs[g].step_async(actors[g](obs[g]))
-            infos: dict[str, list[dict[str, Any]]] = {}
-            for g in order:
-                obs[g], rewards, _, infos[g] = venvs[g].step_wait()
-                vn = norms[g]
-                raw = vn.get_original_reward() if vn is not None else rewards
-                for agent, reward, info in zip(names[g], raw, infos[g], strict=True):
-                    returns[agent] += float(reward)
-                    kind, c = step_violation(info)
-                    violations += kind is not None
-                    cost += c
-            length += 1
-            head = infos[order[0]][0]
-            if "episode" in head:
-                success = head.get("is_success")
-                episodes.append(EpisodeResult(sum(returns.values()), length, None if success is None else
-                                              bool(success), violations, cost, dict(head), dict(returns)))
-                returns = dict.fromkeys(returns, 0.0)
-                length, violations, cost = 0, 0, 0.0
-    finally:
-        for g, was in frozen.items():
-            norms[g].training = was  # type: ignore[union-attr]
-    return episodes
+    return play_episodes(venvs, actors, n_episodes, seed, team=True)
 
 
-def team_summary(episodes: Sequence[EpisodeResult], groups: Mapping[str, Sequence[str]] | None = None
+def team_summary(episodes: Sequence[EpisodeRecord], groups: Mapping[str, Sequence[str]] | None = None
                  ) -> dict[str, Any]:
-    """``n_episodes``, ``mean_return``/``std_return`` (team return = sum over agents), ``mean_length``,
-    ``success_rate`` (share of episodes whose last step reports ``is_success``; None when the env reports none)
-    and ``metrics``: ``episode_length``, ``per_agent_return`` (agent -> mean return), ``per_group_return`` (with
-    ``groups``: group -> mean of its agents' summed returns) and the means of the env's declared episode metrics
-    (``metadata["info_metrics"]``, carried in the team's ``episode`` info)."""
-    returns = [e.ret for e in episodes]
-    successes = [bool(e.success) for e in episodes if e.success is not None]
-    metrics: dict[str, Any] = {"episode_length": float(np.mean([e.length for e in episodes]))}
-    agents = list(episodes[0].agent_returns) if episodes else []
-    metrics["per_agent_return"] = {a: float(np.mean([e.agent_returns[a] for e in episodes])) for a in agents}
-    if groups is not None and len(groups) > 1:
-        metrics["per_group_return"] = {g: float(np.mean([sum(e.agent_returns[a] for a in members)
-                                                         for e in episodes])) for g, members in groups.items()}
-    declared = [k for k in episodes[0].info.get("episode", {}) if k not in _EPISODE_KEYS] if episodes else []
-    for key in declared:
-        metrics[key] = float(np.mean([float(e.info["episode"][key]) for e in episodes]))
-    return {
-        "n_episodes": len(episodes),
-        "mean_return": float(np.mean(returns)),
-        "std_return": float(np.std(returns)),
-        "mean_length": float(np.mean([e.length for e in episodes])),
-        "success_rate": float(np.mean(successes)) if successes else None,
-        "metrics": metrics,
-    }
+    """:func:`~sbagents.callbacks.episodes.summarize_records` of team episodes: ``n_episodes``,
+    ``mean_return``/``std_return`` (team return = sum over agents), ``mean_length``, ``success_rate`` and
+    ``metrics``: ``episode_length``, ``per_agent_return``, ``per_group_return`` (with several ``groups``) and the
+    means of the env's declared episode metrics (``metadata["info_metrics"]``, carried in the team's ``episode``
+    info)."""
+    return summarize_records(episodes, groups)
 
 
 def evaluate_team(

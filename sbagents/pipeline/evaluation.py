@@ -7,17 +7,14 @@ one with :func:`summarize`.
 from __future__ import annotations
 
 import functools
-from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.callbacks.safety import step_violation
+from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -26,7 +23,7 @@ from sbagents.core.run_dir import LoadedRun
 from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
 from sbagents.errors import UsageError
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
-from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
+from sbagents.multiagent.team_eval import run_team_episodes, slot_agents, team_summary
 from sbagents.visualize.text_render import ParallelTextStepPrinter, TextStepPrinter, supports_text
 
 
@@ -44,24 +41,22 @@ def summarize(
     returns: Sequence[float],
     lengths: Sequence[int],
     successes: Sequence[bool],
-    metrics: dict[str, list[float]],
+    metrics: Mapping[str, Sequence[float]],
     costs: Sequence[float] | None = None,
 ) -> dict[str, Any]:
-    """The evaluation summary: ``env``, ``algo``, ``n_episodes``, ``mean_return``, ``std_return``, ``mean_length``,
-    ``success_rate`` (None when the env reports no ``is_success``), ``metrics`` (per-episode means) and, for envs
-    that report a cost (``info["cost"]`` or ``info["violation"]``), ``mean_cost`` (mean episode cost, EpCost)."""
-    cost = {"mean_cost": float(np.mean(costs))} if costs else {}
-    return {
-        "env": env_id,
-        "algo": algo,
-        "n_episodes": len(returns),
-        "mean_return": float(np.mean(returns)),
-        "std_return": float(np.std(returns)),
-        "mean_length": float(np.mean(lengths)),
-        "success_rate": float(np.mean(successes)) if successes else None,
-        "metrics": {k: float(np.mean(v)) for k, v in metrics.items()},
-        **cost,
-    }
+    """The evaluation summary from per-episode lists (``successes``, each metric's values and ``costs`` may cover
+    fewer episodes): ``env``, ``algo`` and :func:`~sbagents.callbacks.episodes.summarize_records` (``n_episodes``,
+    ``mean_return``, ``std_return``, ``mean_length``, ``success_rate`` (None when the env reports no
+    ``is_success``), ``metrics`` (per-episode means) and ``mean_cost`` (mean episode cost, EpCost) for envs that
+    report a cost)."""
+    costs = costs or []
+    records = [
+        EpisodeRecord(float(ret), int(length), bool(successes[i]) if i < len(successes) else None,
+                      cost=float(costs[i]) if i < len(costs) else None,
+                      metrics={k: v[i] for k, v in metrics.items() if i < len(v)})
+        for i, (ret, length) in enumerate(zip(returns, lengths, strict=True))
+    ]
+    return {"env": env_id, "algo": algo, **summarize_records(records)}
 
 
 def evaluate_model(
@@ -90,38 +85,12 @@ def _evaluate_kind(kind: EnvKind, model: BaseAlgorithm, exp: Experiment, ref: En
     # the reference envs (not the batched ones) render every step
     venv = make_eval_vec(exp, ref, 1, options.seed, stats_path, vec_env="dummy", env_kwargs=extra,
                          wrapper=TextStepPrinter if text else None, trust=trust)
-    metrics_fn = _episode_metrics_fn(venv)
-    step_infos: list[dict[str, Any]] = []
-    successes: list[bool] = []
-    metrics: dict[str, list[float]] = defaultdict(list)
-    costs: list[float] = []  # episode costs, when the env reports costs
-    episode_cost = [0.0, False]  # this episode's cost so far, whether any step had a cost key
-
-    def on_step(locals_: dict[str, Any], _globals: dict[str, Any]) -> None:
-        info = locals_["info"]
-        step_infos.append(info)
-        episode_cost[0] += step_violation(info)[1]
-        episode_cost[1] = episode_cost[1] or "cost" in info or "violation" in info
-        if locals_["done"]:
-            if episode_cost[1]:
-                costs.append(float(episode_cost[0]))
-            episode_cost[:] = [0.0, False]
-            if "is_success" in info:
-                successes.append(bool(info["is_success"]))
-            if metrics_fn is not None:
-                for key, value in metrics_fn(step_infos).items():
-                    metrics[key].append(value)
-            step_infos.clear()
-
     try:
-        returns, lengths = evaluate_policy(model, venv, n_eval_episodes=options.n_episodes,
-                                           deterministic=options.greedy(exp.deterministic_eval),
-                                           return_episode_rewards=True,
-                                           callback=on_step, warn=False)
+        records = play_episodes(venv, model_actor(model, options.greedy(exp.deterministic_eval)), options.n_episodes,
+                                monitor_episodes=True, episode_metrics=_episode_metrics_fn(venv))
     finally:
         venv.close()
-    return summarize(ref.env_id, exp.algo, list(returns), list(lengths), successes, metrics,  # type: ignore[arg-type]
-                     costs)
+    return {"env": ref.env_id, "algo": exp.algo, **summarize_records(records)}
 
 
 @_evaluate_kind.register

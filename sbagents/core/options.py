@@ -3,8 +3,11 @@
 The CLIs build these from their flags; Python users build them directly (every field has the CLI's default)::
 
     train(TrainSpec("ppo", "sbagents/GridWorld-v0", n_timesteps=20_000), execution=ExecOptions(seed=0))
+    train(TrainSpec("ppo", "sbagents/GridWorld-v0"), sb3=Sb3Options(vec_env="subproc"))
 
 The groups are frozen; beyond their first field(s) they take keywords only, so a new field never shifts the others.
+Execution is split by library: :class:`ExecOptions` (both), :class:`Sb3Options` and :class:`RllibOptions`; each
+field's ``:param:`` names its ``train`` flag (tests/test_option_flags.py checks that every flag reaches its field).
 Each group checks its own values (:meth:`validate`) before any run dir exists; messages name the CLI flag. A
 training feature's options (``--robust``, ``--dp-*``, the trust flags, ...) belong to its extension
 (:mod:`sbagents.extensions`), not to these groups.
@@ -108,43 +111,30 @@ class EvalOptions:
 
 @dataclass(frozen=True, kw_only=True)
 class ExecOptions:
-    """How a run executes.
+    """How a run executes, whichever library trains it (:class:`Sb3Options` and :class:`RllibOptions` hold what only
+    one of them uses).
 
-    :param seed: random seed (-1: draw one; it is recorded in ``summary.json``).
-    :param backend: ``sb3`` or ``rllib`` (Ray RLlib, PettingZoo envs).
-    :param vec_env: ``auto`` (batched numpy envs where they exist; EnvPool for Atari ids when installed),
-        ``dummy``, ``subproc``, ``batched`` or ``envpool``.
-    :param device: torch device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
-    :param num_threads: torch threads (1 is far faster for small networks on few cores; <= 0 keeps torch's).
-    :param progress: show a progress bar (None: when stderr is a terminal).
-    :param verbose: 0 prints nothing, 1 a progress bar and one line per evaluation, 2 also SB3's log tables.
-    :param log_interval: episodes (off-policy) or rollouts (on-policy) between SB3 log dumps (-1: automatic).
-    :param num_env_runners: RLlib env runner actors (None: the config's).
-    :param address: Ray cluster to join (None: a local Ray).
+    :param seed: random seed (``--seed``; -1: draw one; it is recorded in ``summary.json``).
+    :param backend: the training library (``--backend``): ``sb3`` or ``rllib`` (Ray RLlib, PettingZoo envs).
+    :param device: torch device (``--device``: ``auto``, ``cpu``, ``cuda``, ``cuda:N``).
+    :param num_threads: torch threads (``--num-threads``; 1 is far faster for small networks on few cores; <= 0
+        keeps torch's).
+    :param progress: show a progress bar (``-P/--progress``; None: when stderr is a terminal).
+    :param verbose: ``--verbose``: 0 prints nothing, 1 a progress bar and one line per evaluation, 2 also the
+        library's log tables.
     """
 
     seed: int = -1
     backend: str = "sb3"
-    vec_env: str = "auto"
     device: str = "auto"
     num_threads: int = 1
     progress: bool | None = None
     verbose: int = 1
-    log_interval: int = -1
-    num_env_runners: int | None = None
-    address: str | None = None
 
     def validate(self) -> None:
-        """Check the choices and numbers (the device name through torch, if torch is asked to parse one)."""
+        """Check the backend and the device name (through torch, if torch is asked to parse one)."""
         if self.backend not in BACKENDS:
             raise UsageError(f"--backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.vec_env not in VEC_ENV_TYPES:
-            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {self.vec_env!r}")
-        if self.log_interval != -1:
-            check_at_least("--log-interval", self.log_interval, 1, " or -1 (automatic)")
-        check_at_least("--num-env-runners", self.num_env_runners, 0)
-        if self.backend == "sb3" and (self.address is not None or self.num_env_runners is not None):
-            raise UsageError("--address and --num-env-runners need --backend rllib")
         if self.device != "auto":
             import torch
 
@@ -154,6 +144,45 @@ class ExecOptions:
                 raise UsageError(
                     f"--device {self.device!r} is not a torch device; use auto, cpu, cuda or cuda:N"
                 ) from None
+
+
+@dataclass(frozen=True, kw_only=True)
+class Sb3Options:
+    """How an SB3 run (``--backend sb3``) executes; RLlib refuses any of these that differs from its default.
+
+    :param vec_env: the vector env (``--vec-env``): ``auto`` (batched numpy envs where they exist; EnvPool for Atari
+        ids when installed), ``dummy``, ``subproc``, ``batched`` or ``envpool``.
+    :param log_interval: episodes (off-policy) or rollouts (on-policy) between SB3 log dumps (``--log-interval``;
+        -1: automatic).
+    """
+
+    vec_env: str = "auto"
+    log_interval: int = -1
+
+    def validate(self) -> None:
+        """Check the vec env kind and the log interval."""
+        if self.vec_env not in VEC_ENV_TYPES:
+            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {self.vec_env!r}")
+        if self.log_interval != -1:
+            check_at_least("--log-interval", self.log_interval, 1, " or -1 (automatic)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RllibOptions:
+    """How an RLlib run (``--backend rllib``) executes; an SB3 run refuses any of these that differs from its default.
+
+    :param num_env_runners: RLlib env runner actors (``--num-env-runners``; None: the config's; 0 samples in the
+        driver).
+    :param address: Ray cluster to join (``--address``: ``auto``, ``host:6379`` or ``ray://host:10001``; None: a
+        local Ray).
+    """
+
+    num_env_runners: int | None = None
+    address: str | None = None
+
+    def validate(self) -> None:
+        """Check the runner count (the address is checked by connecting to it)."""
+        check_at_least("--num-env-runners", self.num_env_runners, 0)
 
 
 @dataclass(frozen=True, kw_only=True)

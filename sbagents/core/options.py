@@ -35,11 +35,11 @@ def check_at_least(flag: str, value: int | None, low: int, also: str = "") -> No
 class TrainSpec:
     """What to train.
 
-    :param algo: algorithm name (``python -m sbagents.train --list``).
-    :param env: env name: a Gymnasium id, ``module:EnvId`` or a PettingZoo name.
+    :param algo: algorithm name (``--algo``; see ``python -m sbagents.train --list``).
+    :param env: env name (``--env``): a Gymnasium id, ``module:EnvId`` or a PettingZoo name.
     :param n_timesteps: budget overriding the config's ``n_timesteps`` (``-n``).
     :param hyperparams: config overrides (``-params key:value``).
-    :param conf_file: zoo config file (default: ``zoo_configs/<algo>.yml``).
+    :param conf_file: zoo config file (``-conf/--conf-file``; default: ``zoo_configs/<algo>.yml``).
     :param env_kwargs: env constructor arguments merged into the config's (``--env-kwargs``).
     :param gym_packages: packages to import that register the env (``--gym-packages``).
     :param trained_agent: a model ``.zip`` to continue training (``-i``).
@@ -85,10 +85,12 @@ class OutputOptions:
 class EvalOptions:
     """How a run is evaluated while and after it trains.
 
-    :param eval_freq: env steps between evaluations (None: a tenth of the budget, at most 25,000; <= 0: none).
-    :param eval_episodes: episodes per periodic evaluation.
-    :param n_eval_envs: envs of the periodic evaluation.
-    :param final_eval_episodes: episodes of the final evaluation in ``summary.json`` (0: none).
+    :param eval_freq: env steps between evaluations (``--eval-freq``; None: a tenth of the budget, at most 25,000;
+        <= 0: none).
+    :param eval_episodes: episodes per periodic evaluation (``--eval-episodes``).
+    :param n_eval_envs: envs of the periodic evaluation (``--n-eval-envs``).
+    :param final_eval_episodes: episodes of the final evaluation in ``summary.json`` (``--final-eval-episodes``;
+        0: none).
     """
 
     eval_freq: int | None = None
@@ -192,13 +194,13 @@ class EvaluateOptions:
     :param n_episodes: episodes to play (``-n``).
     :param deterministic: greedy actions (``--deterministic``), or sampled ones (``--stochastic``); None: as the
         run's config says (its ``deterministic_eval``, greedy unless set to false).
-    :param seed: seed of the evaluation env (same episodes every time).
-    :param render: print each state (text envs) or let the env render itself (``human``).
+    :param seed: seed of the evaluation env (``--seed``; same episodes every time).
+    :param render: print each state (text envs) or let the env render itself (``human``) (``--render``).
     :param attacks: observation attacks to evaluate as well (``--attack``, e.g. ``"gaussian:0.05 pgd:0.1"``).
     :param fairness: info keys to bucket episodes by (``--fairness``).
-    :param bins: buckets per fairness key.
-    :param opponent: turn-based games: the opponent of every other seat (``random``, ``heuristic``, ``minimax``,
-        a run dir, a model zip or ``module:function``; None: the run's ``self_play.eval_opponent``).
+    :param bins: buckets per fairness key (``--bins``).
+    :param opponent: turn-based games: the opponent of every other seat (``--opponent``: ``random``, ``heuristic``,
+        ``minimax``, a run dir, a model zip or ``module:function``; None: the run's ``self_play.eval_opponent``).
     """
 
     n_episodes: int = 10
@@ -227,15 +229,16 @@ class EvaluateOptions:
 class StudyOptions:
     """An Optuna study of ``tune``.
 
-    :param n_trials: finished trials the study should hold (a resumed study runs only the missing ones).
-    :param storage: RDB URL (None: an SQLite file in the log folder).
-    :param study_name: study name (None: ``<algo>-<EnvId>``).
-    :param n_jobs: parallel trials in this process.
-    :param sampler: ``tpe`` or ``random``.
-    :param pruner: ``median``, ``halving`` or ``none``.
-    :param n_seeds: seeds per trial (the objective is the mean of their best evaluations).
-    :param n_evaluations: evaluations per training run.
-    :param eval_episodes: episodes per evaluation.
+    :param n_trials: finished trials the study should hold (``--n-trials``; a resumed study runs only the missing
+        ones).
+    :param storage: RDB URL (``--storage``; None: an SQLite file in the log folder).
+    :param study_name: study name (``--study-name``; None: ``<algo>-<EnvId>``).
+    :param n_jobs: parallel trials in this process (``--n-jobs``).
+    :param sampler: the Optuna sampler (``--sampler``): ``tpe`` or ``random``.
+    :param pruner: the Optuna pruner (``--pruner``): ``median``, ``halving`` or ``none``.
+    :param n_seeds: seeds per trial (``--n-seeds``; the objective is the mean of their best evaluations).
+    :param n_evaluations: evaluations per training run (``--n-evaluations``).
+    :param eval_episodes: episodes per evaluation (``--eval-episodes``).
     """
 
     n_trials: int = 20

@@ -18,6 +18,8 @@ import pytest
 from sbagents import evaluate as evaluate_cli
 from sbagents import train as train_cli
 from sbagents import tune as tune_cli
+from sbagents.api import ExecOptions, RllibOptions, Sb3Options, TrainSpec, train
+from sbagents.errors import UsageError
 from sbagents.extensions import registered_extensions
 
 #: Flags that steer the CLI itself rather than filling an option group (dest -> why).
@@ -152,3 +154,14 @@ def test_extension_flags_are_not_option_fields() -> None:
     fields = {f.name for group in groups_of(train_cli.options_from_args(train_cli.build_parser().parse_args([]), ""))
               .values() if dataclasses.is_dataclass(group) for f in dataclasses.fields(group)}
     assert extension_dests() & fields == set()
+
+
+@pytest.mark.parametrize(("backend", "options", "message"), [
+    ("sb3", {"rllib": RllibOptions(address="auto")}, "--address and --num-env-runners need --backend rllib"),
+    ("rllib", {"sb3": Sb3Options(log_interval=5)}, "--log-interval not supported with --backend rllib"),
+])
+def test_each_backend_refuses_the_other_backends_options(backend: str, options: dict[str, Any], message: str) -> None:
+    """From Python as from the CLI: the options of one library given to a run of the other are refused in one line,
+    before anything is written."""
+    with pytest.raises(UsageError, match=message):
+        train(TrainSpec("ppo", "treasure_hunt_v0"), execution=ExecOptions(backend=backend), **options)

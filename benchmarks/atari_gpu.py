@@ -273,7 +273,7 @@ def choose(compare_out: dict[str, Any] | None, tiny: bool) -> dict[str, Any]:
 def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadline: float, choice: dict[str, Any],
           tiny: bool, work: Path) -> Any:
     """Phase 2: PPO on EnvPool until ``deadline``; returns ``train_sb3``'s result (its final evaluation included)."""
-    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
     from sbagents.pipeline.training import train_sb3
 
     params = dict(choice["params"])
@@ -292,9 +292,8 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
     result = train_sb3(TrainSpec("ppo", ENV_ID, n_timesteps=n_timesteps, hyperparams=params),
                        OutputOptions(log_folder=str(work)),
                        EvalOptions(eval_freq=0, final_eval_episodes=1),
-                       ExecOptions(seed=seed, vec_env="envpool", device=device, num_threads=1, progress=False,
-                                   verbose=1, log_interval=10),
-                       callbacks=[stop, progress])
+                       ExecOptions(seed=seed, device=device, num_threads=1, progress=False, verbose=1),
+                       callbacks=[stop, progress], sb3=Sb3Options(vec_env="envpool", log_interval=10))
     wall = (stop.t1 or time.perf_counter()) - (stop.t0 or time.perf_counter())
     sampler.track("learn", stop.t0, stop.t1)
     info.update(steps=int(result.model.num_timesteps), seconds=round(wall, 1),

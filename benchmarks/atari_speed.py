@@ -133,15 +133,15 @@ def train_clock(algo: str, kind: str, params: dict[str, Any], warmup: int, timed
                 seed: int = 0) -> StepClock:
     """Train ``algo`` on Pong through ``train_sb3`` (the CLI's code path, no evaluations) for ``warmup + timed``
     steps, the run dir in a temporary folder; the returned clock timed the steps after ``warmup``."""
-    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+    from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
     from sbagents.pipeline.training import train_sb3
 
     clock = StepClock(warmup)
     with tempfile.TemporaryDirectory() as logs:
         result = train_sb3(TrainSpec(algo, ENV_ID, n_timesteps=warmup + timed, hyperparams=dict(params)),
                            OutputOptions(log_folder=logs), EvalOptions(eval_freq=0, final_eval_episodes=0),
-                           ExecOptions(seed=seed, vec_env=kind, device=device, num_threads=1, progress=False,
-                                       verbose=0), callbacks=[clock])
+                           ExecOptions(seed=seed, device=device, num_threads=1, progress=False, verbose=0),
+                           callbacks=[clock], sb3=Sb3Options(vec_env=kind))
         env = result.model.get_env() if result.model is not None else None
         if env is not None:
             env.close()  # SubprocVecEnv's workers end now, not when the pipes are collected

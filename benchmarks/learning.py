@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.speed import write_section
-from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
 from sbagents.core.run_dir import env_stem
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -31,7 +31,7 @@ def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, ext
     """Train one seed with the shipped config; return its summary plus the machine load."""
     load_before = os.getloadavg()[0]
     result = train(TrainSpec(algo, env), OutputOptions(log_folder), EvalOptions(final_eval_episodes=episodes),
-                   ExecOptions(seed=seed, verbose=0, **extra))
+                   ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(**extra))
     return {**result.summary, "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
 
 

@@ -33,7 +33,7 @@ from typing import Any
 from benchmarks.speed import write_section
 from sbagents.cli_common import run
 from sbagents.core.env_names import resolve_env
-from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RllibOptions, TrainSpec
 from sbagents.core.run_dir import env_stem
 from sbagents.core.zoo_config import parse_overrides
 from sbagents.rllib import CHECKPOINT_DIR, PROGRESS_FILE
@@ -60,8 +60,8 @@ def run_seed(
     save_freq = checkpoints[0] if checkpoints else -1
     result = train_rllib(TrainSpec("ppo", env, n_timesteps, params), OutputOptions(log_folder, save_freq=save_freq),
                          EvalOptions(eval_freq=-1, final_eval_episodes=0),
-                         ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0,
-                                     num_env_runners=num_env_runners))
+                         ExecOptions(seed=seed, backend="rllib", num_threads=num_threads, verbose=0),
+                         RllibOptions(num_env_runners=num_env_runners))
     wall = time.perf_counter() - start
     options = EvaluateOptions(n_episodes=n_eval, seed=10_000 + seed if eval_seed is None else eval_seed)
 

@@ -5,9 +5,9 @@ timing ``model.learn`` only, then evaluate the deterministic team on 100 seeded 
 (:func:`sbagents.multiagent.team_eval.evaluate_team`, eval seed ``10000 + seed``) on the reference env.
 Target: >= 4.5 of 5 treasures per episode on every seed in <= 90 s of training.
 
-Two paths, same numbers: ``--via train`` runs :func:`sbagents.pipeline.training.train` with ``vec_env="batched"``
-(once the env factory supports it; the script checks the model really trained on the batched env);
-``--via direct`` builds the experiment from the zoo config and trains SB3 PPO on
+Two paths, same numbers: ``--via train`` runs :func:`sbagents.pipeline.training.train` with
+``sb3=Sb3Options(vec_env="batched")`` (once the env factory supports it; the script checks the model really trained
+on the batched env); ``--via direct`` builds the experiment from the zoo config and trains SB3 PPO on
 :func:`sbagents.batched.make_batched_vec_env` itself; ``auto`` (default) picks ``train`` when available.
 
     python -m benchmarks.treasure_hunt_learning --seeds 0 1 2
@@ -40,7 +40,7 @@ ENV = "treasure_hunt_v0"
 
 
 def train_supports_batched() -> bool:
-    """Whether the env factory builds a batched VecEnv for ``vec_env="batched"``."""
+    """Whether the env factory builds a batched VecEnv for ``sb3=Sb3Options(vec_env="batched")``."""
     try:
         from sbagents.env_factory import make_vec
 
@@ -58,15 +58,15 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
     ref = resolve_env(ENV)
     exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref)
     if via == "train":
-        from sbagents.api import EvalOptions, ExecOptions, OutputOptions, train
+        from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, train
 
         with tempfile.TemporaryDirectory() as logs:
             result = train(TrainSpec("ppo", ENV, hyperparams=params), OutputOptions(logs),
                            EvalOptions(eval_freq=-1, final_eval_episodes=0),
-                           ExecOptions(seed=seed, vec_env="batched", verbose=0))
+                           ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(vec_env="batched"))
             model, train_s = result.model, float(result.summary["train_seconds"])
             if not isinstance(model.get_env().unwrapped, BatchedTreasureHuntVecEnv):  # type: ignore[union-attr]
-                raise RuntimeError("train(vec_env='batched') did not use the batched VecEnv")
+                raise RuntimeError("train(sb3=Sb3Options(vec_env='batched')) did not use the batched VecEnv")
     else:
         set_random_seed(seed)
         vec = make_batched_vec_env(ENV, exp.n_envs, seed, exp.env_kwargs, None)

@@ -66,8 +66,9 @@ def run_ref(args: argparse.Namespace) -> RunRef:
         from sbagents.core.zoo_config import parse_overrides  # imports gymnasium: only when given
 
         env_kwargs = parse_overrides(args.env_kwargs, "--env-kwargs")
-    return RunRef(args.algo, args.env, args.log_folder, getattr(args, "exp_id", 0), getattr(args, "load_best", False),
-                  tuple(args.gym_packages), getattr(args, "load_checkpoint", None), env_kwargs=env_kwargs,
+    return RunRef(args.algo, args.env, args.log_folder, exp_id=getattr(args, "exp_id", 0),
+                  load_best=getattr(args, "load_best", False), gym_packages=tuple(args.gym_packages),
+                  checkpoint=getattr(args, "load_checkpoint", None), env_kwargs=env_kwargs,
                   trust=getattr(args, "trust_run", False))
 
 

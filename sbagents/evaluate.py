@@ -5,12 +5,14 @@ Parses the flags and calls :func:`sbagents.pipeline.backends.evaluate`.
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import torch
 
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
 from sbagents.core.options import EvaluateOptions
+from sbagents.core.run_dir import RunRef
 from sbagents.pipeline.backends import evaluate
 from sbagents.pipeline.console import format_evaluation
 
@@ -39,14 +41,19 @@ def build_parser() -> ArgumentParser:
     return p
 
 
+def options_from_args(args: argparse.Namespace) -> tuple[RunRef, EvaluateOptions]:
+    """The arguments of :func:`sbagents.pipeline.backends.evaluate` from the parsed flags (all but ``--json``)."""
+    options = EvaluateOptions(n_episodes=args.n_episodes, deterministic=args.deterministic, seed=args.seed,
+                              render=args.render, attacks=args.attack, fairness=args.fairness, bins=args.bins,
+                              opponent=args.opponent)
+    return run_ref(args), options
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, evaluate the run, print a table or JSON."""
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
-    options = EvaluateOptions(n_episodes=args.n_episodes, deterministic=args.deterministic, seed=args.seed,
-                              render=args.render, attacks=args.attack, fairness=args.fairness, bins=args.bins,
-                              opponent=args.opponent)
-    summary = evaluate(run_ref(args), options)
+    summary = evaluate(*options_from_args(args))
     print(json.dumps(summary) if args.json else format_evaluation(summary))
     return 0
 

@@ -14,7 +14,7 @@ from typing import Any
 from sbagents.algos import ALGOS, capability_table
 from sbagents.cli_common import ArgumentParser, run
 from sbagents.core.env_names import import_packages, sbagents_env_ids
-from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, RllibOptions, Sb3Options, TrainSpec
 from sbagents.core.zoo_config import parse_overrides
 from sbagents.extensions import registered_extensions, specs_from_args
 from sbagents.pipeline.backends import train
@@ -84,10 +84,10 @@ def options_from_args(args: argparse.Namespace, command: str) -> dict[str, Any]:
                                 command=command),
         "evaluation": EvalOptions(eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
                                   n_eval_envs=args.n_eval_envs, final_eval_episodes=args.final_eval_episodes),
-        "execution": ExecOptions(seed=args.seed, backend=args.backend, vec_env=args.vec_env, device=args.device,
-                                 num_threads=args.num_threads, progress=args.progress, verbose=args.verbose,
-                                 log_interval=args.log_interval, num_env_runners=args.num_env_runners,
-                                 address=args.address),
+        "execution": ExecOptions(seed=args.seed, backend=args.backend, device=args.device,
+                                 num_threads=args.num_threads, progress=args.progress, verbose=args.verbose),
+        "sb3": Sb3Options(vec_env=args.vec_env, log_interval=args.log_interval),
+        "rllib": RllibOptions(num_env_runners=args.num_env_runners, address=args.address),
         "features": specs_from_args(args),
     }
 

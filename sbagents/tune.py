@@ -5,6 +5,9 @@ Parses the flags and calls :func:`sbagents.pipeline.tuning.tune`.
 
 from __future__ import annotations
 
+import argparse
+from typing import Any
+
 from sbagents.cli_common import ArgumentParser, run
 from sbagents.core.options import StudyOptions, TrainSpec
 from sbagents.pipeline.tuning import PRUNERS, SAMPLERS, tune
@@ -32,14 +35,20 @@ def build_parser() -> ArgumentParser:
     return p
 
 
+def options_from_args(a: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments of :func:`sbagents.pipeline.tuning.tune` from the parsed flags."""
+    return {
+        "spec": TrainSpec(a.algo, a.env, n_timesteps=a.n_timesteps, gym_packages=tuple(a.gym_packages)),
+        "study": StudyOptions(n_trials=a.n_trials, storage=a.storage, study_name=a.study_name, n_jobs=a.n_jobs,
+                              sampler=a.sampler, pruner=a.pruner, n_seeds=a.n_seeds, n_evaluations=a.n_evaluations,
+                              eval_episodes=a.eval_episodes),
+        "log_folder": a.log_folder, "seed": a.seed, "verbose": a.verbose,
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run or resume the study, print the best trial and where its zoo entry is."""
-    a = build_parser().parse_args(argv)
-    spec = TrainSpec(a.algo, a.env, n_timesteps=a.n_timesteps, gym_packages=tuple(a.gym_packages))
-    study = StudyOptions(n_trials=a.n_trials, storage=a.storage, study_name=a.study_name, n_jobs=a.n_jobs,
-                         sampler=a.sampler, pruner=a.pruner, n_seeds=a.n_seeds, n_evaluations=a.n_evaluations,
-                         eval_episodes=a.eval_episodes)
-    result = tune(spec, study, a.log_folder, a.seed, a.verbose)
+    result = tune(**options_from_args(build_parser().parse_args(argv)))
     print(f"study {result.study.study_name}: {len(result.study.trials)} trials")
     if result.best_config_path.exists():
         print(f"best objective {result.study.best_value:.4g} (trial {result.study.best_trial.number}); "

@@ -41,6 +41,8 @@ needs_ray = pytest.mark.skipif(
         (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--address", "127.0.0.1:1"], "cannot reach the Ray"),
         (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--safety", "-i", "x.zip"],
          "-i/--trained-agent, --safety not supported"),
+        (["--backend", "rllib", "--algo", "ppo", "--env", RUN, "--vec-env", "dummy", "--log-interval", "5"],
+         "--vec-env, --log-interval not supported with --backend rllib"),
     ],
 )
 def test_bad_flag_combinations_are_one_line_errors(args: list[str], message: str) -> None:

@@ -24,7 +24,17 @@ from cli_helpers import check_error, run_main
 from gymnasium import spaces
 from stable_baselines3 import DQN, PPO
 
-from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, export_groups, train
+from sbagents.api import (
+    EvalOptions,
+    ExecOptions,
+    OutputOptions,
+    RunRef,
+    Sb3Options,
+    TrainSpec,
+    evaluate,
+    export_groups,
+    train,
+)
 from sbagents.callbacks.extension import TrustOptions
 from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
@@ -55,9 +65,9 @@ def user_envs() -> Iterator[None]:
     PETTINGZOO_ENVS.update(saved)
 
 
-def quiet(folder: Path, seed: int = 0, episodes: int = 20, **execution: Any) -> tuple[Any, ...]:
+def quiet(folder: Path, seed: int = 0, episodes: int = 20) -> tuple[Any, ...]:
     return OutputOptions(folder), EvalOptions(eval_freq=-1, final_eval_episodes=episodes), \
-        ExecOptions(seed=seed, verbose=0, **execution)
+        ExecOptions(seed=seed, verbose=0)
 
 
 def relay_run(folder: Path, algo: str, n: int = 15000, **team: Any) -> Any:
@@ -115,7 +125,8 @@ def test_subprocess_copies_train_exactly_like_local_ones(tmp_path: Path) -> None
     runs = []
     for vec_env in ("dummy", "subproc"):
         folder = tmp_path / vec_env
-        result = train(TrainSpec("ppo", RELAY, 1024, PPO_PARAMS), *quiet(folder, episodes=5, vec_env=vec_env))
+        result = train(TrainSpec("ppo", RELAY, 1024, PPO_PARAMS), *quiet(folder, episodes=5),
+                       sb3=Sb3Options(vec_env=vec_env))
         runs.append(result)
     local, remote = (r.model.policy.state_dict() for r in runs)
     assert all(np.array_equal(local[k].numpy(), remote[k].numpy()) for k in local)

@@ -3,8 +3,11 @@
 The CLIs build these from their flags; Python users build them directly (every field has the CLI's default)::
 
     train(TrainSpec("ppo", "sbagents/GridWorld-v0", n_timesteps=20_000), execution=ExecOptions(seed=0))
+    train(TrainSpec("ppo", "sbagents/GridWorld-v0"), sb3=Sb3Options(vec_env="subproc"))
 
 The groups are frozen; beyond their first field(s) they take keywords only, so a new field never shifts the others.
+Execution is split by library: :class:`ExecOptions` (both), :class:`Sb3Options` and :class:`RllibOptions`; each
+field's ``:param:`` names its ``train`` flag (tests/test_option_flags.py checks that every flag reaches its field).
 Each group checks its own values (:meth:`validate`) before any run dir exists; messages name the CLI flag. A
 training feature's options (``--robust``, ``--dp-*``, the trust flags, ...) belong to its extension
 (:mod:`sbagents.extensions`), not to these groups.
@@ -32,11 +35,11 @@ def check_at_least(flag: str, value: int | None, low: int, also: str = "") -> No
 class TrainSpec:
     """What to train.
 
-    :param algo: algorithm name (``python -m sbagents.train --list``).
-    :param env: env name: a Gymnasium id, ``module:EnvId`` or a PettingZoo name.
+    :param algo: algorithm name (``--algo``; see ``python -m sbagents.train --list``).
+    :param env: env name (``--env``): a Gymnasium id, ``module:EnvId`` or a PettingZoo name.
     :param n_timesteps: budget overriding the config's ``n_timesteps`` (``-n``).
     :param hyperparams: config overrides (``-params key:value``).
-    :param conf_file: zoo config file (default: ``zoo_configs/<algo>.yml``).
+    :param conf_file: zoo config file (``-conf/--conf-file``; default: ``zoo_configs/<algo>.yml``).
     :param env_kwargs: env constructor arguments merged into the config's (``--env-kwargs``).
     :param gym_packages: packages to import that register the env (``--gym-packages``).
     :param trained_agent: a model ``.zip`` to continue training (``-i``).
@@ -82,10 +85,12 @@ class OutputOptions:
 class EvalOptions:
     """How a run is evaluated while and after it trains.
 
-    :param eval_freq: env steps between evaluations (None: a tenth of the budget, at most 25,000; <= 0: none).
-    :param eval_episodes: episodes per periodic evaluation.
-    :param n_eval_envs: envs of the periodic evaluation.
-    :param final_eval_episodes: episodes of the final evaluation in ``summary.json`` (0: none).
+    :param eval_freq: env steps between evaluations (``--eval-freq``; None: a tenth of the budget, at most 25,000;
+        <= 0: none).
+    :param eval_episodes: episodes per periodic evaluation (``--eval-episodes``).
+    :param n_eval_envs: envs of the periodic evaluation (``--n-eval-envs``).
+    :param final_eval_episodes: episodes of the final evaluation in ``summary.json`` (``--final-eval-episodes``;
+        0: none).
     """
 
     eval_freq: int | None = None
@@ -108,43 +113,30 @@ class EvalOptions:
 
 @dataclass(frozen=True, kw_only=True)
 class ExecOptions:
-    """How a run executes.
+    """How a run executes, whichever library trains it (:class:`Sb3Options` and :class:`RllibOptions` hold what only
+    one of them uses).
 
-    :param seed: random seed (-1: draw one; it is recorded in ``summary.json``).
-    :param backend: ``sb3`` or ``rllib`` (Ray RLlib, PettingZoo envs).
-    :param vec_env: ``auto`` (batched numpy envs where they exist; EnvPool for Atari ids when installed),
-        ``dummy``, ``subproc``, ``batched`` or ``envpool``.
-    :param device: torch device (``auto``, ``cpu``, ``cuda``, ``cuda:N``).
-    :param num_threads: torch threads (1 is far faster for small networks on few cores; <= 0 keeps torch's).
-    :param progress: show a progress bar (None: when stderr is a terminal).
-    :param verbose: 0 prints nothing, 1 a progress bar and one line per evaluation, 2 also SB3's log tables.
-    :param log_interval: episodes (off-policy) or rollouts (on-policy) between SB3 log dumps (-1: automatic).
-    :param num_env_runners: RLlib env runner actors (None: the config's).
-    :param address: Ray cluster to join (None: a local Ray).
+    :param seed: random seed (``--seed``; -1: draw one; it is recorded in ``summary.json``).
+    :param backend: the training library (``--backend``): ``sb3`` or ``rllib`` (Ray RLlib, PettingZoo envs).
+    :param device: torch device (``--device``: ``auto``, ``cpu``, ``cuda``, ``cuda:N``).
+    :param num_threads: torch threads (``--num-threads``; 1 is far faster for small networks on few cores; <= 0
+        keeps torch's).
+    :param progress: show a progress bar (``-P/--progress``; None: when stderr is a terminal).
+    :param verbose: ``--verbose``: 0 prints nothing, 1 a progress bar and one line per evaluation, 2 also the
+        library's log tables.
     """
 
     seed: int = -1
     backend: str = "sb3"
-    vec_env: str = "auto"
     device: str = "auto"
     num_threads: int = 1
     progress: bool | None = None
     verbose: int = 1
-    log_interval: int = -1
-    num_env_runners: int | None = None
-    address: str | None = None
 
     def validate(self) -> None:
-        """Check the choices and numbers (the device name through torch, if torch is asked to parse one)."""
+        """Check the backend and the device name (through torch, if torch is asked to parse one)."""
         if self.backend not in BACKENDS:
             raise UsageError(f"--backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.vec_env not in VEC_ENV_TYPES:
-            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {self.vec_env!r}")
-        if self.log_interval != -1:
-            check_at_least("--log-interval", self.log_interval, 1, " or -1 (automatic)")
-        check_at_least("--num-env-runners", self.num_env_runners, 0)
-        if self.backend == "sb3" and (self.address is not None or self.num_env_runners is not None):
-            raise UsageError("--address and --num-env-runners need --backend rllib")
         if self.device != "auto":
             import torch
 
@@ -157,19 +149,58 @@ class ExecOptions:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Sb3Options:
+    """How an SB3 run (``--backend sb3``) executes; RLlib refuses any of these that differs from its default.
+
+    :param vec_env: the vector env (``--vec-env``): ``auto`` (batched numpy envs where they exist; EnvPool for Atari
+        ids when installed), ``dummy``, ``subproc``, ``batched`` or ``envpool``.
+    :param log_interval: episodes (off-policy) or rollouts (on-policy) between SB3 log dumps (``--log-interval``;
+        -1: automatic).
+    """
+
+    vec_env: str = "auto"
+    log_interval: int = -1
+
+    def validate(self) -> None:
+        """Check the vec env kind and the log interval."""
+        if self.vec_env not in VEC_ENV_TYPES:
+            raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {self.vec_env!r}")
+        if self.log_interval != -1:
+            check_at_least("--log-interval", self.log_interval, 1, " or -1 (automatic)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RllibOptions:
+    """How an RLlib run (``--backend rllib``) executes; an SB3 run refuses any of these that differs from its default.
+
+    :param num_env_runners: RLlib env runner actors (``--num-env-runners``; None: the config's; 0 samples in the
+        driver).
+    :param address: Ray cluster to join (``--address``: ``auto``, ``host:6379`` or ``ray://host:10001``; None: a
+        local Ray).
+    """
+
+    num_env_runners: int | None = None
+    address: str | None = None
+
+    def validate(self) -> None:
+        """Check the runner count (the address is checked by connecting to it)."""
+        check_at_least("--num-env-runners", self.num_env_runners, 0)
+
+
+@dataclass(frozen=True, kw_only=True)
 class EvaluateOptions:
     """How ``evaluate`` plays a finished run.
 
     :param n_episodes: episodes to play (``-n``).
     :param deterministic: greedy actions (``--deterministic``), or sampled ones (``--stochastic``); None: as the
         run's config says (its ``deterministic_eval``, greedy unless set to false).
-    :param seed: seed of the evaluation env (same episodes every time).
-    :param render: print each state (text envs) or let the env render itself (``human``).
+    :param seed: seed of the evaluation env (``--seed``; same episodes every time).
+    :param render: print each state (text envs) or let the env render itself (``human``) (``--render``).
     :param attacks: observation attacks to evaluate as well (``--attack``, e.g. ``"gaussian:0.05 pgd:0.1"``).
     :param fairness: info keys to bucket episodes by (``--fairness``).
-    :param bins: buckets per fairness key.
-    :param opponent: turn-based games: the opponent of every other seat (``random``, ``heuristic``, ``minimax``,
-        a run dir, a model zip or ``module:function``; None: the run's ``self_play.eval_opponent``).
+    :param bins: buckets per fairness key (``--bins``).
+    :param opponent: turn-based games: the opponent of every other seat (``--opponent``: ``random``, ``heuristic``,
+        ``minimax``, a run dir, a model zip or ``module:function``; None: the run's ``self_play.eval_opponent``).
     """
 
     n_episodes: int = 10
@@ -198,15 +229,16 @@ class EvaluateOptions:
 class StudyOptions:
     """An Optuna study of ``tune``.
 
-    :param n_trials: finished trials the study should hold (a resumed study runs only the missing ones).
-    :param storage: RDB URL (None: an SQLite file in the log folder).
-    :param study_name: study name (None: ``<algo>-<EnvId>``).
-    :param n_jobs: parallel trials in this process.
-    :param sampler: ``tpe`` or ``random``.
-    :param pruner: ``median``, ``halving`` or ``none``.
-    :param n_seeds: seeds per trial (the objective is the mean of their best evaluations).
-    :param n_evaluations: evaluations per training run.
-    :param eval_episodes: episodes per evaluation.
+    :param n_trials: finished trials the study should hold (``--n-trials``; a resumed study runs only the missing
+        ones).
+    :param storage: RDB URL (``--storage``; None: an SQLite file in the log folder).
+    :param study_name: study name (``--study-name``; None: ``<algo>-<EnvId>``).
+    :param n_jobs: parallel trials in this process (``--n-jobs``).
+    :param sampler: the Optuna sampler (``--sampler``): ``tpe`` or ``random``.
+    :param pruner: the Optuna pruner (``--pruner``): ``median``, ``halving`` or ``none``.
+    :param n_seeds: seeds per trial (``--n-seeds``; the objective is the mean of their best evaluations).
+    :param n_evaluations: evaluations per training run (``--n-evaluations``).
+    :param eval_episodes: episodes per evaluation (``--eval-episodes``).
     """
 
     n_trials: int = 20

@@ -204,13 +204,14 @@ def check_model_file(path: str | Path) -> Path:
 class RunRef:
     """Which finished run(s) a command means: the ``--algo --env -f --exp-id --load-best --gym-packages`` flags.
 
-    :param algo: algorithm of the run (None: any, for commands that take several runs, such as ``plot``).
-    :param env: env name as given on the command line (resolved to its id by :meth:`env_ref`; None: any).
-    :param log_folder: root of the run dirs.
-    :param exp_id: run number k (0: the latest).
-    :param load_best: the run's ``best_model.zip`` instead of its final model.
-    :param gym_packages: packages to import that register the env.
-    :param checkpoint: the checkpoint saved after this many timesteps (``--save-freq``) instead of the final model.
+    :param algo: algorithm of the run (``--algo``; None: any, for commands that take several runs, such as ``plot``).
+    :param env: env name as given on the command line (``--env``; resolved to its id by :meth:`env_ref`; None: any).
+    :param log_folder: root of the run dirs (``-f/--log-folder``).
+    :param exp_id: run number k (``--exp-id``; 0: the latest).
+    :param load_best: the run's ``best_model.zip`` instead of its final model (``--load-best``).
+    :param gym_packages: packages to import that register the env (``--gym-packages``).
+    :param checkpoint: the checkpoint saved after this many timesteps (``train --save-freq``) instead of the final
+        model (``--load-checkpoint``).
     :param env_kwargs: env constructor arguments on top of the run's (``--env-kwargs``) when its env is built again.
     :param trust: the run's files come from a trusted source: load pickles in them as they are (``--trust-run``;
         by default nothing in a run dir can run code, see docs/security.md).

@@ -12,7 +12,15 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.core.lifecycle import TrainResult
-from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.options import (
+    EvalOptions,
+    EvaluateOptions,
+    ExecOptions,
+    OutputOptions,
+    RllibOptions,
+    Sb3Options,
+    TrainSpec,
+)
 from sbagents.core.run_dir import RunRef, load_run
 from sbagents.errors import UsageError
 from sbagents.extensions import activate
@@ -28,22 +36,30 @@ def train(
     execution: ExecOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
     features: Sequence[Any] = (),
+    *,
+    sb3: Sb3Options | None = None,
+    rllib: RllibOptions | None = None,
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` and write a run directory (``python -m sbagents.train``).
 
     :param spec: what to train.
     :param output: where to write (default: ``logs/``).
     :param evaluation: periodic and final evaluation.
-    :param execution: seed, backend (``sb3`` or ``rllib``), vec env, device, threads, verbosity.
+    :param execution: seed, backend (``sb3`` or ``rllib``), device, threads, verbosity.
     :param callbacks: extra SB3 callbacks (SB3 only).
     :param features: specs of training extensions (:mod:`sbagents.extensions`), e.g. ``TrustOptions(safety=True)``
         (transparency log, safety counting, attacks and fairness), ``PrivacyOptions(epsilon=8)`` (DP-SGD),
         ``parse_robust("sa:0.1")``, ``ConstraintSpec("pid", 0.1)``, ``ReplayBufferOptions(save=True)``; a
         backend refuses in one line the features it cannot honour.
+    :param sb3: what only SB3 runs use (vec env, log interval); RLlib refuses any that is not the default.
+    :param rllib: what only RLlib runs use (env runners, Ray address); SB3 refuses any that is not the default.
     :return: the run dir, the model (SB3) and the summary; ``interrupted`` after Ctrl-C/SIGTERM.
     """
-    execution = execution or ExecOptions()
-    execution.validate()
+    execution, sb3, rllib = execution or ExecOptions(), sb3 or Sb3Options(), rllib or RllibOptions()
+    for group in (execution, sb3, rllib):
+        group.validate()
+    if execution.backend == "sb3" and rllib != RllibOptions():
+        raise UsageError("--address and --num-env-runners need --backend rllib")
     if execution.backend == "rllib":
         from sbagents.core.env_names import resolve_env
         from sbagents.rllib import check_options, require_ray
@@ -51,14 +67,15 @@ def train(
         ref = resolve_env(spec.env, spec.gym_packages)
         ref.kind.refuse_backend(ref, "rllib")
         refused = [flag for a in activate(features) for flag in a.extension.unsupported_flags(a.spec, "rllib")]
-        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution}, refused)
+        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution, "sb3": sb3,
+                       "rllib": rllib}, refused)
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
         require_ray()
         from sbagents.rllib.training import train_rllib
 
-        return train_rllib(spec, output, evaluation, execution)
-    return train_sb3(spec, output, evaluation, execution, callbacks, features)
+        return train_rllib(spec, output, evaluation, execution, rllib)
+    return train_sb3(spec, output, evaluation, execution, callbacks, features, sb3)
 
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.

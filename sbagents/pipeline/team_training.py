@@ -29,7 +29,7 @@ from sbagents.callbacks.run_files import AtomicCheckpointCallback
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.lifecycle import LearningClock
-from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, Sb3Options
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import CHECKPOINT_PREFIX, group_model_name, group_stats_name
 from sbagents.env_factory import make_team_vecs, normalize_for_eval, normalize_for_training
@@ -106,17 +106,18 @@ class GroupSetup:
 
 
 def build_groups(
-    exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, options: tuple[OutputOptions, EvalOptions, ExecOptions],
+    exp: Experiment, ref: EnvRef, run_dir: Path, seed: int,
+    options: tuple[OutputOptions, EvalOptions, ExecOptions, Sb3Options],
     trust: TrustOptions | None, callbacks: Sequence[BaseCallback] = (),
 ) -> GroupSetup:
     """The group models of ``exp`` on one team writing into ``run_dir``, with their callbacks.
 
-    :param options: the run's output, evaluation and execution options.
+    :param options: the run's output, evaluation, execution and SB3 options.
     :param callbacks: extra SB3 callbacks for every group's model.
     """
-    output, evaluation, execution = options
+    output, evaluation, execution, sb3 = options
     venvs = {g: normalize_for_training(v, exp) for g, v in
-             make_team_vecs(exp, ref, exp.n_envs, seed, run_dir, execution.vec_env).items()}
+             make_team_vecs(exp, ref, exp.n_envs, seed, run_dir, sb3.vec_env).items()}
     groups = team_groups_of(venvs)
     check_group_spaces(exp, venvs)
     verbose = max(execution.verbose - 1, 0)

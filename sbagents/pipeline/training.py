@@ -32,7 +32,7 @@ from sbagents.core.lifecycle import (
     finish_run,
     new_run_dir,
 )
-from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem, group_stats_name
 from sbagents.env_factory import check_env_kwargs, make_vec, normalize_for_training
@@ -81,16 +81,19 @@ def train_sb3(
     execution: ExecOptions | None = None,
     callbacks: Sequence[BaseCallback] = (),
     features: Sequence[Any] = (),
+    sb3: Sb3Options | None = None,
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
 
     :param callbacks: extra SB3 callbacks, after sbagents' own.
     :param features: the specs of the training extensions this run uses (:mod:`sbagents.extensions`: e.g.
         ``TrustOptions``, ``PrivacyOptions``, a ``RobustSpec``), each checked by its extension.
+    :param sb3: the vec env and the log interval.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
     output, evaluation, execution = output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions()
-    for group in (spec, evaluation, execution):
+    sb3 = sb3 or Sb3Options()
+    for group in (spec, evaluation, execution, sb3):
         group.validate()
     actives = activate(features)
     for active in actives:
@@ -119,7 +122,7 @@ def train_sb3(
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     eval_freq = evaluation.frequency(exp.n_timesteps)
-    vec_env = training_vec_env(execution.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
+    vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
     args = {"algo": spec.algo, "env": ref.env_id, "seed": seed, "n_timesteps": exp.n_timesteps,
             "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
             "vec_env": vec_env, "device": execution.device,
@@ -130,7 +133,8 @@ def train_sb3(
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
     command = output.command or default_command(spec, execution, actives)
     if groups is not None and len(groups) > 1:
-        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution), actives, callbacks)
+        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution, sb3), actives,
+                             callbacks)
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
@@ -152,7 +156,7 @@ def train_sb3(
         if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
             own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
         per_extension = [active.extension.callbacks(active.spec, ctx) for active in actives]
-    log_interval = execution.log_interval
+    log_interval = sb3.log_interval
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
     warnings = budget_warnings(model, spec.algo, exp.n_timesteps, steps_before)
@@ -224,7 +228,7 @@ def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:
 
 def _train_groups(
     spec: TrainSpec, exp: Experiment, ref: EnvRef, args: dict[str, Any], command: str,
-    options: tuple[OutputOptions, EvalOptions, ExecOptions], actives: Sequence[ActiveExtension],
+    options: tuple[OutputOptions, EvalOptions, ExecOptions, Sb3Options], actives: Sequence[ActiveExtension],
     callbacks: Sequence[BaseCallback],
 ) -> TrainResult:
     """The run of one model per group (:mod:`sbagents.pipeline.team_training`); of the extensions, the trust
@@ -232,14 +236,14 @@ def _train_groups(
     from sbagents.pipeline.evaluation import evaluate_groups
     from sbagents.pipeline.team_training import build_groups, learn_groups
 
-    output, evaluation, execution = options
+    output, evaluation, _, sb3 = options
     seed = int(args["seed"])
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
         specs = {active.name: active.spec for active in actives}
         setup = build_groups(exp, ref, run_dir, seed, options, specs.get("trust"), callbacks)
     clock = LearningClock()
-    learn_groups(setup, clock, execution.log_interval, run_dir, env_stem(ref.env_id))
+    learn_groups(setup, clock, sb3.log_interval, run_dir, env_stem(ref.env_id))
     steps = sum(m.num_timesteps for m in setup.models.values())
     summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "groups": setup.groups}
 

@@ -44,8 +44,8 @@ UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
     ("spec", "gym_packages"): "--gym-packages",
     ("output", "tensorboard_log"): "-tb/--tensorboard-log",
     ("evaluation", "n_eval_envs"): "--n-eval-envs",
-    ("execution", "vec_env"): "--vec-env",
-    ("execution", "log_interval"): "--log-interval",
+    ("sb3", "vec_env"): "--vec-env",
+    ("sb3", "log_interval"): "--log-interval",
 }
 
 
@@ -88,8 +88,8 @@ def check_address(address: str | None, timeout: float = 5.0) -> None:
 def check_options(groups: dict[str, Any], refused: list[str] | None = None) -> None:
     """Reject options the RLlib backend cannot honour (one-line :class:`UsageError` naming their flags).
 
-    :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``); a field
-        that differs from its dataclass default counts as given.
+    :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``, ``sb3``,
+        ``rllib``); a field that differs from its dataclass default counts as given.
     :param refused: flags of training extensions that refuse this backend
         (:meth:`sbagents.extensions.TrainingExtension.unsupported_flags`), named in the same line.
     """
@@ -101,12 +101,12 @@ def check_options(groups: dict[str, Any], refused: list[str] | None = None) -> N
     given += refused or []
     if given:
         raise UsageError(f"{', '.join(given)} not supported with --backend rllib")
-    execution, spec = groups["execution"], groups["spec"]
+    execution, spec, rllib = groups["execution"], groups["spec"], groups.get("rllib")
     if spec.algo not in rllib_algos():
         raise UsageError(f"--backend rllib supports --algo {', '.join(rllib_algos())}; got {spec.algo!r}")
     if execution.device not in ("auto", "cpu"):
         raise UsageError(f"--backend rllib trains on the CPU here; got --device {execution.device}")
-    check_address(execution.address)
+    check_address(None if rllib is None else rllib.address)
 
 
 __all__ = [

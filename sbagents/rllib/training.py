@@ -34,7 +34,7 @@ from sbagents.core.lifecycle import (
     finish_run,
     new_run_dir,
 )
-from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, TrainSpec
+from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RllibOptions, TrainSpec
 from sbagents.core.progress import ProgressReporter
 from sbagents.errors import UsageError
 from sbagents.multiagent.env_copy import declared_metrics
@@ -81,10 +81,11 @@ def train_rllib(
     output: OutputOptions | None = None,
     evaluation: EvalOptions | None = None,
     execution: ExecOptions | None = None,
+    rllib: RllibOptions | None = None,
 ) -> TrainResult:
     """Train ``spec.algo`` on the PettingZoo env ``spec.env`` with RLlib and write a run directory.
 
-    ``execution.num_env_runners`` (default: the config's; 0 samples in the driver) and ``execution.address``
+    ``rllib.num_env_runners`` (default: the config's; 0 samples in the driver) and ``rllib.address``
     (``auto``, ``host:6379`` or ``ray://host:10001``; None starts a local Ray) size the Ray side;
     ``execution.num_threads`` is the torch thread count of the learner and of every env runner. Periodic greedy team
     evaluations go to ``progress.csv``; ``output.save_freq > 0`` saves a module checkpoint every that many env steps.
@@ -93,13 +94,14 @@ def train_rllib(
         ``interrupted`` after Ctrl-C/SIGTERM (the checkpoint is still saved).
     """
     output, evaluation, execution = output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions()
-    for group in (spec, evaluation, execution):
+    rllib = rllib or RllibOptions()
+    for group in (spec, evaluation, execution, rllib):
         group.validate()
     for name in ("ray.rllib", "ray._common.deprecation") if execution.verbose < 2 else ():  # API-stack notices
         logging.getLogger(name).setLevel(logging.ERROR)
-    check_address(execution.address)
+    check_address(rllib.address)
     ref = resolve_env(spec.env, spec.gym_packages)
-    exp = build_experiment(spec, ref, execution.num_env_runners)
+    exp = build_experiment(spec, ref, rllib.num_env_runners)
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     seed = draw_seed(execution.seed)
@@ -107,13 +109,13 @@ def train_rllib(
     args = {"algo": spec.algo, "env": ref.env_id, "backend": "rllib", "seed": seed, "n_timesteps": exp.n_timesteps,
             "log_folder": str(output.log_folder), "eval_freq": evaluation.frequency(exp.n_timesteps),
             "eval_episodes": evaluation.eval_episodes, "num_env_runners": exp.num_env_runners,
-            "address": execution.address, "num_threads": execution.num_threads, "groups": groups}
+            "address": rllib.address, "num_threads": execution.num_threads, "groups": groups}
     command = output.command or default_command(spec, execution)
     done: dict[str, Any] = {"env_steps": 0, "agent_steps": 0, "iterations": 0}  # updated every iteration
     clock = LearningClock()
     with contextlib.ExitStack() as ray_scope:
         with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
-            ray_scope.enter_context(ray_session(execution.address, exp.num_env_runners, execution.num_threads,
+            ray_scope.enter_context(ray_session(rllib.address, exp.num_env_runners, execution.num_threads,
                                                 execution.verbose))
             try:
                 algo_obj = config.build_algo()
@@ -129,7 +131,7 @@ def train_rllib(
     steps = int(done["env_steps"])
     summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "backend": "rllib",
                "n_agent_steps": int(done["agent_steps"]), "iterations": int(done["iterations"]),
-               "policies": exp.policies, "num_env_runners": exp.num_env_runners, "address": execution.address,
+               "policies": exp.policies, "num_env_runners": exp.num_env_runners, "address": rllib.address,
                "num_threads": execution.num_threads, "ray_version": ray.__version__, "checkpoint": CHECKPOINT_DIR}
 
     def final_eval() -> dict[str, Any]:

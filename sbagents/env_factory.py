@@ -13,7 +13,7 @@ import importlib
 import inspect
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 from stable_baselines3.common.env_util import make_vec_env
@@ -296,16 +296,24 @@ def _make_base_vec(
         assert batched_id is not None, "vec_env_kind chose batched for an env without a batched VecEnv"
         venv = make_batched_vec_env(batched_id, n_envs, seed, kwargs, monitor)
     else:
-        venv = _plain_vec(ref.kind, exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
+        venv = _plain_vec(ref.kind, exp, ref, n_envs, seed, _VecArgs(monitor, kind, kwargs, wrapper))
     return venv
 
 
+class _VecArgs(NamedTuple):
+    """How :func:`_plain_vec` builds its VecEnv: the monitor folder, ``dummy`` or ``subproc``, env kwargs, wrapper."""
+
+    monitor: str | None
+    vec_kind: str
+    kwargs: dict[str, Any]
+    wrapper: Callable[[Any], Any] | None
+
+
 @functools.singledispatch
-def _plain_vec(
-    env_kind: EnvKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor: str | None,
-    kind: str, kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
-) -> VecEnv:
-    """SB3's ``make_vec_env`` of ``kind`` (``dummy`` or ``subproc``) for a Gymnasium env or a game's seat env."""
+def _plain_vec(env_kind: EnvKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None,
+               how: _VecArgs) -> VecEnv:
+    """SB3's ``make_vec_env`` (``dummy`` or ``subproc``) for a Gymnasium env or a game's seat env."""
+    monitor, kind, kwargs, wrapper = how
     return make_vec_env(
         _env_fn(ref.kind, ref),  # imports the env's modules first, also in SubprocVecEnv workers
         n_envs=n_envs,
@@ -319,12 +327,9 @@ def _plain_vec(
 
 
 @_plain_vec.register
-def _(
-    env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, monitor: str | None,
-    kind: str, kwargs: dict[str, Any], wrapper: Callable[[Any], Any] | None,
-) -> VecEnv:
+def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, how: _VecArgs) -> VecEnv:
     """A team: the one VecEnv of a parameter-sharing team (:func:`make_team_vecs` for one model per group)."""
-    venvs = _team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper)
+    venvs = _team_vecs(exp, ref, n_envs, seed, *how)
     if len(venvs) != 1:
         raise UsageError(f"{exp.team.policies if exp.team else ''} experiments train one model per group: "
                          "use make_team_vecs")

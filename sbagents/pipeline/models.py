@@ -46,31 +46,41 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
     return obs_space, act_space
 
 
+@dataclass(frozen=True)
+class Resume:
+    """A model to continue training (``-i``).
+
+    :param path: the model ``.zip``.
+    :param trust: its file may hold pickles beyond plain data (``--trust-run``; :mod:`sbagents.safe_load`).
+    """
+
+    path: Path
+    trust: bool = False
+
+
 def make_model(
-    exp: Experiment, env: VecEnv, seed: int, device: str = "auto", tensorboard_log: str | None = None,
-    verbose: int = 0, trained_agent: Path | None = None, extensions: Sequence[ActiveExtension] = (),
-    trust: bool = False,
+    exp: Experiment, env: VecEnv, seed: int, device: str = "auto", *, tensorboard_log: str | None = None,
+    verbose: int = 0, resume: Resume | None = None, extensions: Sequence[ActiveExtension] = (),
 ) -> BaseAlgorithm:
-    """The SB3 model of ``exp`` on ``env`` (with its action noise), or ``trained_agent`` loaded to continue
-    (without running code from its file unless ``trust``: :mod:`sbagents.safe_load`).
+    """The SB3 model of ``exp`` on ``env`` (with its action noise), or the model ``resume`` names, loaded to continue.
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
     :param extensions: the run's training extensions, which may pick the class and add keyword arguments
-        (:meth:`~sbagents.extensions.TrainingExtension.model_class`) and load ``trained_agent`` their own way.
+        (:meth:`~sbagents.extensions.TrainingExtension.model_class`) and load the resumed model their own way.
     :raises UsageError: hyperparameters the algorithm rejects.
     """
     cls: Any = ALGOS[exp.algo].cls
     extra: dict[str, Any] = {}
     for active in extensions:
         cls, extra = active.extension.model_class(active.spec, exp.algo, cls, extra)
-    if trained_agent is not None:
-        common: dict[str, Any] = dict(env=env, device=device, trust=trust, tensorboard_log=tensorboard_log,
+    if resume is not None:
+        common: dict[str, Any] = dict(env=env, device=device, trust=resume.trust, tensorboard_log=tensorboard_log,
                                       verbose=verbose)
         for active in extensions:
-            model = active.extension.load_model(active.spec, cls, trained_agent, **common, **extra)
+            model = active.extension.load_model(active.spec, cls, resume.path, **common, **extra)
             if model is not None:
                 return model
-        return load_model(cls, trained_agent, **common, **extra)
+        return load_model(cls, resume.path, **common, **extra)
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))

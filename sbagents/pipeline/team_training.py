@@ -121,7 +121,8 @@ def build_groups(
     groups = team_groups_of(venvs)
     check_group_spaces(exp, venvs)
     verbose = max(execution.verbose - 1, 0)
-    models = {g: make_model(exp, v, seed, execution.device, output.tensorboard_log, verbose)
+    models = {g: make_model(exp, v, seed, execution.device, tensorboard_log=output.tensorboard_log,
+                                verbose=verbose)
               for g, v in venvs.items()}
     first = next(iter(groups))
     n_agents = sum(len(a) for a in groups.values())

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -44,7 +45,7 @@ from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.evaluation import evaluate_model
 from sbagents.pipeline.kinds import periodic_evaluation, training_env_kwargs
-from sbagents.pipeline.models import RunContext, check_spaces, make_model
+from sbagents.pipeline.models import Resume, RunContext, check_spaces, make_model
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 
@@ -85,14 +86,50 @@ def train_sb3(
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
 
+    A fixed sequence: :func:`_plan` (every check, before a run dir exists), then for one model :func:`_build`
+    (run dir, envs, model, callbacks), :func:`_learn` and :func:`_finish` (summary, final evaluation); the training
+    extensions take part through their hooks at each step.
+
     :param callbacks: extra SB3 callbacks, after sbagents' own.
     :param features: the specs of the training extensions this run uses (:mod:`sbagents.extensions`: e.g.
         ``TrustOptions``, ``PrivacyOptions``, a ``RobustSpec``), each checked by its extension.
     :param sb3: the vec env and the log interval.
     :return: the run dir, the model and the summary; ``interrupted`` is True after Ctrl-C/SIGTERM.
     """
-    output, evaluation, execution = output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions()
-    sb3 = sb3 or Sb3Options()
+    run = _plan(spec, output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions(),
+                sb3 or Sb3Options(), features)
+    if run.groups is not None and len(run.groups) > 1:
+        return _train_groups(spec, run.exp, run.ref, run.args, run.command,
+                             (run.output, run.evaluation, run.execution, run.sb3), run.actives, callbacks)
+    built = _build(run)
+    clock = _learn(run, built, callbacks)
+    return _finish(run, built, clock)
+
+
+@dataclass
+class _RunPlan:
+    """A checked run, before its run dir exists: the options, the env, the experiment, the run's extensions (after
+    :meth:`~sbagents.extensions.TrainingExtension.prepare`), and what ``args.yml`` records."""
+
+    spec: TrainSpec
+    output: OutputOptions
+    evaluation: EvalOptions
+    execution: ExecOptions
+    sb3: Sb3Options
+    ref: EnvRef
+    exp: Experiment
+    groups: dict[str, list[str]] | None
+    actives: list[ActiveExtension]
+    seed: int
+    vec_env: str
+    resume: Resume | None
+    args: dict[str, Any]
+    command: str
+
+
+def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execution: ExecOptions,
+          sb3: Sb3Options, features: Sequence[Any]) -> _RunPlan:
+    """Check everything that can be checked before a run dir exists (one-line :class:`UsageError` otherwise)."""
     for group in (spec, evaluation, execution, sb3):
         group.validate()
     actives = activate(features)
@@ -101,8 +138,7 @@ def train_sb3(
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
-    overrides = tuple(a.extension.overrides_key for a in actives if a.extension.overrides_key)
-    exp = build_experiment(spec, ref, overrides)
+    exp = build_experiment(spec, ref, tuple(a.extension.overrides_key for a in actives if a.extension.overrides_key))
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     groups = team_agents(exp, ref) if exp.team is not None else None
@@ -121,80 +157,111 @@ def train_sb3(
         check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
-    eval_freq = evaluation.frequency(exp.n_timesteps)
     vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
     args = {"algo": spec.algo, "env": ref.env_id, "seed": seed, "n_timesteps": exp.n_timesteps,
-            "log_folder": str(output.log_folder), "eval_freq": eval_freq, "eval_episodes": evaluation.eval_episodes,
-            "vec_env": vec_env, "device": execution.device,
+            "log_folder": str(output.log_folder), "eval_freq": evaluation.frequency(exp.n_timesteps),
+            "eval_episodes": evaluation.eval_episodes, "vec_env": vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
     for active in actives:
         args.update(active.extension.record(active.spec))
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
-    command = output.command or default_command(spec, execution, actives)
-    if groups is not None and len(groups) > 1:
-        return _train_groups(spec, exp, ref, args, command, (output, evaluation, execution, sb3), actives,
-                             callbacks)
-    with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
+    return _RunPlan(spec, output, evaluation, execution, sb3, ref, exp, groups, actives, seed, vec_env,
+                    Resume(agent_path, spec.trust_run) if agent_path is not None else None, args,
+                    output.command or default_command(spec, execution, actives))
+
+
+@dataclass
+class _BuiltRun:
+    """An SB3 run ready to learn: its context (run dir, envs, model), reporter and callbacks."""
+
+    ctx: RunContext
+    reporter: ProgressReporter
+    steps_before: int
+    own: list[BaseCallback]
+    per_extension: list[list[BaseCallback]]
+    warnings: list[str]
+
+
+def _build(run: _RunPlan) -> _BuiltRun:
+    """Create the run dir (removed again if anything here fails), the training envs, the model and the callbacks."""
+    exp, ref, seed, resume = run.exp, run.ref, run.seed, run.resume
+    with new_run_dir(run.output.log_folder, run.spec.algo, ref.env_id, exp.hyperparams, run.args,
+                     run.command) as run_dir:
         set_random_seed(seed)
-        stats = agent_path.parent / VECNORMALIZE_FILE if agent_path is not None else None
-        extra_kwargs = training_env_kwargs(ref.kind, exp, ref, run_dir)
-        train_env = normalize_for_training(make_vec(exp, ref, exp.n_envs, seed, run_dir, vec_env,
-                                                    env_kwargs=extra_kwargs), exp, stats, spec.trust_run)
-        for active in actives:
+        stats = resume.path.parent / VECNORMALIZE_FILE if resume is not None else None
+        venv = make_vec(exp, ref, exp.n_envs, seed, run_dir, run.vec_env,
+                        env_kwargs=training_env_kwargs(ref.kind, exp, ref, run_dir))
+        train_env = normalize_for_training(venv, exp, stats, run.spec.trust_run)
+        for active in run.actives:
             train_env = active.extension.wrap_train_env(active.spec, train_env)
-        model = make_model(exp, train_env, seed, execution.device, output.tensorboard_log,
-                           max(execution.verbose - 1, 0), agent_path, actives, spec.trust_run)
-        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, eval_freq, evaluation.eval_episodes,
-                         trained_agent=agent_path, trust_run=spec.trust_run, save_freq=output.save_freq)
-        for active in actives:
+        model = make_model(exp, train_env, seed, run.execution.device, tensorboard_log=run.output.tensorboard_log,
+                           verbose=max(run.execution.verbose - 1, 0), resume=resume, extensions=run.actives)
+        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, run.evaluation.frequency(exp.n_timesteps),
+                         run.evaluation.eval_episodes, trained_agent=resume.path if resume else None,
+                         trust_run=run.spec.trust_run, save_freq=run.output.save_freq)
+        for active in run.actives:
             active.extension.setup(active.spec, ctx)
-        steps_before = model.num_timesteps if agent_path is not None else 0
-        reporter = ProgressReporter(exp.n_timesteps, bar=execution.progress, quiet=execution.verbose <= 0,
+        steps_before = model.num_timesteps if resume is not None else 0
+        reporter = ProgressReporter(exp.n_timesteps, bar=run.execution.progress, quiet=run.execution.verbose <= 0,
                                     start=steps_before)
-        own = _callbacks(ctx, evaluation.n_eval_envs, output.save_freq, reporter, vec_env)
+        own = _callbacks(ctx, run.evaluation.n_eval_envs, run.output.save_freq, reporter, run.vec_env)
         if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
             own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
-        per_extension = [active.extension.callbacks(active.spec, ctx) for active in actives]
-    log_interval = sb3.log_interval
-    if log_interval < 0:
-        log_interval = 1 if hasattr(model, "n_steps") else 100
-    warnings = budget_warnings(model, spec.algo, exp.n_timesteps, steps_before)
+        per_extension = [active.extension.callbacks(active.spec, ctx) for active in run.actives]
+    warnings = budget_warnings(model, run.spec.algo, exp.n_timesteps, steps_before)
     for warning in warnings:
         reporter.warn(warning)
+    return _BuiltRun(ctx, reporter, steps_before, own, per_extension, warnings)
+
+
+def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -> LearningClock:
+    """``model.learn`` inside a graceful clock; the model and the extensions' files are saved however it ends."""
+    model, ctx = built.ctx.model, built.ctx
+    log_interval = run.sb3.log_interval
+    if log_interval < 0:
+        log_interval = 1 if hasattr(model, "n_steps") else 100
     clock = LearningClock(graceful=True)
-    extension_callbacks = [cb for cbs in per_extension for cb in cbs]
+    extension_callbacks = [cb for cbs in built.per_extension for cb in cbs]
     try:
         with clock:
-            model.learn(exp.n_timesteps, callback=[StopOnRequestCallback(clock), *own, *extension_callbacks,
-                                                   *callbacks],
-                        reset_num_timesteps=agent_path is None, log_interval=log_interval)
+            model.learn(run.exp.n_timesteps, callback=[StopOnRequestCallback(clock), *built.own,
+                                                       *extension_callbacks, *callbacks],
+                        reset_num_timesteps=run.resume is None, log_interval=log_interval)
     finally:
-        reporter.close()
+        built.reporter.close()
         _save(model, ctx)
-        for active in actives:
+        for active in run.actives:
             active.extension.after_learn(active.spec, ctx)
-    summary = base_summary(spec.algo, ref.env_id, seed, model.num_timesteps, model.num_timesteps - steps_before,
-                           clock)
-    if warnings:
-        summary["warnings"] = warnings
-    for active in actives:
+    return clock
+
+
+def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResult:
+    """``summary.json`` (with the extensions' keys and the final evaluation) and the run's result."""
+    ctx, model, exp, ref = built.ctx, built.ctx.model, run.exp, run.ref
+    summary = base_summary(run.spec.algo, ref.env_id, run.seed, model.num_timesteps,
+                           model.num_timesteps - built.steps_before, clock)
+    if built.warnings:
+        summary["warnings"] = built.warnings
+    for active in run.actives:
         summary.update(active.extension.summary(active.spec, ctx))
-    for callback in [*own, *extension_callbacks]:  # e.g. turn-based games: the learner's illegal moves in training
+    extension_callbacks = [cb for cbs in built.per_extension for cb in cbs]
+    for callback in [*built.own, *extension_callbacks]:  # e.g. a game's learner's illegal moves in training
         summary.update(getattr(callback, "summary_items", dict)())
+    episodes = run.evaluation.final_eval_episodes
 
     def final_eval() -> dict[str, Any]:
-        result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=evaluation.final_eval_episodes,
-                                                                 seed=seed), run_dir / VECNORMALIZE_FILE)
-        for active in actives:
+        result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=episodes, seed=run.seed),
+                                ctx.run_dir / VECNORMALIZE_FILE)
+        for active in run.actives:
             active.extension.judge_evaluation(active.spec, summary, result)
         return result
 
-    finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
+    finish_run(ctx.run_dir, summary, final_eval if episodes > 0 else None)
     results: dict[str, Any] = {}
-    for active, cbs in zip(actives, per_extension, strict=True):
+    for active, cbs in zip(run.actives, built.per_extension, strict=True):
         results.update(active.extension.results(active.spec, cbs))
-    return TrainResult(run_dir, model, exp, summary, clock.interrupted, results)
+    return TrainResult(ctx.run_dir, model, exp, summary, clock.interrupted, results)
 
 
 def _prepare(plan: ExtensionPlan) -> list[ActiveExtension]:

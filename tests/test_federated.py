@@ -66,7 +66,7 @@ def free_port() -> int:
 @pytest.mark.parametrize(("args", "message"), [
     (["--homes", "1"], "--homes must be >= 2"),
     (["--strategy", "fedsgd"], "--strategy 'fedsgd' does not exist; use one of fedavg, fedprox, dp-fedavg"),
-    (["--algo", "dqn"], "federated homes train one of ddpg"),
+    (["--algo", "dqn"], "federated homes train one of a2c, ppo, ddpg"),
     (["--env", "sbagents/GridWorld-v0"], "need an env with per-home users"),
     (["--rounds", "0"], "--rounds must be >= 1"),
     (["--strategy", "dp-fedavg", "--dp-noise", "0"], "--dp-noise must be > 0"),

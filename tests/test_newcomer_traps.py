@@ -16,6 +16,7 @@ from cli_helpers import check_error, last_json, run_main, summary
 from gymnasium import spaces
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
+from sbagents.core.env_kinds import TEAM
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
 from sbagents.core.run_dir import env_stem
@@ -56,7 +57,7 @@ def test_module_callable_runs_are_named_after_module_and_callable(two_packages: 
     first, second = resolve_env("pkg_a.envs:make_env"), resolve_env("pkg_b.envs:make_env")
     assert (first.env_id, second.env_id) == ("pkg_a.envs:make_env", "pkg_b.envs:make_env")
     assert (env_stem(first.env_id), env_stem(second.env_id)) == ("pkg_a.envs_make_env", "pkg_b.envs_make_env")
-    assert first.multi_agent and first.source == "pkg_a.envs:make_env"
+    assert first.kind is TEAM and first.source == "pkg_a.envs:make_env"
     plain, explicit = resolve_env("tiny_marl_pkg.relay_v0"), resolve_env("tiny_marl_pkg.relay_v0:parallel_env")
     assert plain.env_id == explicit.env_id == "relay_v0"
 

@@ -8,10 +8,11 @@ sits among the feature packages it composes (:mod:`sbagents.multiagent`, :mod:`s
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -181,15 +182,9 @@ def make_team_vecs(
     if wrapper is not None and kind == "batched":
         kind = "dummy"
     monitor = str(monitor_dir) if monitor_dir is not None else None
-    try:
+    with _one_line_env_errors(ref, kwargs):
         venvs = (_team_vecs(exp, ref, n_envs, seed, monitor, kind, kwargs, wrapper) if kind != "batched" else
                  {"shared": _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, None)})
-    except UsageError:
-        raise
-    except gym.error.DependencyNotInstalled as exc:
-        raise missing_dependency_error(ref, exc) from None
-    except (TypeError, ValueError, AssertionError) as exc:
-        raise _env_kwargs_error(ref, kwargs, exc) from None
     return {name: _vec_wrappers(venv, exp) for name, venv in venvs.items()}
 
 
@@ -267,15 +262,23 @@ def make_vec(
     kind = vec_env_kind(vec_env, exp, ref, kwargs)
     if wrapper is not None and kind in ("batched", "envpool"):
         kind = "dummy"
-    try:
+    with _one_line_env_errors(ref, kwargs):
         venv = _make_base_vec(exp, ref, n_envs, seed, monitor_dir, kind, kwargs, wrapper)
+    return _vec_wrappers(venv, exp)
+
+
+@contextlib.contextmanager
+def _one_line_env_errors(ref: EnvRef, kwargs: dict[str, Any]) -> Iterator[None]:
+    """Turn what building ``ref``'s envs with ``kwargs`` raises into one-line usage errors (a missing
+    optional dependency, kwargs the env rejects)."""
+    try:
+        yield
     except UsageError:
         raise
     except gym.error.DependencyNotInstalled as exc:
         raise missing_dependency_error(ref, exc) from None
     except (TypeError, ValueError, AssertionError) as exc:
         raise _env_kwargs_error(ref, kwargs, exc) from None
-    return _vec_wrappers(venv, exp)
 
 
 def _make_base_vec(

@@ -1,6 +1,6 @@
 """Self-play training and evaluation of turn-based games inside the SB3 run pipeline.
 
-:func:`selfplay_env_kwargs` points the training envs at the run's snapshot pool; :func:`game_callbacks` adds the
+:func:`training_env_kwargs` points the training envs at the run's snapshot pool; :func:`game_callbacks` adds the
 pool's :class:`~sbagents.games.pool.SnapshotCallback`, sb3-contrib's ``MaskableEvalCallback`` against the config's
 ``eval_opponent`` (``evaluations.npz``; success = win) and the :class:`~sbagents.games.elo.EloCallback` (which owns
 ``best_model.zip``); :func:`evaluate_game` is ``evaluate`` for games: a match against an opponent.
@@ -42,7 +42,7 @@ def self_play_options(exp: Experiment) -> SelfPlayOptions:
     return exp.self_play if isinstance(exp.self_play, SelfPlayOptions) else SelfPlayOptions()
 
 
-def selfplay_env_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any]:
+def training_env_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any]:
     """Env kwargs of the training envs: opponents drawn from ``<run_dir>/opponents`` with the config's pool.
 
     :raises UsageError: a ``mix`` opponent that does not load for this game.

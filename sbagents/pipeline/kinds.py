@@ -74,6 +74,6 @@ def training_env_kwargs(kind: EnvKind, exp: Experiment, ref: EnvRef, run_dir: Pa
 @training_env_kwargs.register
 def _(kind: GameKind, exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
     """A turn-based game: the training envs draw opponents from the run's snapshot pool."""
-    from sbagents.games.training import selfplay_env_kwargs
+    from sbagents.games.training import training_env_kwargs
 
-    return selfplay_env_kwargs(exp, ref, run_dir)
+    return training_env_kwargs(exp, ref, run_dir)

@@ -20,7 +20,8 @@ from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.run_dir import LoadedRun
-from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval, render_modes
+from sbagents.env_construction import render_modes
+from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval
 from sbagents.errors import UsageError
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP
 from sbagents.multiagent.team_eval import run_team_episodes, slot_agents, team_summary

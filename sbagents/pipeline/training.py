@@ -36,7 +36,8 @@ from sbagents.core.lifecycle import (
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem, group_stats_name
-from sbagents.env_factory import check_env_kwargs, make_vec, normalize_for_training
+from sbagents.env_construction import check_env_kwargs
+from sbagents.env_factory import make_vec, normalize_for_training
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, registered_extensions
 from sbagents.multiagent.groups import team_groups

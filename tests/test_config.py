@@ -9,7 +9,7 @@ import torch.nn as nn
 from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.utils import LinearSchedule
 
-from sbagents.core.env_kinds import GAME, PETTINGZOO_DEFAULT_ENTRY, SINGLE_AGENT, TEAM
+from sbagents.core.env_kinds import GAME, PETTINGZOO_DEFAULT_ENTRY, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import lookup_entry, parse_overrides
@@ -145,3 +145,15 @@ def _is_pettingzoo_entry(key: str) -> bool:
     if key in ("default", "atari"):
         return False
     return key == PETTINGZOO_DEFAULT_ENTRY or resolve_env(key).kind is TEAM
+
+
+@pytest.mark.parametrize(("kind", "key", "message"), [
+    (SINGLE_AGENT, {"policies": "shared"}, "policies apply to PettingZoo envs only"),
+    (SINGLE_AGENT, {"self_play": {}}, "self_play applies to turn-based games only"),
+    (GAME, {"critic": "local"}, "critic apply to PettingZoo envs only"),
+    (TEAM, {"self_play": {}}, "self_play applies to turn-based games only"),
+    (TEAM, {"monitor_kwargs": {}}, "monitor_kwargs apply to Gymnasium envs only"),
+])
+def test_each_env_kind_refuses_the_keys_of_another(kind: EnvKind, key: dict[str, object], message: str) -> None:
+    with pytest.raises(UsageError, match=message):
+        resolve("ppo", GRID, {"n_timesteps": 10, **key}, "cli", kind)

@@ -365,3 +365,13 @@ def test_adv_round_trip_and_bad_arguments(tmp_path) -> None:  # type: ignore[no-
         AdvTD3("MlpPolicy", "Pendulum-v1", adv_attack="none")
     with pytest.raises(ValueError, match="adv_share"):
         AdvTD3("MlpPolicy", "Pendulum-v1", adv_share=2.0)
+
+
+def test_a_spec_built_in_python_records_a_flag_value_that_parses_back() -> None:
+    from sbagents.robust.options import RobustSpec
+
+    spec = RobustSpec("adv", 0.2, (("attack", "critic"),))
+    assert spec.flag_value() == "adv:0.2,attack=critic"
+    assert parse_robust(spec.flag_value(), "td3").model_kwargs() == spec.model_kwargs()
+    with pytest.raises(UsageError, match="--robust adv trains ddpg, td3, sac, not ppo"):
+        spec.check_algo("ppo")

@@ -44,6 +44,7 @@ class EnvKind:
     :cvar masked: its agents act with action masks (``action_masks()``).
     :cvar backends: the training backends that take it.
     :cvar image_wrapper: the wrapper of the image recipe for pixel observations (None: no recipe).
+    :cvar own_keys: the kind-specific zoo keys this kind takes (the others' are refused).
     """
 
     name: ClassVar[str] = ""
@@ -51,6 +52,7 @@ class EnvKind:
     masked: ClassVar[bool] = False
     backends: ClassVar[tuple[str, ...]] = ("sb3",)
     image_wrapper: ClassVar[Mapping[str, Any] | None] = None
+    own_keys: ClassVar[frozenset[str]] = frozenset()
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
         """Zoo-config entries to look up, in order (``default`` comes after them)."""
@@ -65,16 +67,11 @@ class EnvKind:
 
         :param source: where the entry came from (file and entry), for the message.
         """
-        misplaced = sorted(set(entry) & MULTI_AGENT_KEYS)
-        if misplaced:
-            raise UsageError(f"{', '.join(misplaced)} apply to PettingZoo envs only ({source})")
-        self._check_game_keys(entry, source)
-
-    @staticmethod
-    def _check_game_keys(entry: Mapping[str, Any], source: str) -> None:
-        if set(entry) & GAME_KEYS:
-            raise UsageError(f"{', '.join(sorted(set(entry) & GAME_KEYS))} applies to turn-based games only "
-                             f"({source})")
+        for keys, owner in ((MULTI_AGENT_KEYS, "apply to PettingZoo envs only"),
+                            (GAME_KEYS, "applies to turn-based games only")):
+            misplaced = sorted((set(entry) & keys) - self.own_keys)
+            if misplaced:
+                raise UsageError(f"{', '.join(misplaced)} {owner} ({source})")
 
     def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
         """The :class:`~sbagents.core.experiment.Experiment` fields this kind reads from its own zoo keys."""
@@ -123,6 +120,7 @@ class TeamKind(EnvKind):
     pettingzoo = True
     backends = ("sb3", "rllib")
     image_wrapper = PARALLEL_IMAGE_WRAPPER
+    own_keys = MULTI_AGENT_KEYS
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
         return tuple(dict.fromkeys((ref.source, ref.env_id, PETTINGZOO_DEFAULT_ENTRY)))
@@ -135,7 +133,7 @@ class TeamKind(EnvKind):
         if misplaced:
             raise UsageError(f"{', '.join(misplaced)} apply to Gymnasium envs only (team VecEnvs write their own "
                              f"monitor and evaluate with env_kwargs) ({source})")
-        self._check_game_keys(entry, source)
+        super().check_entry(entry, source)
 
     def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
         from sbagents.core.team_options import team_options
@@ -155,14 +153,10 @@ class GameKind(EnvKind):
     name = "turn-based game"
     pettingzoo = True
     masked = True
+    own_keys = GAME_KEYS
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
         return tuple(dict.fromkeys((ref.source, ref.env_id)))
-
-    def check_entry(self, entry: Mapping[str, Any], source: str) -> None:
-        misplaced = sorted(set(entry) & MULTI_AGENT_KEYS)
-        if misplaced:
-            raise UsageError(f"{', '.join(misplaced)} apply to PettingZoo envs only ({source})")
 
     def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
         from sbagents.core.selfplay_options import SelfPlayOptions

@@ -122,6 +122,7 @@ class _RunPlan:
     groups: dict[str, list[str]] | None
     actives: list[ActiveExtension]
     seed: int
+    eval_freq: int
     vec_env: str
     resume: Resume | None
     args: dict[str, Any]
@@ -159,15 +160,16 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
+    eval_freq = evaluation.frequency(exp.n_timesteps)
     args = {"algo": spec.algo, "env": ref.env_id, "seed": seed, "n_timesteps": exp.n_timesteps,
-            "log_folder": str(output.log_folder), "eval_freq": evaluation.frequency(exp.n_timesteps),
+            "log_folder": str(output.log_folder), "eval_freq": eval_freq,
             "eval_episodes": evaluation.eval_episodes, "vec_env": vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
     for active in actives:
         args.update(active.extension.record(active.spec))
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
-    return _RunPlan(spec, output, evaluation, execution, sb3, ref, exp, groups, actives, seed, vec_env,
+    return _RunPlan(spec, output, evaluation, execution, sb3, ref, exp, groups, actives, seed, eval_freq, vec_env,
                     Resume(agent_path, spec.trust_run) if agent_path is not None else None, args,
                     output.command or default_command(spec, execution, actives))
 
@@ -182,6 +184,11 @@ class _BuiltRun:
     own: list[BaseCallback]
     per_extension: list[list[BaseCallback]]
     warnings: list[str]
+
+    @property
+    def extension_callbacks(self) -> list[BaseCallback]:
+        """The extensions' callbacks, in extension order."""
+        return [cb for cbs in self.per_extension for cb in cbs]
 
 
 def _build(run: _RunPlan) -> _BuiltRun:
@@ -198,9 +205,9 @@ def _build(run: _RunPlan) -> _BuiltRun:
             train_env = active.extension.wrap_train_env(active.spec, train_env)
         model = make_model(exp, train_env, seed, run.execution.device, tensorboard_log=run.output.tensorboard_log,
                            verbose=max(run.execution.verbose - 1, 0), resume=resume, extensions=run.actives)
-        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, run.evaluation.frequency(exp.n_timesteps),
-                         run.evaluation.eval_episodes, trained_agent=resume.path if resume else None,
-                         trust_run=run.spec.trust_run, save_freq=run.output.save_freq)
+        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, run.eval_freq, run.evaluation.eval_episodes,
+                         trained_agent=resume.path if resume else None, trust_run=run.spec.trust_run,
+                         save_freq=run.output.save_freq)
         for active in run.actives:
             active.extension.setup(active.spec, ctx)
         steps_before = model.num_timesteps if resume is not None else 0
@@ -223,11 +230,10 @@ def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -
     if log_interval < 0:
         log_interval = 1 if hasattr(model, "n_steps") else 100
     clock = LearningClock(graceful=True)
-    extension_callbacks = [cb for cbs in built.per_extension for cb in cbs]
     try:
         with clock:
             model.learn(run.exp.n_timesteps, callback=[StopOnRequestCallback(clock), *built.own,
-                                                       *extension_callbacks, *callbacks],
+                                                       *built.extension_callbacks, *callbacks],
                         reset_num_timesteps=run.resume is None, log_interval=log_interval)
     finally:
         built.reporter.close()
@@ -246,8 +252,7 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
         summary["warnings"] = built.warnings
     for active in run.actives:
         summary.update(active.extension.summary(active.spec, ctx))
-    extension_callbacks = [cb for cbs in built.per_extension for cb in cbs]
-    for callback in [*built.own, *extension_callbacks]:  # e.g. a game's learner's illegal moves in training
+    for callback in [*built.own, *built.extension_callbacks]:  # e.g. a game's learner's illegal moves in training
         summary.update(getattr(callback, "summary_items", dict)())
     episodes = run.evaluation.final_eval_episodes
 

@@ -32,13 +32,14 @@ class RobustExtension(TrainingExtension[RobustSpec]):
     def prepare(self, spec: RobustSpec, plan: ExtensionPlan) -> RobustSpec:
         if plan.team:
             raise UsageError("--robust trains single-agent ddpg/td3/sac runs, not PettingZoo envs")
-        return parse_robust(spec.text, plan.algo)
+        spec.check_algo(plan.algo)
+        return spec
 
     def record(self, spec: RobustSpec) -> dict[str, Any]:
-        return {"robust": spec.text}
+        return {"robust": spec.flag_value()}
 
     def command_args(self, spec: RobustSpec) -> list[str]:
-        return ["--robust", spec.text]
+        return ["--robust", spec.flag_value()]
 
     def model_class(self, spec: RobustSpec, algo: str, cls: type,
                     kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:

@@ -66,13 +66,24 @@ class RobustSpec:
     :param method: ``"sa"``, ``"adv"`` or ``"sa+adv"``.
     :param eps: the final perturbation radius trained against.
     :param options: the ``KEY=VALUE`` settings, as ``(key, parsed value)`` pairs.
-    :param text: the flag's value as given (recorded in ``args.yml``; :func:`parse_robust` reads it back).
+    :param text: the flag's value as given (None for a spec built in Python: :meth:`flag_value` writes one).
     """
 
     method: str
     eps: float
     options: tuple[tuple[str, Any], ...] = ()
-    text: str = ""
+    text: str | None = None
+
+    def flag_value(self) -> str:
+        """The ``--robust`` value of this spec (recorded in ``args.yml``; :func:`parse_robust` reads it back)."""
+        if self.text is not None:
+            return self.text
+        return f"{self.method}:{self.eps:g}" + "".join(f",{key}={value}" for key, value in self.options)
+
+    def check_algo(self, algo: str) -> None:
+        """Raise :class:`UsageError` (one line) when the method does not train ``algo``."""
+        if algo not in ROBUST_ALGOS[self.method]:
+            raise UsageError(f"--robust {self.method} trains {', '.join(ROBUST_ALGOS[self.method])}, not {algo}")
 
     def model_class(self, algo: str) -> Any:
         """The SB3 class that trains ``algo`` with this method (imports torch)."""
@@ -123,8 +134,9 @@ def parse_robust(text: str, algo: str | None = None) -> RobustSpec:
             options[key] = parse(raw)
         except ValueError:
             raise UsageError(f"--robust {text!r}: {key} must be {expected}, got {raw!r}") from None
-    if algo is not None and algo not in ROBUST_ALGOS[method]:
-        raise UsageError(f"--robust {method} trains {', '.join(ROBUST_ALGOS[method])}, not {algo}")
     if "sa" in method.split("+"):
         options = {**SA_DEFAULTS, **options}
-    return RobustSpec(method, eps, tuple(options.items()), text)
+    spec = RobustSpec(method, eps, tuple(options.items()), text)
+    if algo is not None:
+        spec.check_algo(algo)
+    return spec

@@ -1,122 +1,106 @@
-"""``python -m benchmarks``: run the benchmark suite and update ``BENCHMARKS.md``.
+"""``python -m benchmarks``: list, run and render the benchmarks of ``BENCHMARKS.md``.
 
-Suites, in this order, each writing its Markdown between its own markers (``<!-- NAME:start -->`` /
-``<!-- NAME:end -->``) so the other sections of the file stay:
+    python -m benchmarks list                      # every benchmark: name, kind, results file, what it measures
+    python -m benchmarks run NAME [OPTIONS...]     # measure, save its results file, update its section
+    python -m benchmarks run NAME --help           # the benchmark's own options (budgets, seeds, rounds)
+    python -m benchmarks render NAME [NAME...]     # rebuild sections from their results files (no measuring)
+    python -m benchmarks render --all [--check]    # every section; --check: exit 1 if any would change
 
-- ``speed`` (section ``speed``, :mod:`benchmarks.speed`): env steps/s (single env, reference VecEnv x64,
-  batched x64) and PPO training fps for GridWorld and TreasureHunt;
-- ``callbacks`` (``callback-overhead``, :mod:`benchmarks.callback_overhead`): PPO fps with / without the
-  trust callbacks (16,384 steps, ``--rounds`` interleaved repeats);
-- ``export`` (``export-latency``, :mod:`benchmarks.export_latency`): SmartHome DDPG after 2,000 training
-  steps, ONNX fp32 / int8 file sizes, parity and p50/p99 latency against ``model.predict``;
-- ``learning`` (``recorded-learning``, :mod:`benchmarks.recorded`): the learning results recorded in
-  ``benchmarks/results/`` (reads files only; regenerate them with the commands the table shows).
-
-``--quick`` runs shorter measurements (a smoke run, noisier numbers): speed's quick mode, callbacks 4,096
-steps x 1 repeat, export without training and 200 latency calls. Ratios are always measured in one run.
-Run time, measured with ``--quick`` on the shared 2-core machine (load ~3): 24 s wall (speed 10 s,
-callbacks 7 s, export and learning < 1 s each, ~6 s of imports). The default suite, extrapolated from
-that (callbacks: 24 runs x 16,384 steps + warm-up at the ~5k steps/s wall measured there; export: 2,000
-DDPG steps, measured 7 s; speed: ~4x its quick run, 19 s recorded on a quiet machine): ~2 min on the
-loaded machine, about half of that on a quiet one; each extra ``--rounds`` adds ~25 s of callbacks.
-
-    python -m benchmarks                                # everything, into BENCHMARKS.md
-    python -m benchmarks --quick --output SCRATCH.md   # smoke run (keeps BENCHMARKS.md as it is)
-    python -m benchmarks --only callbacks export --rounds 5
+``run`` and ``render`` take ``--output FILE`` (default ``BENCHMARKS.md``) before the name; ``run --results FILE``
+saves the results elsewhere (a scratch run that leaves ``benchmarks/results`` alone).
 """
 
 from __future__ import annotations
 
 import argparse
-import time
-import traceback
-from collections.abc import Callable, Sequence
+import sys
+from collections.abc import Sequence
 from pathlib import Path
 
-from benchmarks import callback_overhead, export_latency, recorded, speed
-
-SUITES: tuple[str, ...] = ("speed", "callbacks", "export", "learning")
-
-
-def json_paths(json_arg: str) -> dict[str, str | None]:
-    """Raw-results file per suite for ``--json``: a folder (``speed.json``, ``callback_overhead.json``,
-    ``export_latency.json`` in it), or a ``.json`` file for speed with the others next to it; ``''``: none."""
-    if not json_arg:
-        return dict.fromkeys(SUITES)
-    path = Path(json_arg)
-    folder, speed_name = (path.parent, path.name) if path.suffix == ".json" else (path, "speed.json")
-    return {"speed": str(folder / speed_name), "callbacks": str(folder / "callback_overhead.json"),
-            "export": str(folder / "export_latency.json"), "learning": None}
-
-
-def suite_commands(output: str, json_arg: str, rounds: int, quick: bool) -> dict[str, Callable[[], object]]:
-    """The suites as zero-argument callables that measure, print and write their section into ``output``."""
-    jsons = json_paths(json_arg)
-
-    def opt(suite: str) -> list[str]:
-        path = jsons[suite]
-        return ["--json", path] if path else []
-
-    cb_args = ["--timesteps", "4096", "--repeats", "1"] if quick else ["--repeats", str(rounds)]
-    ex_args = ["--train-steps", "0", "--latency-n", "200", "--n-observations", "200"] if quick else []
-    return {
-        "speed": lambda: speed.main(output=output, json_path=jsons["speed"], rounds=rounds, quick=quick),
-        "callbacks": lambda: callback_overhead.main([*cb_args, "--output", output, *opt("callbacks")]),
-        "export": lambda: export_latency.main([*ex_args, "--output", output, *opt("export")]),
-        "learning": lambda: recorded.main(["--output", output]),
-    }
-
-
-def run_suites(
-    only: Sequence[str], output: str, json_arg: str = "", rounds: int = 3, quick: bool = False
-) -> tuple[dict[str, float], list[str]]:
-    """Run the suites in ``only`` (in :data:`SUITES` order).
-
-    :return: wall seconds per suite, and the names of the suites that failed (their traceback goes to
-        stderr; the other suites still run).
-    """
-    commands = suite_commands(output, json_arg, rounds, quick)
-    seconds: dict[str, float] = {}
-    failed: list[str] = []
-    for name in (s for s in SUITES if s in only):
-        print(f"\n=== {name} ===", flush=True)
-        start = time.perf_counter()
-        try:
-            commands[name]()
-        except Exception:
-            traceback.print_exc()
-            failed.append(name)
-        seconds[name] = time.perf_counter() - start
-    return seconds, failed
+from benchmarks.harness import Benchmark, registry
+from benchmarks.report import MARKDOWN, atomic_write_text, read_section, replace_section, save_results
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Arguments of ``python -m benchmarks``."""
+    """The ``list`` / ``run`` / ``render`` sub-commands."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks", description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update")
-    parser.add_argument("--json", default=None,
-                        help="folder for the raw results, or the speed .json file; '' to skip "
-                        "(default: benchmarks/results, nothing with --quick)")
-    parser.add_argument("--rounds", type=int, default=3,
-                        help="interleaved rounds per figure (median); also the callback-overhead repeats")
-    parser.add_argument("--quick", action="store_true", help="short measurements (smoke run)")
-    parser.add_argument("--only", nargs="+", action="extend", choices=SUITES, default=None,
-                        help="run only these suites (repeatable; default: all)")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="every benchmark with its kind, results file and section")
+    run = sub.add_parser("run", help="measure one benchmark, save its results and update its section")
+    run.add_argument("--output", default=str(MARKDOWN), help="Markdown file to update ('' to skip)")
+    run.add_argument("--results", default=None, help="results file (default: the benchmark's own)")
+    run.add_argument("name", help="benchmark name (see `list`)")
+    run.add_argument("options", nargs=argparse.REMAINDER, help="the benchmark's own options")
+    render = sub.add_parser("render", help="rebuild sections from their results files")
+    render.add_argument("--output", default=str(MARKDOWN), help="Markdown file to update")
+    render.add_argument("--all", action="store_true", help="every benchmark")
+    render.add_argument("--check", action="store_true", help="change nothing; exit 1 if a section would change")
+    render.add_argument("names", nargs="*", help="benchmark names (see `list`)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Run the selected suites; exit with status 1 if any failed."""
+def _pick(benchmarks: dict[str, Benchmark], names: Sequence[str]) -> list[Benchmark]:
+    unknown = [n for n in names if n not in benchmarks]
+    if unknown:
+        raise SystemExit(f"error: unknown benchmark {', '.join(unknown)}; known: {', '.join(benchmarks)}")
+    return [benchmarks[n] for n in names]
+
+
+def list_benchmarks(benchmarks: dict[str, Benchmark], markdown: Path = MARKDOWN) -> str:
+    """The ``list`` table: name, kind, results file (and whether it exists), summary."""
+    rows = [("name", "kind", "results", "what it measures")]
+    for b in benchmarks.values():
+        missing = "" if b.results_path.exists() else " (missing)"
+        rows.append((b.name, b.kind, b.results + missing, b.summary))
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    lines = [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}" for r in rows]
+    return "\n".join(lines) + f"\n{len(benchmarks)} benchmarks; sections in {markdown.name}"
+
+
+def render_into(text: str, chosen: Sequence[Benchmark]) -> str:
+    """``text`` with each chosen benchmark's section replaced by its rendering from its results file."""
+    for bench in chosen:
+        text = replace_section(text, bench.render_file(), bench.name)
+    return text
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command; return the exit status (1: ``render --check`` found a stale section)."""
     args = build_parser().parse_args(argv)
-    if args.rounds < 1:
-        raise SystemExit("--rounds must be >= 1")
-    json_arg = args.json if args.json is not None else ("" if args.quick else "benchmarks/results")
-    seconds, failed = run_suites(args.only or SUITES, args.output, json_arg, args.rounds, args.quick)
-    summary = ", ".join(f"{k} {v:.0f} s{' (FAILED)' if k in failed else ''}" for k, v in seconds.items())
-    print(f"\nbenchmarks: {summary}; total {sum(seconds.values()):.0f} s -> {args.output}")
-    if failed:
-        raise SystemExit(1)
+    benchmarks = registry()
+    if args.command == "list":
+        print(list_benchmarks(benchmarks))
+        return 0
+    if args.command == "run":
+        (bench,) = _pick(benchmarks, [args.name])
+        results = bench.run(args.options)
+        path = Path(args.results) if args.results else bench.results_path
+        (bench.save or save_results)(results, path)
+        if args.output:
+            output = Path(args.output)
+            old = output.read_text() if output.exists() else "# Benchmarks\n"
+            atomic_write_text(output, replace_section(old, bench.render(results), bench.name))
+        print(f"{bench.name}: results -> {path}" + (f", section -> {args.output}" if args.output else ""))
+        return 0
+    if not args.all and not args.names:
+        raise SystemExit("error: render needs benchmark names or --all")
+    chosen = list(benchmarks.values()) if args.all else _pick(benchmarks, args.names)
+    output = Path(args.output)
+    old = output.read_text() if output.exists() else "# Benchmarks\n"
+    new = render_into(old, chosen)
+    if args.check:
+        stale = [b.name for b in chosen if read_section(output, b.name) is None
+                 or replace_section(old, b.render_file(), b.name) != old]
+        if stale:
+            print(f"stale sections in {output}: {', '.join(stale)} (run `python -m benchmarks render NAME`)")
+            return 1
+        print(f"{len(chosen)} sections up to date in {output}")
+        return 0
+    if new != old:
+        atomic_write_text(output, new)
+    print(f"rendered {len(chosen)} sections into {output}" + ("" if new != old else " (no change)"))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -517,7 +517,7 @@ def markdown(data: dict[str, Any]) -> str:
 
 def render(json_path: Path, output: str, results_dir: Path) -> str:
     """Write the section into ``output`` and copy the JSON and PNG next to it into ``results_dir``."""
-    from benchmarks.speed import write_section
+    from benchmarks.report import write_section
 
     data = json.loads(json_path.read_text())
     text = markdown(data)

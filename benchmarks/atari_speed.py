@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     results = {"machine": info, "kinds": kinds, "n_envs": args.n_envs, "rounds": args.rounds,
                "env_rounds": args.env_rounds,
                "seconds": time.perf_counter() - started, "samples": samples, "summary": summarize(samples)}
-    from benchmarks.speed import publish, recorded_argv
+    from benchmarks.report import publish, recorded_argv
 
     publish(markdown(results, recorded_argv(argv)), results, args.output, args.json, SECTION)
     return 0

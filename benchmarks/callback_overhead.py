@@ -34,7 +34,7 @@ from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.speed import machine_info, publish  # noqa: E402
+from benchmarks.report import machine_info, publish  # noqa: E402
 from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback  # noqa: E402
 from sbagents.envs.smart_home import SmartHomeEnv  # noqa: E402
 

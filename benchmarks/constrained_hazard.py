@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.speed import publish
+from benchmarks.report import publish
 from sbagents.api import (
     ConstraintSpec,
     EvalOptions,

@@ -38,7 +38,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.monitor import Monitor
 
 import sbagents.envs  # noqa: F401  (registers the ids)
-from benchmarks.speed import publish
+from benchmarks.report import publish
 from sbagents.constrained import SACLagrangian
 
 ROOT = Path(__file__).resolve().parent

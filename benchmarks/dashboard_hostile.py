@@ -126,7 +126,7 @@ def child(scenario: str, folder: Path) -> dict[str, Any]:
 
 def run(mib: int, path: str | None = None) -> dict[str, Any]:
     """Generate the files, run both scenarios in child processes, return their results."""
-    from benchmarks.speed import machine_info  # not in the children: their memory is the dashboard's
+    from benchmarks.report import machine_info  # not in the children: their memory is the dashboard's
 
     folder = Path(path or tempfile.mkdtemp(prefix="sbagents-dashboard-hostile-"))
     try:
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.child:
         print(json.dumps(child(args.child, Path(args.path))))
         return 0
-    from benchmarks.speed import publish
+    from benchmarks.report import publish
 
     result = run(args.mib, args.path)
     command = "python -m benchmarks.dashboard_hostile" + (f" --mib {args.mib}" if args.mib != 1024 else "")

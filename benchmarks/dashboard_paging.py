@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.speed import machine_info, publish
+from benchmarks.report import machine_info, publish
 
 SECTION = "dashboard-paging"
 N_ENVS = 8

@@ -32,7 +32,7 @@ import torch  # noqa: E402
 from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.speed import machine_info, publish  # noqa: E402
+from benchmarks.report import machine_info, publish  # noqa: E402
 from sbagents.core.env_names import resolve_env  # noqa: E402
 from sbagents.core.experiment import build_experiment  # noqa: E402
 from sbagents.core.options import TrainSpec  # noqa: E402

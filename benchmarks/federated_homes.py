@@ -34,7 +34,7 @@ from typing import Any
 
 import torch
 
-from benchmarks.speed import publish
+from benchmarks.report import publish
 from sbagents.core.zoo_config import parse_overrides
 from sbagents.federated.evaluation import evaluate_homes, for_home
 from sbagents.federated.homes import Home, client_homes, held_out_homes

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 
 RESULTS = Path(__file__).resolve().parent / "results"
 EVAL_SEED = 10_000

@@ -33,7 +33,7 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
-from benchmarks.speed import publish, recorded_argv
+from benchmarks.report import publish, recorded_argv
 from sbagents.envs.kuka import (
     KukaPickAndPlaceEnv,
     PickAndPlaceEnv,

@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
 from sbagents.core.run_dir import env_stem
 

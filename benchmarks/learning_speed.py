@@ -29,7 +29,7 @@ import gymnasium as gym
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
-from benchmarks.speed import publish, recorded_argv
+from benchmarks.report import publish, recorded_argv
 from sbagents.algos import ALGOS
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import load_yaml

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 from benchmarks.team_baselines import baseline_summary, spread_assignment_actor
 
 

@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import publish
+from benchmarks.report import publish
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, PrivacyOptions, TrainSpec, train
 from sbagents.core.zoo_config import parse_overrides
 

@@ -22,7 +22,7 @@ from typing import Any
 if __package__ in (None, ""):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.speed import publish  # noqa: E402
+from benchmarks.report import publish  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "recorded-learning"

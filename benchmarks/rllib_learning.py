@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 from sbagents.cli_common import run
 from sbagents.core.env_names import resolve_env
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RllibOptions, TrainSpec

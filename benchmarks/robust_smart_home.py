@@ -23,7 +23,7 @@ from pathlib import Path
 from statistics import mean
 from typing import Any
 
-from benchmarks.speed import publish
+from benchmarks.report import publish
 from sbagents.api import (
     EvalOptions,
     EvaluateOptions,

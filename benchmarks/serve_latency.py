@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.speed import machine_info, publish, recorded_argv
+from benchmarks.report import machine_info, publish, recorded_argv
 
 ENV_ID = "sbagents/SmartHome-v0"
 SECTION = "serve-latency"

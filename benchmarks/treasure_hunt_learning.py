@@ -28,7 +28,7 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.utils import set_random_seed
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 from sbagents.batched import BatchedTreasureHuntVecEnv, make_batched_vec_env
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from benchmarks.speed import write_section
+from benchmarks.report import write_section
 from sbagents.api import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -17,9 +17,7 @@ and medians reported, so a load spike on the shared machine hits every variant a
 
 from __future__ import annotations
 
-import json
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -28,14 +26,14 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import stable_baselines3
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv
 
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
-from benchmarks.noop_vec_env import NoOpVecEnv
+from benchmarks.report import machine_info, publish
+from benchmarks.speed.noop_vec_env import NoOpVecEnv
 from sbagents.batched import make_batched_vec_env
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import Experiment, build_experiment
@@ -220,23 +218,6 @@ def run(rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS
     return results
 
 
-def machine_info() -> dict[str, Any]:
-    """CPU, cores, library versions and date of the run."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "torch": torch.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
-        "date": time.strftime("%Y-%m-%d %H:%M"),
-    }
 
 
 def _fmt(x: float) -> str:
@@ -295,41 +276,10 @@ def markdown(results: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def write_section(path: str, text: str, name: str = "speed") -> None:
-    """Replace the text between the markers ``<!-- name:start -->`` / ``<!-- name:end -->`` of ``path``.
-
-    The markers (and the file) are appended/created when missing; the rest of the file stays.
-    """
-    start_marker, end_marker = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    old = "# Benchmarks\n"
-    if os.path.exists(path):
-        with open(path) as fh:
-            old = fh.read()
-    block = f"{start_marker}\n{text}\n{end_marker}"
-    if start_marker in old and end_marker in old and old.index(start_marker) < old.index(end_marker):
-        new = old[: old.index(start_marker)] + block + old[old.index(end_marker) + len(end_marker) :]
-    else:
-        new = old.rstrip("\n") + "\n\n" + block + "\n"
-    with open(path, "w") as fh:
-        fh.write(new)
 
 
-def recorded_argv(argv: list[str]) -> list[str]:
-    """``argv`` as a section's command records it: without ``--json``/``--output`` and their values (paths of the
-    machine it ran on)."""
-    return [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
 
 
-def publish(text: str, results: Any, output: str | None, json_path: str | None, name: str) -> None:
-    """Print a suite's section ``text``, write it into ``output`` (section ``name``) and the raw ``results`` as
-    JSON into ``json_path``; an empty or None path skips that file."""
-    print(text)
-    if output:
-        write_section(output, text, name)
-    if json_path:
-        os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
-        with open(json_path, "w") as fh:
-            fh.write(json.dumps(results, indent=2) + "\n")
 
 
 def main(output: str = "BENCHMARKS.md", json_path: str | None = "benchmarks/results/speed.json",

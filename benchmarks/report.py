@@ -1,0 +1,139 @@
+"""What every benchmark shares: results files, BENCHMARKS.md sections, the machine line and number formats.
+
+A benchmark measures into a JSON-able ``results`` object, saves it with :func:`save_results` (written to a
+temporary name and renamed into place) and renders its Markdown section from that object alone, so
+``python -m benchmarks render NAME`` can rebuild the section without measuring again. Sections live between
+``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` in ``BENCHMARKS.md``; :func:`write_section` replaces one
+and leaves the rest of the file as it is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+#: The repository's benchmark folder, its results folder and the Markdown file the sections live in.
+BENCHMARKS_DIR = Path(__file__).resolve().parent
+RESULTS_DIR = BENCHMARKS_DIR / "results"
+MARKDOWN = BENCHMARKS_DIR.parent / "BENCHMARKS.md"
+
+
+def markers(name: str) -> tuple[str, str]:
+    """The start and end markers of section ``name``."""
+    return f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder, renamed into place."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_section(path: str | os.PathLike[str], name: str) -> str | None:
+    """The text between section ``name``'s markers in ``path`` (without the markers' newlines); ``None`` when
+    the file or the section is missing."""
+    try:
+        text = Path(path).read_text()
+    except OSError:
+        return None
+    start, end = markers(name)
+    if start not in text or end not in text:
+        return None
+    return text[text.index(start) + len(start) + 1 : text.index(end) - 1]
+
+
+def section_names(text: str) -> list[str]:
+    """The names of the sections in a Markdown text, in order."""
+    names = []
+    for line in text.splitlines():
+        if line.startswith("<!-- ") and line.endswith(":start -->"):
+            names.append(line[len("<!-- ") : -len(":start -->")])
+    return names
+
+
+def replace_section(old: str, text: str, name: str) -> str:
+    """``old`` with section ``name``'s body replaced by ``text`` (appended at the end when missing)."""
+    start, end = markers(name)
+    block = f"{start}\n{text}\n{end}"
+    if start in old and end in old and old.index(start) < old.index(end):
+        return old[: old.index(start)] + block + old[old.index(end) + len(end) :]
+    return old.rstrip("\n") + "\n\n" + block + "\n"
+
+
+def write_section(path: str | os.PathLike[str], text: str, name: str) -> None:
+    """Replace section ``name`` of the Markdown file ``path`` by ``text`` (created/appended when missing)."""
+    target = Path(path)
+    old = target.read_text() if target.exists() else "# Benchmarks\n"
+    new = replace_section(old, text, name)
+    if new != old:
+        atomic_write_text(target, new)
+
+
+def save_results(results: Any, path: str | os.PathLike[str]) -> None:
+    """Write ``results`` as indented JSON (one trailing newline), atomically."""
+    atomic_write_text(path, json.dumps(results, indent=2) + "\n")
+
+
+def load_results(path: str | os.PathLike[str]) -> Any:
+    """Read a JSON results file."""
+    return json.loads(Path(path).read_text())
+
+
+def recorded_argv(argv: list[str]) -> list[str]:
+    """``argv`` as a section's command records it: without ``--json``/``--output`` and their values (paths of the
+    machine it ran on)."""
+    return [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU model, core count, library versions and the date of the run."""
+    import numpy as np
+    import stable_baselines3
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "torch": torch.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+    }
+
+
+def load_average() -> list[float]:
+    """The 1/5/15-minute load averages (zeros where the platform has none)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return [0.0, 0.0, 0.0]
+
+
+def publish(text: str, results: Any, output: str | None, json_path: str | None, name: str) -> None:
+    """Print a section's ``text``, write it into ``output`` (section ``name``) and the raw ``results`` as JSON into
+    ``json_path``; an empty or None path skips that file."""
+    print(text)
+    if output:
+        write_section(output, text, name)
+    if json_path:
+        save_results(results, json_path)

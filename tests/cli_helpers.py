@@ -1,13 +1,24 @@
-"""Running the real CLIs in a subprocess."""
+"""Running the real CLIs: in this process (:func:`cli`, the default) or in a subprocess (:func:`cli_subprocess`).
+
+A new interpreter costs ~5 s of imports here (torch ~3 s of it), so tests call the CLIs' ``main(argv)`` in-process
+through the same :func:`sbagents.cli_common.run` wrapper ``python -m`` uses (exit codes, one-line errors), with
+stdout/stderr captured, the working folder, ``sys.argv``, ``os.environ``, the warning filters and torch's thread
+count restored afterwards. A subprocess stays where it is the point: signals, import isolation (what a fresh
+interpreter imports), the newcomer path, servers, and ``--gym-packages`` (it imports user modules that would stay
+registered in this process).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import io
 import json
 import os
 import signal
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +30,45 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def cli(module: str, *args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-    """Run ``python -m sbagents.<module> args...`` and capture its output."""
+    """Run ``python -m sbagents.<module> args...`` in this process and capture its output.
+
+    :param module: the CLI module under ``sbagents`` (``train``, ``evaluate``, ...).
+    :param cwd: the working folder during the call (default: the current one).
+    :param timeout: unused in-process (kept so a call can switch to :func:`cli_subprocess` unchanged).
+    :return: a ``CompletedProcess`` like :func:`cli_subprocess`'s: ``returncode``, ``stdout``, ``stderr``.
+    """
+    import torch
+
+    del timeout
+    prog = f"python -m sbagents.{module}"
+    main = importlib.import_module(f"sbagents.{module}").main
+    out, err = io.StringIO(), io.StringIO()
+    saved_cwd, saved_argv, saved_env = os.getcwd(), sys.argv, dict(os.environ)
+    threads = torch.get_num_threads()
+    code: int
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        sys.argv = [prog, *args]
+        with warnings.catch_warnings(), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                run(prog, lambda: main(list(args)))
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+                if isinstance(exc.code, str):
+                    print(exc.code, file=sys.stderr)
+    finally:
+        os.chdir(saved_cwd)
+        sys.argv = saved_argv
+        os.environ.clear()
+        os.environ.update(saved_env)
+        torch.set_num_threads(threads)
+    return subprocess.CompletedProcess([prog, *args], code, out.getvalue(), err.getvalue())
+
+
+def cli_subprocess(module: str, *args: str, cwd: Path | None = None,
+                   timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """Run ``python -m sbagents.<module> args...`` in a new interpreter and capture its output."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.run(
         [sys.executable, "-m", f"sbagents.{module}", *args],

@@ -148,8 +148,8 @@ def test_callback_logs_and_writes(tmp_path: Path) -> None:
 
 
 def test_multi_agent_team_episodes() -> None:
-    multiagent = pytest.importorskip("sbagents.multiagent.parameter_sharing")
     from sbagents.envs import treasure_hunt_v0
+    from sbagents.multiagent import parameter_sharing as multiagent
 
     venv = multiagent.make_parameter_sharing_vec_env(treasure_hunt_v0.parallel_env, n_envs=2, seed=0)
     model = PPO("MlpPolicy", venv, n_steps=8, batch_size=48, seed=0, policy_kwargs={"net_arch": [16]})

@@ -132,7 +132,7 @@ def test_cost_limit_stops_on_mean_episode_cost(tmp_path: Path) -> None:
 
 
 def test_kuka_violations_match_info(tmp_path: Path) -> None:
-    kuka = pytest.importorskip("sbagents.envs.kuka")
+    from sbagents.envs import kuka
     seen: list[int] = []
 
     class Count(gym.Wrapper):

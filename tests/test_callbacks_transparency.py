@@ -160,8 +160,8 @@ def test_cartpole_dummy_and_header_mismatch(tmp_path: Path) -> None:
 
 
 def test_multi_agent_agent_column(tmp_path: Path) -> None:
-    multiagent = pytest.importorskip("sbagents.multiagent.parameter_sharing")
     from sbagents.envs import treasure_hunt_v0
+    from sbagents.multiagent import parameter_sharing as multiagent
 
     venv = multiagent.make_parameter_sharing_vec_env(treasure_hunt_v0.parallel_env, n_envs=2, seed=0)
     n_agents = venv.n_agents

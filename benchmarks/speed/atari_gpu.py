@@ -46,7 +46,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-from benchmarks.atari_speed import ENV_ID, cpu_name, env_rate, ppo_params, train_clock
+from benchmarks.speed.atari_speed import ENV_ID, cpu_name, env_rate, ppo_params, train_clock
 
 SECTION = "atari-gpu"
 JSON_NAME, PNG_NAME = "atari_gpu.json", "atari_gpu_curve.png"

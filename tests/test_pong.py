@@ -1,7 +1,7 @@
 """Pong through the CLI: the zoo's ``atari`` entry, identical wrapping in evaluation, full-game scores, video.
 
 One short DQN run (2,000 steps, a 5,000-transition buffer) is shared by the tests of this module; long
-training belongs in ``benchmarks/pong_throughput.py``.
+training belongs in ``benchmarks/speed/pong_throughput.py``.
 """
 
 from __future__ import annotations

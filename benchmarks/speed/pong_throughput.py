@@ -11,7 +11,7 @@ Measures on this machine (1 torch thread):
 
 Usage::
 
-    python benchmarks/pong_throughput.py --warmup-steps 1000 --train-steps 4000 \
+    python -m benchmarks.speed.pong_throughput --warmup-steps 1000 --train-steps 4000 \
         --out benchmarks/results/pong_throughput.json
 """
 
@@ -197,7 +197,7 @@ def report(
     head = [
         f"# DQN on {ENV_ID}: throughput and a (short) learning curve",
         "",
-        "Written by `python benchmarks/pong_throughput.py --report RUN_DIR --rss-log RSS_LOG` from the run's",
+        "Written by `python -m benchmarks.speed.pong_throughput --report RUN_DIR --rss-log RSS_LOG` from the run's",
         "monitor files and `evaluations.npz`; curve: `pong_dqn_curve.png`; short benchmark:",
         "`pong_throughput.json`.",
         f"Run: `nice -n 19 nohup {command}` (RL Zoo's `atari` entry: AtariWrapper, 4-frame stack, CnnPolicy,",

@@ -1,5 +1,5 @@
-"""The Atari benchmarks on tiny budgets: ``python -m benchmarks run atari-speed`` (side by side, into a tmp Markdown) and the GPU
-command ``atari-gpu`` run on the CPU (every phase, its files), then rendered into a BENCHMARKS section.
+"""The Atari benchmarks on tiny budgets: ``python -m benchmarks run atari-speed`` (side by side, into a tmp
+Markdown) and the GPU command ``atari-gpu`` run on the CPU (every phase, its files), then rendered.
 
 The runs are skipped without EnvPool (``pip install -e ".[atari]"``) unless ``SBAGENTS_REQUIRE_ENVPOOL=1``
 (``.ci/run``); the GPU sampler (with a stand-in ``nvidia-smi``) and the batch choice are tested everywhere.
@@ -17,8 +17,8 @@ import pytest
 import torch
 from cli_helpers import OTHER_SECTION, section_text
 
-from benchmarks.speed import atari_gpu, atari_speed
 from benchmarks.__main__ import main as bench_main
+from benchmarks.speed import atari_gpu, atari_speed
 from sbagents.atari import envpool_installed
 
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"

@@ -9,10 +9,14 @@ Measures on this machine (1 torch thread):
 - the bytes of the default replay buffer (1e5 transitions, ``optimize_memory_usage``) and the process's
   peak RSS during the short run.
 
-Usage::
+and, from the run dir of a long run (``--report RUN_DIR``, 1 seed), its learning curve (``pong_dqn_curve.png``),
+evaluations and speed. Usage::
 
-    python -m benchmarks.speed.pong_throughput --warmup-steps 1000 --train-steps 4000 \
-        --out benchmarks/results/pong_throughput.json
+    python -m benchmarks run pong --warmup-steps 1000 --train-steps 4000      # the short benchmark
+    python -m benchmarks run pong --report RUN_DIR --rss-log RSS_LOG          # + the long run's curve and table
+
+Results: ``benchmarks/results/pong.json`` (``throughput``: the short benchmark, ``long_run``: the long run); the
+part a command does not measure is kept from the results file there. Section ``pong`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import os
 import resource
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +38,8 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecTransposeImage
 
+from benchmarks.harness import Benchmark
+from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
@@ -40,6 +47,8 @@ from sbagents.env_factory import make_vec
 
 ENV_ID = "PongNoFrameskip-v4"
 PUBLISHED_BUDGET = 10_000_000
+SECTION = "pong"
+RESULTS_NAME, PNG_NAME = "pong.json", "pong_dqn_curve.png"
 
 
 class StepClock(BaseCallback):
@@ -138,10 +147,9 @@ def _monitor_rows(run_dir: Path) -> np.ndarray:
     return data
 
 
-def report(
-    run_dir: Path, md_path: Path, png_path: Path, throughput: Path | None, rss_log: Path | None
-) -> str:
-    """Write the learning curve PNG and a markdown table of a (possibly still running) Pong run."""
+def long_run(run_dir: Path, png_path: Path, rss_log: Path | None) -> dict[str, Any]:
+    """The learning curve PNG (``png_path``) and the figures of a (possibly still running) Pong run: speed, training
+    return, peak RSS (from ``rss_log``: ``<unix time> <rss KiB>`` lines) and one row per evaluation."""
     from sbagents.core.run_dir import RunRef
     from sbagents.visualize.curves import load_run_curve, plot
 
@@ -154,96 +162,84 @@ def report(
         output=png_path,
         title=f"DQN {ENV_ID}, default atari config, {int(steps[-1]):,} steps (nice 19, loaded 2-core CPU)",
     )
-    lines = [
-        "| timesteps | wall time (min) | eval return (mean +- std, 5 games) "
-        "| training return (last 10 games) |",
-        "|---:|---:|---:|---:|",
-    ]
+    evals = []
     with np.load(run_dir / "evaluations.npz") as data:
         ev_steps, results = data["timesteps"], data["results"]
     for step, res in zip(ev_steps, results, strict=True):
-        minutes = float(np.interp(step, steps, seconds)) / 60
         done = curve.returns[steps <= step][-10:]
-        train_txt = f"{done.mean():.1f}" if len(done) else "-"
-        lines.append(f"| {int(step):,} | {minutes:.0f} | {res.mean():.1f} +- {res.std():.1f} | {train_txt} |")
-    fps = (steps[-1] - steps[0]) / max(seconds[-1] - seconds[0], 1e-9)
+        evals.append({"timestep": int(step), "minutes": float(np.interp(step, steps, seconds)) / 60,
+                      "eval_mean": float(res.mean()), "eval_std": float(res.std()), "eval_games": int(res.size),
+                      "train_last10": float(done.mean()) if len(done) else None})
     after = steps > 100_000
-    fps_learning = float("nan")
+    fps_learning = None
     if after.sum() > 1:
-        fps_learning = (steps[after][-1] - steps[after][0]) / max(
-            seconds[after][-1] - seconds[after][0], 1e-9
-        )
-    facts = [
-        f"- reached {int(steps[-1]):,} steps ({len(curve.returns)} games) in {seconds[-1] / 60:.0f} min;",
-        f"  {fps:.0f} steps/s overall, {fps_learning:.0f} steps/s once learning started (after 100k steps)",
-        f"- training return over the last 10 games: {curve.returns[-10:].mean():.1f}",
-    ]
+        fps_learning = float((steps[after][-1] - steps[after][0]) / max(seconds[after][-1] - seconds[after][0], 1e-9))
+    peak = None
     if rss_log is not None and rss_log.exists():
-        rss = np.loadtxt(rss_log, ndmin=2)
-        facts.append(
-            f"- peak RSS of the training process: {rss[:, 1].max() / 2**20:.2f} GiB "
-            f"(sampled every 30 s; the replay buffer is full from step 100,000 on)"
-        )
-    if throughput is not None and throughput.exists():
-        tp = json.loads(throughput.read_text())
-        facts.append(
-            f"- benchmark (not niced, {tp['train_steps_measured']} learning steps): {tp['train_fps']} "
-            f"steps/s wall, {tp['train_fps_per_cpu_second']} per CPU-second; 10M steps: "
-            f"{tp['hours_for_10M_steps']} h at that wall rate, {tp['hours_for_10M_steps_one_free_core']} h "
-            f"on one free core; env alone {tp['env_fps']} steps/s; load average "
-            f"{tp['load_avg_before'][0]:.1f} on {tp['cpu_count']} cores"
-        )
+        peak = float(np.loadtxt(rss_log, ndmin=2)[:, 1].max() / 2**20)
     command = (run_dir / "command.txt").read_text().strip() if (run_dir / "command.txt").exists() else "?"
-    head = [
-        f"# DQN on {ENV_ID}: throughput and a (short) learning curve",
+    return {"seeds": 1, "command": command, "steps": int(steps[-1]), "games": len(curve.returns),
+            "minutes": float(seconds[-1]) / 60,
+            "fps_overall": float((steps[-1] - steps[0]) / max(seconds[-1] - seconds[0], 1e-9)),
+            "fps_learning": fps_learning, "train_return_last10": float(curve.returns[-10:].mean()),
+            "peak_rss_gib": peak, "evals": evals}
+
+
+def _fmt(x: float | None, fmt: str) -> str:
+    return "-" if x is None else f"{x:{fmt}}"
+
+
+def markdown(results: dict[str, Any]) -> str:
+    """The ``pong`` section, from the results alone."""
+    run, tp = results["long_run"], results["throughput"]
+    lines = [
+        f"## Pong: DQN on {ENV_ID}: throughput and a (short) learning curve",
         "",
-        "Written by `python -m benchmarks.speed.pong_throughput --report RUN_DIR --rss-log RSS_LOG` from the run's",
-        "monitor files and `evaluations.npz`; curve: `pong_dqn_curve.png`; short benchmark:",
-        "`pong_throughput.json`.",
-        f"Run: `nice -n 19 nohup {command}` (RL Zoo's `atari` entry: AtariWrapper, 4-frame stack, CnnPolicy,",
+        f"Written by `{results['command']}` from the run's",
+        "monitor files and `evaluations.npz` (1 seed, so no interval); curve: `pong_dqn_curve.png`; short benchmark:",
+        f"`{tp['command']}`.",
+        f"Run: `nice -n 19 nohup {run['command']}` (RL Zoo's `atari` entry: AtariWrapper, 4-frame stack, CnnPolicy,",
         "1e5 buffer with optimize_memory_usage, learning_starts 1e5, exploration over the first 1e6 steps).",
         "Published with this recipe: +20.6 +- 0.6 after 1e7 steps. Timings on a shared, loaded 2-core CPU",
         "(3-4 other engineers' jobs; the long run was niced to 19, so it got what the others left).",
         "",
+        f"- reached {run['steps']:,} steps ({run['games']} games) in {run['minutes']:.0f} min;",
+        f"  {run['fps_overall']:.0f} steps/s overall, {_fmt(run['fps_learning'], '.0f')} steps/s once learning "
+        "started (after 100k steps)",
+        f"- training return over the last 10 games: {run['train_return_last10']:.1f}",
     ]
-    text = "\n".join(head + facts) + "\n\n" + "\n".join(lines) + "\n"
-    md_path.write_text(text)
-    return text
+    if run.get("peak_rss_gib") is not None:
+        lines.append(f"- peak RSS of the training process: {run['peak_rss_gib']:.2f} GiB "
+                     "(sampled every 30 s; the replay buffer is full from step 100,000 on)")
+    lines += [
+        f"- benchmark (not niced, {tp['train_steps_measured']} learning steps): {tp['train_fps']} "
+        f"steps/s wall, {tp['train_fps_per_cpu_second']} per CPU-second; 10M steps: "
+        f"{tp['hours_for_10M_steps']} h at that wall rate, {tp['hours_for_10M_steps_one_free_core']} h "
+        f"on one free core; env alone {tp['env_fps']} steps/s; load average "
+        f"{tp['load_avg_before'][0]:.1f} on {tp['cpu_count']} cores",
+        "",
+        "| timesteps | wall time (min) | eval return (mean +- std, 5 games) | training return (last 10 games) |",
+        "|---:|---:|---:|---:|",
+    ]
+    for ev in run["evals"]:
+        lines.append(f"| {ev['timestep']:,} | {ev['minutes']:.0f} | {ev['eval_mean']:.1f} +- {ev['eval_std']:.1f} | "
+                     f"{_fmt(ev['train_last10'], '.1f')} |")
+    lines += ["", f"![Pong DQN curve](benchmarks/results/{PNG_NAME})"]
+    return "\n".join(lines)
 
 
-def main() -> None:
-    """Run the measurements and write a JSON file."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--warmup-steps", type=int, default=1000, help="learning_starts of the short run")
-    parser.add_argument("--train-steps", type=int, default=4000, help="steps measured after learning_starts")
-    parser.add_argument("--env-steps", type=int, default=3000, help="steps of the env-only measurement")
-    parser.add_argument("--out", default="benchmarks/results/pong_throughput.json")
-    parser.add_argument(
-        "--report",
-        type=Path,
-        default=None,
-        metavar="RUN_DIR",
-        help="instead: write the curve and table of a long run (see --md, --png)",
-    )
-    parser.add_argument("--md", type=Path, default=Path("benchmarks/results/pong.md"))
-    parser.add_argument("--png", type=Path, default=Path("benchmarks/results/pong_dqn_curve.png"))
-    parser.add_argument("--rss-log", type=Path, default=None, help="'<unix time> <rss KiB>' lines")
-    args = parser.parse_args()
+def throughput(warmup_steps: int, train_steps: int, n_env_steps: int) -> dict[str, Any]:
+    """The short benchmark: env-only steps/s, DQN steps/s after ``learning_starts``, buffer bytes, peak RSS."""
     torch.set_num_threads(1)
-    if args.report is not None:
-        print(report(args.report, args.md, args.png, Path(args.out), args.rss_log))
-        return
-
     result: dict[str, Any] = {"env": ENV_ID, "load_avg_before": list(os.getloadavg())}
-    result["env_fps"] = round(env_fps(args.env_steps), 1)
-    clock = StepClock(args.warmup_steps)
+    result["env_fps"] = round(env_fps(n_env_steps), 1)
+    clock = StepClock(warmup_steps)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        spec = TrainSpec("dqn", ENV_ID, args.warmup_steps + args.train_steps,
-                         {"buffer_size": 10_000, "learning_starts": args.warmup_steps})
+        spec = TrainSpec("dqn", ENV_ID, warmup_steps + train_steps,
+                         {"buffer_size": 10_000, "learning_starts": warmup_steps})
         run = train(spec, OutputOptions(tmp), EvalOptions(eval_freq=-1, final_eval_episodes=0),
-                    ExecOptions(seed=0, verbose=0),
-                    callbacks=[clock])
+                    ExecOptions(seed=0, verbose=0), callbacks=[clock])
         result["run_seconds"] = round(time.perf_counter() - start, 1)
         result["run_fps_overall"] = run.summary["fps"]
     result["train_fps"] = round(clock.fps, 1)
@@ -258,13 +254,62 @@ def main() -> None:
     result["load_avg_after"] = list(os.getloadavg())
     result["torch_threads"] = torch.get_num_threads()
     result["cpu_count"] = os.cpu_count()
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out:
-        os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-        with open(args.out, "w") as fh:
-            fh.write(text + "\n")
+    return result
 
 
-if __name__ == "__main__":
-    main()
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run pong``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}",
+                                     description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--warmup-steps", type=int, default=1000, help="learning_starts of the short run")
+    parser.add_argument("--train-steps", type=int, default=4000, help="steps measured after learning_starts")
+    parser.add_argument("--env-steps", type=int, default=3000, help="steps of the env-only measurement")
+    parser.add_argument("--keep-throughput", action="store_true",
+                        help="keep the recorded short benchmark instead of measuring it")
+    parser.add_argument("--report", type=Path, default=None, metavar="RUN_DIR",
+                        help="the long run's dir: its curve and table (default: keep the recorded long run)")
+    parser.add_argument("--rss-log", type=Path, default=None, help="'<unix time> <rss KiB>' lines of the long run")
+    parser.add_argument("--previous", type=Path, default=RESULTS_DIR / RESULTS_NAME,
+                        help="results file whose parts not measured now are kept")
+    parser.add_argument("--png", type=Path, default=RESULTS_DIR / PNG_NAME, help="where --report draws the curve")
+    return parser
+
+
+def _portable(argv: Sequence[str]) -> list[str]:
+    """``argv`` with the paths of this machine replaced by placeholders."""
+    names = {"--report": "RUN_DIR", "--rss-log": "RSS_LOG"}
+    out = []
+    for i, a in enumerate(argv):
+        prev = argv[i - 1] if i else ""
+        if prev in ("--previous", "--png") or a in ("--previous", "--png"):
+            continue
+        out.append(names.get(prev, a))
+    return out
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run pong [OPTIONS]``: the short benchmark and/or the long run's report; the part not
+    measured is kept from ``--previous``."""
+    args = build_parser().parse_args(list(argv))
+    needs_previous = args.keep_throughput or args.report is None
+    previous = load_results(args.previous) if needs_previous else {}
+    command = " ".join(["python -m benchmarks run", SECTION, *recorded_argv(_portable(list(argv)))])
+    results: dict[str, Any] = {"command": previous.get("command", command)}
+    if args.keep_throughput:
+        results["throughput"] = previous["throughput"]
+    else:
+        results["throughput"] = throughput(args.warmup_steps, args.train_steps, args.env_steps)
+        results["throughput"]["command"] = command
+    if args.report is None:
+        results["long_run"] = previous["long_run"]
+    else:
+        results["long_run"] = long_run(args.report, args.png, args.rss_log)
+        results["command"] = command
+    return results
+
+
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results=RESULTS_NAME,
+              summary="Pong DQN: env and training steps/s, buffer memory and a (short) 1-seed learning curve",
+              run=run, render=markdown),
+)

@@ -53,6 +53,17 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
 
 
+def test_atari_speed_env_only_without_envpool() -> None:
+    """The plain vec envs alone (no EnvPool needed), env-only figures: the section has their rows and ratio."""
+    argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "200", "--ppo-rollouts", "0",
+            "--dqn-steps", "0", "--kinds", "dummy", "subproc"]
+    results = atari_speed.run(argv)
+    assert results["command"] == "python -m benchmarks run atari-speed " + " ".join(argv)
+    assert set(results["summary"]) == {"env", "env_cpu"} and results["summary"]["env"]["subproc"] > 0
+    section = atari_speed.markdown(results)
+    assert "| env only |" in section and "subproc / dummy" in section and "envpool / dummy" not in section
+
+
 @needs_envpool
 def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     out, results = tmp_path / "out", tmp_path / "results"

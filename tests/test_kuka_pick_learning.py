@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import pytest
 import torch
 from stable_baselines3 import HerReplayBuffer
 
@@ -119,3 +120,16 @@ def test_a_subset_of_pairs_reports_beside_the_full_report() -> None:
     assert dense.name == "kuka_learning_random_dense" and dense.parent == kuka_learning.LIKE_OUT.parent
     custom = Path("elsewhere/report")
     assert kuka_learning.like_out(custom, ["dense"], pairs) == custom
+
+
+def test_learning_speed_run_records_its_command_and_renders(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``run`` (the measuring replaced by fixed rates) returns what ``markdown`` turns into one row per variant."""
+    names = [v.name for v in learning_speed.VARIANTS]
+    monkeypatch.setattr(learning_speed, "measure", lambda env_ids, steps, rounds: {
+        e: {"env": 900.0, **{n: 30.0 * (i + 1) for i, n in enumerate(names)}} for e in env_ids})
+    results = learning_speed.run(["--steps", "10", "--rounds", "1"])
+    assert results["command"] == "python -m benchmarks run learning-speed --steps 10 --rounds 1"
+    assert list(results["utd"]) == names and list(results["rates"]) == [OURS]
+    rows = [r for r in learning_speed.markdown(results).splitlines() if r.startswith("| ")][1:]
+    assert [r.split(" | ")[0][2:] for r in rows] == ["env alone, random actions", *names]
+    assert "`python -m benchmarks run learning-speed --steps 10 --rounds 1`" in learning_speed.markdown(results)

@@ -1,5 +1,5 @@
-"""The Atari benchmarks on tiny budgets: ``benchmarks.atari_speed`` (side by side, into a tmp Markdown) and the GPU
-command ``benchmarks.atari_gpu`` run on the CPU (every phase, its files), then rendered into a BENCHMARKS section.
+"""The Atari benchmarks on tiny budgets: ``python -m benchmarks run atari-speed`` (side by side, into a tmp
+Markdown) and the GPU command ``atari-gpu`` run on the CPU (every phase, its files), then rendered.
 
 The runs are skipped without EnvPool (``pip install -e ".[atari]"``) unless ``SBAGENTS_REQUIRE_ENVPOOL=1``
 (``.ci/run``); the GPU sampler (with a stand-in ``nvidia-smi``) and the batch choice are tested everywhere.
@@ -17,7 +17,8 @@ import pytest
 import torch
 from cli_helpers import OTHER_SECTION, section_text
 
-from benchmarks import atari_gpu, atari_speed
+from benchmarks.__main__ import main as bench_main
+from benchmarks.speed import atari_gpu, atari_speed
 from sbagents.atari import envpool_installed
 
 REQUIRED = os.environ.get("SBAGENTS_REQUIRE_ENVPOOL") == "1"
@@ -37,7 +38,7 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     md.write_text("# Benchmarks\n\n" + OTHER_SECTION)
     argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "400", "--ppo-rollouts", "1",
             "--dqn-steps", "0", "--kinds", "dummy", "envpool"]
-    assert atari_speed.main([*argv, "--output", str(md), "--json", str(raw)]) == 0
+    assert bench_main(["run", "--output", str(md), "--results", str(raw), atari_speed.SECTION, *argv]) == 0
     results = json.loads(raw.read_text())
     summary = results["summary"]
     assert set(summary) == {"env", "env_cpu", "ppo_rollout", "ppo", "ppo_cpu"}  # no DQN figure asked for
@@ -47,30 +48,37 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     text = md.read_text()
     assert OTHER_SECTION in text
     section = section_text(text, atari_speed.SECTION)
-    assert "`python -m benchmarks.atari_speed --n-envs 2 --rounds 1" in section and str(tmp_path) not in section
+    assert "`python -m benchmarks run atari-speed --n-envs 2 --rounds 1" in section and str(tmp_path) not in section
+    assert section == atari_speed.markdown(results)
     assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
 
 
+def test_atari_speed_env_only_without_envpool() -> None:
+    """The plain vec envs alone (no EnvPool needed), env-only figures: the section has their rows and ratio."""
+    argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "200", "--ppo-rollouts", "0",
+            "--dqn-steps", "0", "--kinds", "dummy", "subproc"]
+    results = atari_speed.run(argv)
+    assert results["command"] == "python -m benchmarks run atari-speed " + " ".join(argv)
+    assert set(results["summary"]) == {"env", "env_cpu"} and results["summary"]["env"]["subproc"] > 0
+    section = atari_speed.markdown(results)
+    assert "| env only |" in section and "subproc / dummy" in section and "envpool / dummy" not in section
+
+
 @needs_envpool
-def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    assert atari_gpu.main(["--out", str(out), "--device", "cpu", "--tiny", "--budget-s", "100"]) == 0
+def test_gpu_command_runs_on_cpu_and_renders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out, results = tmp_path / "out", tmp_path / "results"
+    monkeypatch.setattr(atari_gpu, "RESULTS_DIR", results)  # where run copies the curve
+    data = atari_gpu.run_cli(["--out", str(out), "--device", "cpu", "--tiny", "--budget-s", "100"])
     assert sorted(p.name for p in out.iterdir()) == [atari_gpu.JSON_NAME, atari_gpu.PNG_NAME]
-    data = json.loads((out / atari_gpu.JSON_NAME).read_text())
+    assert json.loads((out / atari_gpu.JSON_NAME).read_text()) == data
     assert not data.get("errors") and data["machine"]["device"] == "cpu" and data["gpu_source"] is None
     assert set(data["compare"]["env"]) == {"dummy", "subproc", "envpool"}
     assert data["learn"]["steps"] > 0 and data["learn"]["final_eval_ale"]["n_episodes"] == 1
     assert data["eval_envpool"]["n_games"] == 4 and all(-21 <= r <= 21 for r in data["eval_envpool"]["returns"])
-    md = tmp_path / "BENCH.md"
-    md.write_text("# Benchmarks\n\n" + OTHER_SECTION)
-    results = tmp_path / "results"
-    assert atari_gpu.main(["--render", str(out / atari_gpu.JSON_NAME), "--output", str(md),
-                           "--results-dir", str(results)]) == 0
-    section = section_text(md.read_text(), atari_gpu.SECTION)
-    assert "`python3 -m benchmarks.atari_gpu --out $OUT --device cpu --tiny --budget-s 100`" in section
+    section = atari_gpu.markdown(data)
+    assert "`python3 -m benchmarks run atari-gpu --out $OUT --device cpu --tiny --budget-s 100`" in section
     assert str(tmp_path) not in section and "Greedy evaluation: EnvPool" in section
     assert (results / atari_gpu.PNG_NAME).stat().st_size > 1000
-    assert json.loads((results / atari_gpu.JSON_NAME).read_text()) == data
 
 
 def test_choice_keeps_the_larger_batch_only_when_it_pays() -> None:

@@ -10,7 +10,8 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 
-from benchmarks import kuka_speed
+from benchmarks.__main__ import main as bench_main
+from benchmarks.speed import kuka_speed
 
 
 def test_per_round_ratios_and_section(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -30,9 +31,11 @@ def test_per_round_ratios_and_section(tmp_path: Path, monkeypatch: pytest.Monkey
     rows = kuka_speed.summarize(specs, rates, ratios)
     assert rows[1]["ratio"] == pytest.approx(3.0) and (rows[1]["ratio_min"], rows[1]["ratio_max"]) == (2.0, 4.0)
     assert [r["env"] for r in rows[2:]] == ["panda-gym `PandaPush-v3`", "panda-gym `PandaPickAndPlace-v3`"]
-    text = kuka_speed.markdown(rows, ["--steps", "10"], steps=10, rounds=2, load=0.5)
+    results = {"command": "python -m benchmarks run kuka-speed --steps 10", "cpu": "x", "steps": 10, "rounds": 2,
+               "load_average": 0.5, "rows": rows}
+    text = kuka_speed.markdown(results)
     assert "| pick | 300 | 3.00x | 2.00-4.00x | `PandaPickAndPlace-v3` |" in text
-    assert "-m benchmarks.kuka_speed --steps 10" in text
+    assert "`<panda-gym venv>/bin/python -m benchmarks run kuka-speed --steps 10`" in text
 
 
 def test_main_without_panda_gym_writes_rates_and_no_ratios(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -41,7 +44,8 @@ def test_main_without_panda_gym_writes_rates_and_no_ratios(tmp_path: Path, monke
         kuka_speed, "kuka_specs", lambda: [("joints push", kuka_speed.PickAndPlaceEnv, kuka_speed.PUSH_REFERENCE)]
     )
     out, raw = tmp_path / "BENCH.md", tmp_path / "speed.json"
-    assert kuka_speed.main(["--steps", "20", "--rounds", "2", "--output", str(out), "--json", str(raw)]) == 0
+    assert bench_main(["run", "--output", str(out), "--results", str(raw), "kuka-speed", "--steps", "20",
+                       "--rounds", "2"]) == 0
     data = json.loads(raw.read_text())
     assert len(data["rates"]["joints push"]) == 2 and all(r > 0 for r in data["rates"]["joints push"])
     assert data["ratios"] == {"joints push": []}

@@ -1,4 +1,4 @@
-"""The ``python -m benchmarks`` suite: each suite's run/markdown/main on tiny budgets, into a tmp Markdown."""
+"""Benchmarks on tiny budgets through ``python -m benchmarks run NAME``, into a tmp Markdown and results file."""
 
 from __future__ import annotations
 
@@ -12,8 +12,9 @@ import pytest
 import torch
 from cli_helpers import OTHER_SECTION, section_text
 
-from benchmarks import __main__ as suite
-from benchmarks import callback_overhead, export_latency, recorded
+from benchmarks import recorded
+from benchmarks.__main__ import main as bench_main
+from benchmarks.speed import batched, callback_overhead, export_latency
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,17 +89,18 @@ def test_recorded_generic_env_and_uncommitted_file(tmp_path: Path) -> None:
 
 def test_callback_overhead_tiny(tmp_path: Path) -> None:
     md, raw = _md_file(tmp_path), tmp_path / "cb.json"
-    results = callback_overhead.main(["--timesteps", "1024", "--repeats", "1", "--envs", "GridWorld",
-                                      "--output", str(md), "--json", str(raw)])
+    assert bench_main(["run", "--output", str(md), "--results", str(raw), "callback-overhead",
+                       "--timesteps", "1024", "--repeats", "1", "--envs", "GridWorld"]) == 0
+    results = json.loads(raw.read_text())
     grid = results["results"]["GridWorld"]
     assert list(grid) == list(callback_overhead.VARIANTS)
     assert grid["none"]["overhead_pct"] == 0.0
     assert all(len(r["samples"]) == 1 for r in grid.values())  # one repeat asked, one sample each
     for row in grid.values():  # the overhead is the fps drop against the no-callback run of the same round
         assert row["overhead_pct"] == pytest.approx(100 * (1 - row["fps_cpu"] / grid["none"]["fps_cpu"]), abs=0.1)
-    assert json.loads(raw.read_text())["timesteps"] == 1024
+    assert results["timesteps"] == 1024
     section = section_text(md.read_text(), "callback-overhead")
-    assert "`python -m benchmarks.callback_overhead --timesteps 1024 --repeats 1 --envs GridWorld`" in section
+    assert "`python -m benchmarks run callback-overhead --timesteps 1024 --repeats 1 --envs GridWorld`" in section
     by_variant = {r[1]: r for r in _cells(section)[1:] if r[0] == "GridWorld"}
     assert set(by_variant) == set(grid)
     for name, row in grid.items():  # the table shows the measured numbers
@@ -108,9 +110,10 @@ def test_callback_overhead_tiny(tmp_path: Path) -> None:
 
 
 def test_export_latency_tiny(tmp_path: Path) -> None:
-    md = _md_file(tmp_path)
-    results = export_latency.main(["--train-steps", "0", "--latency-n", "30", "--n-observations", "50",
-                                   "--output", str(md)])
+    md, raw = _md_file(tmp_path), tmp_path / "ex.json"
+    argv = ["--train-steps", "0", "--latency-n", "30", "--n-observations", "50"]
+    assert bench_main(["run", "--output", str(md), "--results", str(raw), "export-latency", *argv]) == 0
+    results = json.loads(raw.read_text())
     assert results["parity"]["onnx"] < 1e-4
     assert 0 < results["files"]["onnx_int8"] < results["files"]["onnx"]
     lat = results["latency"]
@@ -120,55 +123,36 @@ def test_export_latency_tiny(tmp_path: Path) -> None:
     cells = [c for row in _cells(section) for c in row]
     assert f"{results['files']['onnx']:,} B" in cells and f"{results['files']['onnx_int8']:,} B" in cells
     assert all(f"{row['p50_us']:.1f} us" in cells for row in lat.values())  # the table shows the measured numbers
-    cmd = "python -m benchmarks.export_latency --train-steps 0 --latency-n 30 --n-observations 50 --seed 0"
-    assert f"`{cmd}`" in section
+    assert f"`python -m benchmarks run export-latency {' '.join(argv)}`" in section
     assert "untrained weights" in section and OTHER_SECTION in md.read_text()
 
 
-def test_suite_dispatch_and_flags(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_quick_options_replace_the_old_suite_runner(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--quick`` of speed, callback-overhead and export-latency (the old ``python -m benchmarks --quick``) sets
+    their short budgets and is part of the recorded command."""
     calls: dict[str, Any] = {}
-    monkeypatch.setattr(suite.speed, "main", lambda **kw: calls.setdefault("speed", kw))
-    monkeypatch.setattr(suite.callback_overhead, "main", lambda argv: calls.setdefault("callbacks", argv))
-    monkeypatch.setattr(suite.export_latency, "main", lambda argv: calls.setdefault("export", argv))
-    md = _md_file(tmp_path)
-    suite.main(["--quick", "--output", str(md), "--only", "speed", "--only", "callbacks", "export",
-                "learning"])
-    assert calls["speed"] == {"output": str(md), "json_path": None, "rounds": 3, "quick": True}
-    assert calls["callbacks"][:4] == ["--timesteps", "4096", "--repeats", "1"]
-    assert "--json" not in calls["callbacks"] and calls["export"][:2] == ["--train-steps", "0"]
-    assert "recorded-learning" in md.read_text()  # the learning suite really ran
-    calls.clear()
-    suite.main(["--output", str(md), "--only", "callbacks", "--rounds", "5", "--json", str(tmp_path / "r")])
-    assert set(calls) == {"callbacks"}
-    assert calls["callbacks"] == ["--repeats", "5", "--output", str(md), "--json",
-                                  str(tmp_path / "r" / "callback_overhead.json")]
-    assert suite.json_paths("out/speed_x.json")["speed"] == str(Path("out/speed_x.json"))
-    assert suite.json_paths("")["export"] is None
-
-
-def test_suite_reports_failure_and_keeps_going(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    def boom(argv: list[str]) -> None:
-        raise RuntimeError("boom")
-
-    monkeypatch.setattr(suite.export_latency, "main", boom)
-    md = _md_file(tmp_path)
-    with pytest.raises(SystemExit) as exc:
-        suite.main(["--output", str(md), "--only", "export", "learning"])
-    assert exc.value.code == 1
-    assert "recorded-learning" in md.read_text() and "export-latency" not in md.read_text()
+    monkeypatch.setattr(batched, "measure", lambda **kw: calls.setdefault("speed", kw) and {})
+    monkeypatch.setattr(callback_overhead, "run", lambda *a: calls.setdefault("callbacks", a) and {})
+    monkeypatch.setattr(export_latency, "run", lambda *a: calls.setdefault("export", a) and {})
+    assert batched.run(["--quick"])["command"] == "python -m benchmarks run speed --quick"
+    assert calls["speed"] == {"rounds": 3, "quick": True, "env_ids": batched.ENV_IDS}
+    assert callback_overhead.run_cli(["--quick"])["command"] == "python -m benchmarks run callback-overhead --quick"
+    assert calls["callbacks"][:2] == (4096, 1)
+    assert export_latency.run_cli(["--quick", "--seed", "3"])["command"].endswith("export-latency --quick --seed 3")
+    assert calls["export"] == (0, 200, 200, 3)
 
 
 def test_speed_markdown_has_ratios() -> None:
-    from benchmarks import speed
-
+    speed = batched
     kwargs_64 = speed.ppo_kwargs("sbagents/GridWorld-v0", 64)
     kwargs_8 = speed.ppo_kwargs("sbagents/GridWorld-v0", 8)
     assert kwargs_64["batch_size"] == 8 * kwargs_8["batch_size"]  # same minibatches per rollout
     results = {
         "machine": {"cpu": "x", "cores": 2, "python": "3.11", "numpy": "2", "torch": "2", "stable_baselines3": "2",
                     "date": "d", "load_before": [1.0], "load_after": [1.0]},
+        "command": "python -m benchmarks run speed",
         "envs": {"sbagents/GridWorld-v0": {
-            "config_n_envs": 8,
+            "config_n_envs": 8, "ppo_batch_size": {"8": 256, "64": 2048},
             "steps_per_s": {"single": 4e5, "reference": 2.5e5, "batched": 7.5e6, "noop": 1.5e7},
             "ppo_fps": {"reference_8": 2e4, "batched_8": 2.2e4, "noop_8": 2.4e4, "reference_64": 5e4,
                         "batched_64": 6e4, "noop_64": 7e4}}},
@@ -181,7 +165,7 @@ def test_speed_markdown_has_ratios() -> None:
 
 
 def test_noop_vec_env_replays_a_step_with_fresh_outputs() -> None:
-    from benchmarks.noop_vec_env import NoOpVecEnv
+    from benchmarks.speed.noop_vec_env import NoOpVecEnv
     from sbagents.batched import make_batched_vec_env
 
     vec = NoOpVecEnv(make_batched_vec_env("treasure_hunt_v0", 2, 0, {}, None))
@@ -217,9 +201,10 @@ def test_games_sections_match_their_results(task: str) -> None:
 
 def test_serve_latency_tiny() -> None:
     """Both serving variants answer every timed request; the table has their ratio and memory."""
-    from benchmarks import serve_latency
+    from benchmarks.speed import serve_latency
 
-    result = serve_latency.run(n=30)
+    result = serve_latency.run_cli(["--n", "30"])
+    assert result["command"] == "python -m benchmarks run serve-latency --n 30"
     for variant in ("stdio", "http"):
         row = result[variant]
         assert 0 < row["p50_us"] <= row["p99_us"] and row["rss_mib"] > 0 and row["peak_rss_mib"] >= row["rss_mib"]

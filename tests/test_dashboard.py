@@ -291,14 +291,16 @@ def test_without_flask_one_line_says_what_to_install(logs: Path) -> None:
 
 
 def test_runs_benchmark_lists_every_run_and_its_section_is_the_saved_result() -> None:
-    from benchmarks import dashboard_runs
+    from benchmarks.speed import dashboard_runs
 
-    assert dashboard_runs.run(8)["listed"] == 8
+    result = dashboard_runs.run(["--runs", "8"])
+    assert result["listed"] == 8 and result["command"] == "python -m benchmarks run dashboard-runs --runs 8"
+    assert "| first (every run read; the baseline) |" in dashboard_runs.markdown(result)
     root = Path(__file__).resolve().parents[1]
     saved = json.loads((root / "benchmarks" / "results" / "dashboard_runs.json").read_text())
     text = (root / "BENCHMARKS.md").read_text()
     section = text.split("<!-- dashboard-runs:start -->\n")[1].split("\n<!-- dashboard-runs:end -->")[0]
-    assert section.strip() == dashboard_runs.markdown(saved, "python -m benchmarks.dashboard_runs").strip()
+    assert section.strip() == dashboard_runs.markdown(saved).strip()
 
 
 def test_episode_costs_of_a_growing_multi_member_gzip_log(tmp_path: Path) -> None:

@@ -651,16 +651,18 @@ def test_monitor_lines_over_the_limit_are_skipped(tmp_path: Path, monkeypatch: p
 
 
 def test_hostile_benchmark_runs_and_its_section_is_the_saved_result() -> None:
-    from benchmarks import dashboard_hostile
+    from benchmarks.suites import dashboard_hostile
 
-    result = dashboard_hostile.run(2)
+    result = dashboard_hostile.run(["--mib", "2"])
     assert result["log"]["small_status"] == result["log"]["big_status"] == 200
     assert result["monitor"]["episodes"] > 50_000 and result["monitor"]["points"] <= monitors.MAX_POINTS
     root = Path(__file__).resolve().parents[1]
     saved = json.loads((root / "benchmarks" / "results" / "dashboard_hostile.json").read_text())
-    text = (root / "docs" / "dashboard.md").read_text()
+    text = (root / "BENCHMARKS.md").read_text()
     section = text.split("<!-- dashboard-hostile:start -->\n")[1].split("\n<!-- dashboard-hostile:end -->")[0]
-    assert section.strip() == dashboard_hostile.markdown(saved, "python -m benchmarks.dashboard_hostile").strip()
+    assert section.strip() == dashboard_hostile.markdown(saved).strip()
+    tiny = dashboard_hostile.markdown(result)
+    assert "| 2 MiB files | measured |" in tiny and "`python -m benchmarks run dashboard-hostile --mib 2`" in tiny
 
 
 def test_a_long_row_right_after_the_header_is_skipped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

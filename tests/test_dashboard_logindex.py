@@ -450,9 +450,9 @@ def test_real_callback_logs(tmp_path: Path) -> None:
 
 
 def test_benchmark_generator_and_section(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """benchmarks.dashboard_paging writes the same rows plain and gzipped, episodes numbered as the callback
+    """benchmarks.speed.dashboard_paging writes the same rows plain and gzipped, episodes numbered as the callback
     numbers them; BENCHMARKS.md's section is what its markdown() makes of the saved results."""
-    from benchmarks import dashboard_paging as bench
+    from benchmarks.speed import dashboard_paging as bench
 
     monkeypatch.setattr(bench, "BODY_ROWS", 6400)
     gen = bench.generate(tmp_path, 0.002)
@@ -474,3 +474,15 @@ def test_benchmark_generator_and_section(tmp_path: Path, monkeypatch: pytest.Mon
     assert text.count(start) == 1 and text.count(end) == 1
     assert bench.markdown(saved).strip() == text[text.index(start) + len(start) : text.index(end)].strip()
     assert saved["plain"]["first_page_s"] < saved["naive_csv"]["extrapolated_full_s"]
+
+
+def test_benchmark_tiny_run_renders_its_rows(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``python -m benchmarks run dashboard-paging`` on a 2 MiB log: every row of the section, no machine path."""
+    from benchmarks.speed import dashboard_paging as bench
+
+    monkeypatch.setattr(bench.shutil, "disk_usage", lambda path: type("U", (), {"free": 2**40})())
+    result = bench.run(["--gib", "0.002", "--naive-mib", "1", "--path", str(tmp_path / "logs")])
+    assert result["command"] == "python -m benchmarks run dashboard-paging --gib 0.002 --naive-mib 1"
+    text = bench.markdown(result)
+    assert "| full index build (`refresh()`) |" in text and "| index size in memory |" in text
+    assert str(tmp_path) not in text

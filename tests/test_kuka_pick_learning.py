@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import pytest
 import torch
 from stable_baselines3 import HerReplayBuffer
 
-from benchmarks import kuka_learning, learning_speed
+from benchmarks import kuka_learning
+from benchmarks.speed import learning_speed
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import load_yaml
 
@@ -45,7 +47,7 @@ def test_learning_rate_is_measured_after_the_warm_up() -> None:
 def test_table_reports_ratios_to_the_first_variant() -> None:
     names = [v.name for v in learning_speed.VARIANTS]
     rates = {OURS: {"env": 1000.0, **{name: 50.0 * (i + 1) for i, name in enumerate(names)}}}
-    text = learning_speed.table(rates)
+    text = learning_speed.table(rates, learning_speed.utd_by_variant())
     rows = {r.split("|")[1].strip(): r for r in text.splitlines()[2:]}
     assert "| 1000 |" in rows["env alone, random actions"]
     assert "100 (2.00x)" in rows[names[1]] and "| 0.5 |" in rows["64-64, 2 envs (shipped)"]
@@ -68,8 +70,10 @@ def test_pick_command_checkpoints_with_the_replay_buffer(tmp_path: Path) -> None
 def test_section_names_its_command_and_settings() -> None:
     names = [v.name for v in learning_speed.VARIANTS]
     rates = {OURS: {"env": 1000.0, **dict.fromkeys(names, 100.0)}, PANDA: {"env": 500.0, **dict.fromkeys(names, 50.0)}}
-    text = learning_speed.markdown(rates, ["--panda", "--steps", "10"], 10, 1)
-    assert "`<panda-gym venv>/bin/python -m benchmarks.learning_speed --panda --steps 10`" in text
+    results = {"command": "python -m benchmarks run learning-speed --panda --steps 10", "steps": 10, "rounds": 1,
+               "utd": learning_speed.utd_by_variant(), "rates": rates}
+    text = learning_speed.markdown(results)
+    assert "`<panda-gym venv>/bin/python -m benchmarks run learning-speed --panda --steps 10`" in text
     assert "10 timed learning steps" in text and "median of 1 interleaved rounds" in text
     assert f"{PANDA} steps/s" in text and "| 50 (1.00x) |" in text
 
@@ -116,3 +120,16 @@ def test_a_subset_of_pairs_reports_beside_the_full_report() -> None:
     assert dense.name == "kuka_learning_random_dense" and dense.parent == kuka_learning.LIKE_OUT.parent
     custom = Path("elsewhere/report")
     assert kuka_learning.like_out(custom, ["dense"], pairs) == custom
+
+
+def test_learning_speed_run_records_its_command_and_renders(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``run`` (the measuring replaced by fixed rates) returns what ``markdown`` turns into one row per variant."""
+    names = [v.name for v in learning_speed.VARIANTS]
+    monkeypatch.setattr(learning_speed, "measure", lambda env_ids, steps, rounds: {
+        e: {"env": 900.0, **{n: 30.0 * (i + 1) for i, n in enumerate(names)}} for e in env_ids})
+    results = learning_speed.run(["--steps", "10", "--rounds", "1"])
+    assert results["command"] == "python -m benchmarks run learning-speed --steps 10 --rounds 1"
+    assert list(results["utd"]) == names and list(results["rates"]) == [OURS]
+    rows = [r for r in learning_speed.markdown(results).splitlines() if r.startswith("| ")][1:]
+    assert [r.split(" | ")[0][2:] for r in rows] == ["env alone, random actions", *names]
+    assert "`python -m benchmarks run learning-speed --steps 10 --rounds 1`" in learning_speed.markdown(results)

@@ -1,7 +1,7 @@
 """Pong through the CLI: the zoo's ``atari`` entry, identical wrapping in evaluation, full-game scores, video.
 
 One short DQN run (2,000 steps, a 5,000-transition buffer) is shared by the tests of this module; long
-training belongs in ``benchmarks/pong_throughput.py``.
+training belongs in ``benchmarks/speed/pong_throughput.py``.
 """
 
 from __future__ import annotations
@@ -114,3 +114,26 @@ def test_record_video_pong(pong_run: Path, tmp_path: Path) -> None:
     frames = iio.imread(video)
     assert frames.shape[1:] == (210, 160, 3) and frames.shape[0] >= 60
     assert frames.std() > 1  # not a blank picture
+
+
+def test_pong_benchmark_tiny_run_and_report(pong_run: Path, tmp_path: Path) -> None:
+    """``python -m benchmarks run pong`` on a tiny budget: the short benchmark, and the long-run report of this
+    module's run (an evaluations file added); the section shows both, without this machine's paths."""
+    import numpy as np
+
+    from benchmarks.speed import pong_throughput as pong
+
+    run_dir = pong_run / "dqn" / f"{PONG}_1"
+    np.savez(run_dir / "evaluations.npz", timesteps=np.array([1000, 2000]), results=-21 * np.ones((2, 5)))
+    png = tmp_path / "curve.png"
+    results = pong.run(["--warmup-steps", "50", "--train-steps", "50", "--env-steps", "50",
+                        "--report", str(run_dir), "--png", str(png), "--previous", str(tmp_path / "none.json")])
+    assert results["throughput"]["train_steps_measured"] >= 50 and results["throughput"]["env_fps"] > 0
+    assert [e["timestep"] for e in results["long_run"]["evals"]] == [1000, 2000] and png.stat().st_size > 1000
+    assert results["command"] == ("python -m benchmarks run pong --warmup-steps 50 --train-steps 50 --env-steps 50 "
+                                  "--report RUN_DIR")
+    section = pong.markdown(results)
+    assert "| 2,000 |" in section and "-21.0 +- 0.0" in section and str(tmp_path) not in section
+    kept = pong.run(["--keep-throughput", "--previous", str(pong.RESULTS_DIR / pong.RESULTS_NAME)])
+    saved = pong.load_results(pong.RESULTS_DIR / pong.RESULTS_NAME)  # nothing measured: the recorded figures
+    assert kept == {k: saved[k] for k in ("command", "throughput", "long_run")}

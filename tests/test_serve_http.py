@@ -136,9 +136,9 @@ def test_address_parsing_and_loopback() -> None:
 
 
 def test_benchmark_section_is_its_saved_results() -> None:
-    """BENCHMARKS.md's serve-latency section is what ``benchmarks.serve_latency`` makes of its saved results, and
+    """BENCHMARKS.md's serve-latency section is what ``benchmarks.speed.serve_latency`` makes of its saved results, and
     those back the claim made of them: 50 clients connecting at once lost no request."""
-    from benchmarks import serve_latency
+    from benchmarks.speed import serve_latency
 
     saved = json.loads((ROOT / "benchmarks" / "results" / "serve_latency.json").read_text())
     text = (ROOT / "BENCHMARKS.md").read_text()

@@ -11,16 +11,21 @@ Measured for ``sbagents/GridWorld-v0``, ``treasure_hunt_v0``, ``mpe2.simple_spre
 
 Steps are counted as VecEnv transitions: for the multi-agent envs one transition is one agent's step (an env
 step of the 3-agent team is 3 transitions), which is also what SB3's fps counts. Rounds are interleaved
-and medians reported, so a load spike on the shared machine hits every variant alike. ``python -m benchmarks
---only speed`` measures every env; ``run(env_ids=...)`` / ``main(env_ids=...)`` measure a subset.
+and medians reported, so a load spike on the shared machine hits every variant alike.
+
+    python -m benchmarks run speed [--rounds 3] [--envs ENV_ID ...]
+    python -m benchmarks run speed --quick    # smoke run: a quarter of the steps, PPO one round
+
+Results: ``benchmarks/results/speed.json``; section ``speed`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
@@ -32,7 +37,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv
 
 import sbagents  # noqa: F401  (registers the Gymnasium ids)
-from benchmarks.report import machine_info, publish
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
 from benchmarks.speed.noop_vec_env import NoOpVecEnv
 from sbagents.batched import make_batched_vec_env
 from sbagents.core.env_names import resolve_env
@@ -129,7 +135,7 @@ def vec_env_rate(vec: VecEnv, n_steps: int, seed: int = 0) -> float:
 
 
 def make_vec_kind(env_id: str, kind: str, n_envs: int, seed: int, env_kwargs: dict[str, Any]) -> VecEnv:
-    """``reference``, ``batched`` or ``noop`` (:class:`benchmarks.noop_vec_env.NoOpVecEnv`: the ceiling)."""
+    """``reference``, ``batched`` or ``noop`` (:class:`benchmarks.speed.noop_vec_env.NoOpVecEnv`: the ceiling)."""
     if kind == "reference":
         return reference_vec_env(env_id, n_envs, seed, env_kwargs)
     batched = make_batched_vec_env(env_id, n_envs, seed, env_kwargs, None)
@@ -178,7 +184,7 @@ def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str
     return {k: statistics.median(v) for k, v in samples.items()}
 
 
-def run(rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS) -> dict[str, Any]:
+def measure(rounds: int = 3, quick: bool = False, env_ids: Sequence[str] = ENV_IDS) -> dict[str, Any]:
     """Measure every figure of ``env_ids``; returns a JSON-able dict (``machine`` + one entry per env id)."""
     torch.set_num_threads(1)
     load_before = os.getloadavg()
@@ -210,8 +216,9 @@ def run(rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS
             }
             rates = _median_rounds(ppo_fns, 1 if quick else rounds)
             ppo.update({f"{kind}_{n_envs}": v for kind, v in rates.items()})
+        batch = {str(n): ppo_kwargs(env_id, n).get("batch_size", 64) for n in sorted({n_cfg, N_ENVS})}
         results["envs"][env_id] = {"env_kwargs": kwargs, "config_n_envs": n_cfg, "steps_per_s": env_rates,
-                                   "ppo_fps": ppo}
+                                   "ppo_fps": ppo, "ppo_batch_size": batch}
     results["machine"]["load_before"] = [round(x, 2) for x in load_before]
     results["machine"]["load_after"] = [round(x, 2) for x in os.getloadavg()]
     results["seconds"] = round(time.perf_counter() - started, 1)
@@ -225,7 +232,7 @@ def _fmt(x: float) -> str:
 
 
 def markdown(results: dict[str, Any]) -> str:
-    """The Markdown section (tables + machine line) written between the speed markers."""
+    """The ``speed`` section (tables + machine line) from the results alone."""
     m = results["machine"]
     lines = [
         "## Batched VecEnvs: env and PPO speed",
@@ -233,7 +240,7 @@ def markdown(results: dict[str, Any]) -> str:
         f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}, numpy {m['numpy']}, "
         f"torch {m['torch']} (1 thread), SB3 {m['stable_baselines3']}; {m['date']}; "
         f"load average before/after {m['load_before'][0]} / {m['load_after'][0]} "
-        "(shared machine). Command: `python -m benchmarks`.",
+        f"(shared machine). Command: `{results['command']}`.",
         "",
         "Env transitions/s with random actions (resets included; TreasureHunt, simple spread and pursuit: one "
         "transition = one agent step):",
@@ -261,7 +268,7 @@ def markdown(results: dict[str, Any]) -> str:
             ref, bat = r["ppo_fps"][f"reference_{n}"], r["ppo_fps"][f"batched_{n}"]
             noop = r["ppo_fps"][f"noop_{n}"]
             tag = " (config)" if n == r["config_n_envs"] else ""
-            batch = ppo_kwargs(env_id, n).get("batch_size", 64)
+            batch = r["ppo_batch_size"][str(n)]
             lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x | "
                          f"{_fmt(noop)} | {noop / ref:.2f}x |")
     lines += [
@@ -270,22 +277,32 @@ def markdown(results: dict[str, Any]) -> str:
         "simple spread and pursuit `sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` (the `policies: "
         "shared` team "
         "VecEnv). Medians of interleaved rounds. *No-op* is "
-        "`benchmarks.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
+        "`benchmarks.speed.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
         "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",
     ]
     return "\n".join(lines)
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run speed``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks run speed",
+                                     description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds per figure (median)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: a quarter of the steps, PPO one round")
+    parser.add_argument("--envs", nargs="+", choices=ENV_IDS, default=list(ENV_IDS), help="env ids to measure")
+    return parser
 
 
-
-
-
-
-def main(output: str = "BENCHMARKS.md", json_path: str | None = "benchmarks/results/speed.json",
-         rounds: int = 3, quick: bool = False, env_ids: tuple[str, ...] = ENV_IDS) -> dict[str, Any]:
-    """Run the speed suite (of ``env_ids``), print the table, write it into ``output`` (and the raw numbers as
-    JSON)."""
-    results = run(rounds=rounds, quick=quick, env_ids=env_ids)
-    publish(markdown(results), results, output, json_path, "speed")
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run speed [OPTIONS]``: measure; the results record the command."""
+    args = build_parser().parse_args(list(argv))
+    results = measure(rounds=args.rounds, quick=args.quick, env_ids=tuple(args.envs))
+    results["command"] = " ".join(["python -m benchmarks run speed", *recorded_argv(list(argv))])
     return results
+
+
+BENCHMARKS = (
+    Benchmark(name="speed", kind="speed", results="speed.json",
+              summary="env steps/s and PPO fps: reference VecEnvs vs the batched numpy VecEnvs",
+              run=run, render=markdown),
+)

@@ -10,10 +10,9 @@ per-round ratios and their range, so a slow spell of a shared host hits both sid
 panda-gym is optional: install it in a venv that sees the system packages, then run from the repository root::
 
     python -m venv --system-site-packages PANDA_VENV && PANDA_VENV/bin/pip install panda-gym
-    PANDA_VENV/bin/python -m benchmarks.kuka_speed --steps 1000 --rounds 15
+    PANDA_VENV/bin/python -m benchmarks run kuka-speed --steps 1000 --rounds 15
 
-The section ``kuka-speed`` of BENCHMARKS.md and ``benchmarks/results/kuka_speed.json`` are rewritten
-(``--output ''`` / ``--json ''`` skip them).
+Results: ``benchmarks/results/kuka_speed.json``; section ``kuka-speed`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
@@ -22,18 +21,17 @@ import argparse
 import functools
 import os
 import platform
-import shlex
 import statistics
 import sys
 import time
-from collections.abc import Callable
-from pathlib import Path
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
 import yaml
 
-from benchmarks.report import publish, recorded_argv
+from benchmarks.harness import Benchmark
+from benchmarks.report import BENCHMARKS_DIR, recorded_argv
 from sbagents.envs.kuka import (
     KukaPickAndPlaceEnv,
     PickAndPlaceEnv,
@@ -45,7 +43,7 @@ from sbagents.envs.kuka import (
 #: panda-gym's task each Kuka env is compared with.
 PUSH_REFERENCE = "PandaPush-v3"
 PICK_REFERENCE = "PandaPickAndPlace-v3"
-RANDOM_CONFIG = Path(__file__).resolve().parent / "configs" / "kuka_random.yml"
+RANDOM_CONFIG = BENCHMARKS_DIR / "configs" / "kuka_random.yml"
 SECTION = "kuka-speed"
 #: One Kuka env: table label, constructor, and the panda-gym env id it is compared with.
 Spec = tuple[str, Callable[[], gym.Env[Any, Any]], str]
@@ -150,15 +148,17 @@ def cpu_name() -> str:
     return platform.machine()
 
 
-def markdown(rows: list[dict[str, Any]], argv: list[str], steps: int, rounds: int, load: float) -> str:
-    """The ``kuka-speed`` section of BENCHMARKS.md."""
+def markdown(results: dict[str, Any]) -> str:
+    """The ``kuka-speed`` section of BENCHMARKS.md, from the results alone."""
+    rows, steps, rounds = results["rows"], results["steps"], results["rounds"]
+    command = results["command"].replace("python ", "<panda-gym venv>/bin/python ", 1)
     lines = [
         "## Kuka env speed vs panda-gym",
         "",
         "Command: `python -m venv --system-site-packages <panda-gym venv> && <panda-gym venv>/bin/pip install "
-        f"panda-gym`, then `<panda-gym venv>/bin/python -m benchmarks.kuka_speed {shlex.join(argv)}`. Random "
+        f"panda-gym`, then `{command}`. Random "
         f"actions, resets included, one env each, one process; {rounds} rounds of {steps} steps per env "
-        f"({cpu_name()}, load average {load:.1f} at the start). The ratio is "
+        f"({results['cpu']}, load average {results['load_average']:.1f} at the start). The ratio is "
         "taken within each round against a timing of the matching panda-gym task right beside it (push: "
         "`PandaPush-v3`, gripper: `PandaPickAndPlace-v3`); the table gives the median and the range of the "
         "per-round ratios.",
@@ -185,34 +185,41 @@ def markdown(rows: list[dict[str, Any]], argv: list[str], steps: int, rounds: in
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.kuka_speed", description=__doc__,
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run kuka-speed``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=1000, help="steps per env per round")
     parser.add_argument("--rounds", type=int, default=15, help="interleaved rounds (medians reported)")
-    parser.add_argument("--json", default="benchmarks/results/kuka_speed.json", help="raw rates ('' = none)")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
+    return parser
+
+
+def panda_references() -> dict[str, Callable[[], gym.Env[Any, Any]]]:
+    """panda-gym's tasks by id, or none when panda-gym is not importable."""
+    try:
+        import panda_gym  # noqa: F401
+    except ImportError:
+        print("panda-gym is not importable: the ratios are skipped (see this module's docstring)", file=sys.stderr)
+        return {}
+    return {ref: functools.partial(gym.make, ref) for ref in (PUSH_REFERENCE, PICK_REFERENCE)}
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run kuka-speed [OPTIONS]``: measure; the results record the command."""
+    parser = build_parser()
+    args = parser.parse_args(list(argv))
     if args.steps < 1 or args.rounds < 1:
         parser.error("--steps and --rounds must be >= 1")
     specs = kuka_specs()
-    references: dict[str, Callable[[], gym.Env[Any, Any]]] = {}
-    try:
-        import panda_gym  # noqa: F401
-
-        references = {ref: functools.partial(gym.make, ref) for ref in (PUSH_REFERENCE, PICK_REFERENCE)}
-    except ImportError:
-        print("panda-gym is not importable: the ratios are skipped (see this module's docstring)", file=sys.stderr)
     load = os.getloadavg()[0]
-    rates, ratios = measure(specs, references, args.steps, args.rounds)
-    rows = summarize(specs, rates, ratios)
-    results = {"steps": args.steps, "rounds": args.rounds, "load_average": load, "rates": rates, "ratios": ratios,
-               "rows": rows}
-    text = markdown(rows, recorded_argv(argv), args.steps, args.rounds, load)
-    publish(text, results, args.output, args.json, SECTION)
-    return 0
+    rates, ratios = measure(specs, panda_references(), args.steps, args.rounds)
+    return {"command": " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))]),
+            "cpu": cpu_name(), "steps": args.steps, "rounds": args.rounds, "load_average": load, "rates": rates,
+            "ratios": ratios, "rows": summarize(specs, rates, ratios)}
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="kuka_speed.json",
+              summary="Kuka env steps/s vs panda-gym's matching task (per-round ratios)",
+              run=run, render=markdown),
+)

@@ -6,11 +6,10 @@ and the overhead relative to the no-callback baseline. fps is computed from the 
 (``time.process_time``, single-threaded run) because wall time on a shared machine varies by +-20%
 between identical runs; wall-clock fps is shown too. Target: at most 10% overhead.
 
-    python -m benchmarks.callback_overhead [--timesteps 16384] [--repeats 5] [--output BENCHMARKS.md]
-    python benchmarks/callback_overhead.py ...   (same, as a script)
+    python -m benchmarks run callback-overhead [--timesteps 16384] [--repeats 5] [--envs GridWorld SmartHome]
+    python -m benchmarks run callback-overhead --quick    # smoke run: 4,096 steps, 1 repeat
 
-With ``--output`` the table is written between ``<!-- callback-overhead:start -->`` /
-``<!-- callback-overhead:end -->`` of that Markdown file.
+Results: ``benchmarks/results/callback_overhead.json``; section ``callback-overhead`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
@@ -18,25 +17,22 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ""):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
 
-import torch  # noqa: E402
-from stable_baselines3 import PPO  # noqa: E402
-from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
-from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
-
-import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.report import machine_info, publish  # noqa: E402
-from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback  # noqa: E402
-from sbagents.envs.smart_home import SmartHomeEnv  # noqa: E402
+import sbagents  # noqa: F401  (registers the env ids)
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
+from sbagents.callbacks import SafetyViolationCallback, TransparencyCSVCallback
+from sbagents.envs.smart_home import SmartHomeEnv
 
 EnvId = Callable[..., object] | str
 ENVS: dict[str, EnvId] = {"GridWorld": "sbagents/GridWorld-v0", "SmartHome": SmartHomeEnv}
@@ -116,34 +112,25 @@ def run(
             "results": results, "seconds": round(time.perf_counter() - started, 1)}
 
 
-def command(results: dict[str, Any]) -> str:
-    """The command that reproduces ``results``."""
-    cmd = (f"python -m benchmarks.callback_overhead --timesteps {results['timesteps']} "
-           f"--repeats {results['repeats']}")
-    envs = list(results["results"])
-    if envs != list(ENVS):
-        cmd += " --envs " + " ".join(envs)
-    return cmd
-
-
 def markdown(results: dict[str, Any]) -> str:
     """The ``callback-overhead`` Markdown section (command, load, table, notes)."""
     m = results["machine"]
     lines = [
         "## Trust callbacks: training-speed overhead",
         "",
-        f"Command: `{command(results)}` (also run by `python -m benchmarks`; PPO 64-64, n_envs "
+        f"Command: `{results['command']}` (PPO 64-64, n_envs "
         f"{results['n_envs']} DummyVecEnv, {results['timesteps']:,} steps, median of {results['repeats']} "
         f"interleaved runs in one process; {m['cpu']}, {m['cores']} cores, torch 1 thread; {m['date']}; "
         f"load average before/after {m['load_before'][0]} / {m['load_after'][0]}). Target: at most 10%.",
         "",
-        "| env | callbacks | fps (CPU time) | overhead | fps (wall) |",
-        "|---|---|---:|---:|---:|",
+        "| env | callbacks | fps (CPU time, median) | min-max over runs | overhead | fps (wall) |",
+        "|---|---|---:|---:|---:|---:|",
     ]
     for name, per_variant in results["results"].items():
         for variant, r in per_variant.items():
-            lines.append(f"| {name} | {variant} | {r['fps_cpu']:,.0f} | {r['overhead_pct']:+.1f}% | "
-                         f"{r['fps_wall']:,.0f} |")
+            cpu = [s[0] for s in r["samples"]]
+            lines.append(f"| {name} | {variant} | {r['fps_cpu']:,.0f} | {min(cpu):,.0f}-{max(cpu):,.0f} | "
+                         f"{r['overhead_pct']:+.1f}% | {r['fps_wall']:,.0f} |")
     lines += [
         "",
         "fps (CPU time) is steps per second of process CPU time, which load on a shared machine inflates "
@@ -155,24 +142,27 @@ def markdown(results: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Arguments of ``python -m benchmarks.callback_overhead``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.callback_overhead",
+    """Options of ``python -m benchmarks run callback-overhead``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}",
                                      description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--timesteps", type=int, default=16_384)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--envs", nargs="+", choices=list(ENVS), default=list(ENVS))
-    parser.add_argument("--output", default="", help="Markdown file to update ('' to only print)")
-    parser.add_argument("--json", default="", help="raw results file ('' to skip)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 4,096 steps, 1 repeat (overrides both)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Measure, print the section, and write it into ``--output`` / the raw numbers into ``--json``."""
-    args = build_parser().parse_args(argv)
-    results = run(args.timesteps, args.repeats, args.envs)
-    publish(markdown(results), results, args.output, args.json, SECTION)
+def run_cli(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run callback-overhead [OPTIONS]``: measure; the results record the command."""
+    args = build_parser().parse_args(list(argv))
+    timesteps, repeats = (4096, 1) if args.quick else (args.timesteps, args.repeats)
+    results = run(timesteps, repeats, args.envs)
+    results["command"] = " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))])
     return results
 
 
-if __name__ == "__main__":
-    main()
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="callback_overhead.json",
+              summary="PPO fps with and without the trust callbacks (transparency log, safety)",
+              run=run_cli, render=markdown),
+)

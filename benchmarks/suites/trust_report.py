@@ -2,9 +2,10 @@
 
 Trains the shipped DDPG config on SmartHome (exactly ``python -m sbagents.train --algo ddpg --env
 sbagents/SmartHome-v0 --seed 0``), then runs what ``python -m sbagents.evaluate --attack ... --fairness ...``
-runs on it, copies ``adversarial.png`` / ``fairness.png`` to ``benchmarks/results/`` and writes the tables.
+runs on it, copies ``adversarial.png`` / ``fairness.png`` (and their CSVs) to ``benchmarks/results/``; the tables
+come from ``benchmarks/results/trust_report.json``.
 
-    python -m benchmarks.trust_report [--episodes 30]
+    python -m benchmarks run trust-report [--episodes 30]
 """
 
 from __future__ import annotations
@@ -12,26 +13,30 @@ from __future__ import annotations
 import argparse
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks.report import write_section
+from benchmarks.harness import Benchmark
+from benchmarks.report import RESULTS_DIR, recorded_argv
 from sbagents.api import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = RESULTS_DIR
+SECTION = "trust-report"
 ENV = "sbagents/SmartHome-v0"
 ATTACKS = "gaussian:0.05,0.1,0.2 uniform:0.05,0.1,0.2 fgsm:0.05,0.1,0.2 pgd:0.05,0.1,0.2 critic:0.05,0.1,0.2"
 FAIRNESS = "preferred_temp,preferred_light"
 
 
-def markdown(report: dict[str, Any], episodes: int) -> str:
-    """The adversarial and fairness tables."""
+def markdown(report: dict[str, Any]) -> str:
+    """The adversarial and fairness tables, from the results alone."""
+    episodes = report["episodes"]
     lines = [
         "## Trust report: SmartHome DDPG under attack and per user group",
         "",
         f"Commands: `python -m sbagents.train --algo ddpg --env {ENV} --seed 0`, then "
         f"`python -m sbagents.evaluate --algo ddpg --env {ENV} -n {episodes} --attack \"{ATTACKS}\" "
-        f"--fairness {FAIRNESS} --json` (`python -m benchmarks.trust_report`). eps is in VecNormalize units "
+        f"--fairness {FAIRNESS} --json` (`{report['command']}`). eps is in VecNormalize units "
         "(standard deviations of each observation component).",
         "",
         "| attack | eps | mean return | std | success rate |",
@@ -55,11 +60,13 @@ def markdown(report: dict[str, Any], episodes: int) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run trust-report [--episodes N]``: train, attack and group; copy the plots and CSVs
+    into ``benchmarks/results/``; return the tables' figures."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}",
+                                     description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--episodes", type=int, default=30)
-    parser.add_argument("--write", default="BENCHMARKS.md")
-    args = parser.parse_args()
+    args = parser.parse_args(list(argv))
     with tempfile.TemporaryDirectory() as logs:
         train(TrainSpec("ddpg", ENV), OutputOptions(logs), EvalOptions(final_eval_episodes=0),
               ExecOptions(seed=0, verbose=0))
@@ -69,11 +76,12 @@ def main() -> None:
         RESULTS.mkdir(exist_ok=True)
         for name in ("adversarial.png", "fairness.png", "adversarial.csv", "fairness.csv"):
             shutil.copy(run_dir / name, RESULTS / name)
-    text = markdown(report, args.episodes)
-    print(text)
-    if args.write:
-        write_section(args.write, text, "trust-report")
+    return {"command": " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))]),
+            "episodes": args.episodes, "adversarial": report["adversarial"], "fairness": report["fairness"]}
 
 
-if __name__ == "__main__":
-    main()
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="suites", results="trust_report.json",
+              summary="SmartHome DDPG: return under five attacks and success per user group",
+              run=run, render=markdown),
+)

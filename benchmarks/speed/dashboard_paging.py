@@ -20,7 +20,7 @@ folder) and the files in the OS page cache (just written):
   ``bytes.find`` loop, on one 64 MiB chunk;
 - peak resident memory of this process (``resource.getrusage``).
 
-    python -m benchmarks.dashboard_paging [--gib 2.0] [--path DIR] [--keep] [--output BENCHMARKS.md]
+    python -m benchmarks run dashboard-paging [--gib 2.0] [--path DIR] [--keep]
 """
 
 from __future__ import annotations
@@ -36,13 +36,14 @@ import sys
 import tempfile
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.report import machine_info, publish
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
 
 SECTION = "dashboard-paging"
 N_ENVS = 8
@@ -222,7 +223,17 @@ def measure(path: Path, rows: int, block_rows: int, violations: bool) -> dict[st
     return out
 
 
-def run(gib: float = 2.0, folder: Path | None = None, keep: bool = False, block_rows: int = 1024,
+#: The child process that writes the logs (``python -c CHILD FOLDER GIB``), so the parent's peak memory is the engine's.
+CHILD = "import sys; from benchmarks.speed.dashboard_paging import generate_child; generate_child(sys.argv[1:])"
+
+
+def generate_child(argv: list[str]) -> None:
+    """Child process: write the logs into ``argv[0]`` (``argv[1]`` GiB) and print what was written as ``k=v``."""
+    gen = generate(Path(argv[0]), float(argv[1]))
+    print(" ".join(f"{k}={v}" for k, v in gen.items()))
+
+
+def measure_all(gib: float = 2.0, folder: Path | None = None, keep: bool = False, block_rows: int = 1024,
         naive_mib: int = 256, gzip_too: bool = True) -> dict[str, Any]:
     """Generate the logs (child process), measure both, delete them unless ``keep``."""
     own = folder is None
@@ -235,8 +246,8 @@ def run(gib: float = 2.0, folder: Path | None = None, keep: bool = False, block_
     os.environ["SBAGENTS_CACHE_DIR"] = str(cache)
     try:
         plain, gz = work / "log.csv", work / "log.csv.gz"
-        proc = subprocess.run([sys.executable, "-m", "benchmarks.dashboard_paging", "--generate", str(work),
-                               "--gib", str(gib)], check=True, capture_output=True, text=True)
+        proc = subprocess.run([sys.executable, "-c", CHILD, str(work), str(gib)], check=True, capture_output=True,
+                              text=True)
         gen = {k: float(v) if "." in v else int(v) for k, v in (kv.split("=") for kv in proc.stdout.split())}
         import sbagents.dashboard.logindex  # noqa: F401  (imports before the memory baseline)
 
@@ -264,8 +275,9 @@ def _ms(seconds: float) -> str:
     return f"{seconds * 1000:,.1f} ms" if seconds < 10 else f"{seconds:,.1f} s"
 
 
-def markdown(result: dict[str, Any], command: str = "python -m benchmarks.dashboard_paging") -> str:
-    """The BENCHMARKS.md section."""
+def markdown(result: dict[str, Any]) -> str:
+    """The BENCHMARKS.md section, from the results alone."""
+    command = result["command"]
     m, gen, naive, p = result["machine"], result["generated"], result["naive_csv"], result["plain"]
     g = result.get("gzip")
     gib = gen["bytes"] / 2**30
@@ -332,8 +344,9 @@ def markdown(result: dict[str, Any], command: str = "python -m benchmarks.dashbo
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.dashboard_paging", description=__doc__,
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run dashboard-paging [OPTIONS]``: measure; the results record the command."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--gib", type=float, default=2.0, help="size of the plain log in GiB")
     parser.add_argument("--path", default=None, help="folder for the generated logs (default: a temp folder)")
@@ -341,24 +354,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--block-rows", type=int, default=1024, help="LogIndex block_rows")
     parser.add_argument("--naive-mib", type=int, default=256, help="MiB read by the csv.reader baseline")
     parser.add_argument("--no-gzip", action="store_true", help="measure the plain CSV only")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default="benchmarks/results/dashboard_paging.json", help="raw results ('' = none)")
-    parser.add_argument("--generate", default=None, help=argparse.SUPPRESS)  # child process: write the logs only
-    args = parser.parse_args(argv)
-    if args.generate:
-        gen = generate(Path(args.generate), args.gib)
-        print(" ".join(f"{k}={v}" for k, v in gen.items()))
-        return 0
-    result = run(args.gib, None if args.path is None else Path(args.path), args.keep, args.block_rows,
-                 args.naive_mib, not args.no_gzip)
-    command = "python -m benchmarks.dashboard_paging"
-    for flag, value, default in (("--gib", args.gib, 2.0), ("--block-rows", args.block_rows, 1024),
-                                 ("--naive-mib", args.naive_mib, 256)):
-        command += f" {flag} {value}" if value != default else ""
-    command += " --no-gzip" if args.no_gzip else ""
-    publish(markdown(result, command), result, args.output, args.json, SECTION)
-    return 0
+    args = parser.parse_args(list(argv))
+    result = measure_all(args.gib, None if args.path is None else Path(args.path), args.keep, args.block_rows,
+                         args.naive_mib, not args.no_gzip)
+    kept = [a for i, a in enumerate(argv) if "--path" not in (a, argv[i - 1] if i else "")]  # no machine paths
+    result["command"] = " ".join(["python -m benchmarks run", SECTION, *recorded_argv(kept)])
+    return result
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="dashboard_paging.json",
+              summary="dashboard LogIndex paging a 2 GB transparency log, plain CSV and CSV.gz",
+              run=run, render=markdown),
+)

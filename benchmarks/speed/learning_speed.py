@@ -7,8 +7,8 @@ the step-rate ceiling. Rounds are interleaved and the median is reported, so a l
 The ratio column compares each variant with the first (SB3's default 256-256 networks, one gradient step per env
 step), measured in the same command::
 
-    python -m benchmarks.learning_speed --steps 2000 --rounds 2
-    PANDA_VENV/bin/python -m benchmarks.learning_speed --panda ...   # PandaPickAndPlace-v3 beside
+    python -m benchmarks run learning-speed --steps 2000 --rounds 2
+    PANDA_VENV/bin/python -m benchmarks run learning-speed --panda ...   # PandaPickAndPlace-v3 beside
 
 Learning steps/s is what a training run's wall time follows; gradient steps per env step (UTD) is what the
 variant gives up for it: fewer updates per transition can cost sample efficiency, which only a learning run shows.
@@ -17,24 +17,23 @@ variant gives up for it: fewer updates per transition can cost sample efficiency
 from __future__ import annotations
 
 import argparse
-import shlex
 import statistics
-import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
-from benchmarks.report import publish, recorded_argv
+from benchmarks.harness import Benchmark
+from benchmarks.report import BENCHMARKS_DIR, recorded_argv
 from sbagents.algos import ALGOS
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import load_yaml
 
-CONFIG = Path(__file__).resolve().parent / "configs" / "kuka_pick.yml"
+CONFIG = BENCHMARKS_DIR / "configs" / "kuka_pick.yml"
 OURS = "sbagents/KukaPickAndPlace-v0"
 PANDA = "PandaPickAndPlace-v3"
 SECTION = "learning-speed"
@@ -115,48 +114,60 @@ def measure(env_ids: list[str], steps: int, rounds: int) -> dict[str, dict[str, 
     return {e: {k: statistics.median(s) for k, s in by.items()} for e, by in samples.items()}
 
 
-def table(rates: dict[str, dict[str, Any]]) -> str:
-    """Markdown: one row per variant, learning steps/s per env, ratio vs the first variant, UTD."""
-    config = load_yaml(CONFIG)
+def utd_by_variant() -> dict[str, float]:
+    """Gradient steps per env step of each of :data:`VARIANTS` in the config entry of :data:`OURS`."""
+    entry = load_yaml(CONFIG)[OURS]
+    return {v.name: v.utd(entry) for v in VARIANTS}
+
+
+def table(rates: dict[str, dict[str, Any]], utd: dict[str, float]) -> str:
+    """Markdown: one row per variant (the keys of ``utd``, in order), learning steps/s per env, ratio vs the first
+    variant, gradient steps per env step (``utd``)."""
     envs = list(rates)
     head = "| variant | grad steps per env step | " + " | ".join(f"{e} steps/s (x first row)" for e in envs) + " |"
     lines = [head, "|---|---|" + "---|" * len(envs)]
     lines.append("| env alone, random actions | n/a | " + " | ".join(f"{rates[e]['env']:.0f}" for e in envs) + " |")
-    first = VARIANTS[0].name
-    for v in VARIANTS:
-        cells = [f"{rates[e][v.name]:.0f} ({rates[e][v.name] / rates[e][first]:.2f}x)" for e in envs]
-        lines.append(f"| {v.name} | {v.utd(config[envs[0]]):g} | " + " | ".join(cells) + " |")
+    first = next(iter(utd))
+    for name, ratio in utd.items():
+        cells = [f"{rates[e][name]:.0f} ({rates[e][name] / rates[e][first]:.2f}x)" for e in envs]
+        lines.append(f"| {name} | {ratio:g} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def markdown(rates: dict[str, dict[str, Any]], argv: list[str], steps: int, rounds: int) -> str:
-    """The ``learning-speed`` section of BENCHMARKS.md."""
-    python = "<panda-gym venv>/bin/python" if PANDA in rates else "python"
+def markdown(results: dict[str, Any]) -> str:
+    """The ``learning-speed`` section of BENCHMARKS.md, from the results alone."""
+    rates = results["rates"]
+    command = results["command"]
+    if PANDA in rates:
+        command = command.replace("python ", "<panda-gym venv>/bin/python ", 1)
     return "\n".join([
         "## Learning steps per second (HER + SAC/TQC, pick-and-place)",
         "",
-        f"Command: `{python} -m benchmarks.learning_speed {shlex.join(argv)}`; torch 1 thread, one process, "
-        f"{steps} timed learning steps per variant after `learning_starts`, median of {rounds} interleaved rounds. "
+        f"Command: `{command}`; torch 1 thread, one process, "
+        f"{results['steps']} timed learning steps per variant after `learning_starts`, median of {results['rounds']} "
+        "interleaved rounds. "
         "The config is `benchmarks/configs/kuka_pick.yml` (HER, future strategy, batch 256); each row changes what "
         "it names. Learning steps/s is what a run's wall time follows; the ratio is against the first row, "
         "measured in the same command. Fewer gradient steps per env step can cost sample efficiency, which only "
         "the learning curves show (section kuka-pick-learning).",
         "",
-        table(rates),
+        table(rates, results["utd"]),
     ])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.learning_speed", description=__doc__,
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run learning-speed``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=2000, help="timed learning steps per variant and round")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--panda", action="store_true", help="PandaPickAndPlace-v3 beside (needs panda-gym)")
-    parser.add_argument("--json", default="benchmarks/results/kuka_pick_learning_speed.json",
-                        help="raw rates ('' = none)")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run learning-speed [OPTIONS]``: measure; the results record the command."""
+    args = build_parser().parse_args(list(argv))
     th.set_num_threads(1)
     import sbagents.envs  # noqa: F401  (registers the ids)
 
@@ -166,10 +177,12 @@ def main(argv: list[str] | None = None) -> int:
 
         env_ids.append(PANDA)
     rates = measure(env_ids, args.steps, args.rounds)
-    text = markdown(rates, recorded_argv(argv), args.steps, args.rounds)
-    publish(text, {"rates": rates}, args.output, args.json, SECTION)
-    return 0
+    return {"command": " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))]),
+            "steps": args.steps, "rounds": args.rounds, "utd": utd_by_variant(), "rates": rates}
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="kuka_pick_learning_speed.json",
+              summary="HER + SAC/TQC learning steps/s on the Kuka pick-and-place (and panda-gym's) per variant",
+              run=run, render=markdown),
+)

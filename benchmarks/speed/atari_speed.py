@@ -13,9 +13,11 @@ the medians and the ratios against DummyVecEnv (the default vec env before EnvPo
 average. Sized for the project's 2-core machines by default; on a many-core GPU machine, where the env side is the
 bottleneck::
 
-    python -m benchmarks.atari_speed                                     # 2 cores: 8 envs, ~10-12 min
-    python -m benchmarks.atari_speed --n-envs 16 --device cuda --rounds 1 --ppo-rollouts 4 --dqn-steps 4000
-    python -m benchmarks.atari_speed --quick --output '' --json ''       # smoke run
+    python -m benchmarks run atari-speed                                 # 2 cores: 8 envs, ~10-12 min
+    python -m benchmarks run atari-speed --n-envs 16 --device cuda --rounds 1 --ppo-rollouts 4 --dqn-steps 4000
+    python -m benchmarks run --output '' --results /tmp/a.json atari-speed --quick   # smoke run
+
+Results: ``benchmarks/results/atari_speed.json``; section ``atari-speed`` of ``BENCHMARKS.md``.
 
 Needs EnvPool (``pip install -e ".[atari]"``); without it the envpool column is left out.
 """
@@ -35,6 +37,9 @@ from typing import Any
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
+
+from benchmarks.harness import Benchmark
+from benchmarks.report import recorded_argv
 
 ENV_ID = "PongNoFrameskip-v4"
 KINDS: tuple[str, ...] = ("dummy", "subproc", "envpool")
@@ -235,14 +240,14 @@ def summarize(samples: dict[str, dict[str, list[float]]]) -> dict[str, dict[str,
     return out
 
 
-def markdown(results: dict[str, Any], argv: list[str]) -> str:
-    """The ``atari-speed`` section of BENCHMARKS.md."""
+def markdown(results: dict[str, Any]) -> str:
+    """The ``atari-speed`` section of BENCHMARKS.md, from the results alone (``notes``: a closing paragraph)."""
     m, table = results["machine"], results["summary"]
     kinds = [k for k in KINDS if k in results["kinds"]]
     lines = [
         "## Atari at engine speed: Pong with DummyVecEnv, SubprocVecEnv and EnvPool",
         "",
-        f"Command: `python -m benchmarks.atari_speed{' ' + ' '.join(argv) if argv else ''}` "
+        f"Command: `{results['command']}` "
         f"({m['cpu']}, {m['cores']} cores, {m['device']}, torch {m['torch']} 1 thread, envpool {m['envpool']}; "
         f"{m['date']}; load average {m['load_before']} before, {m['load_after']} after; "
         f"{results.get('env_rounds', results['rounds'])} interleaved env-only rounds and {results['rounds']} "
@@ -269,6 +274,8 @@ def markdown(results: dict[str, Any], argv: list[str]) -> str:
         cells = [f"{row[k]:,.0f}" if k in row else "-" for k in kinds]
         ratios = [f"{row[f'{k}/dummy']:.2f}x" if f"{k}/dummy" in row else "-" for k in kinds if k != "dummy"]
         lines.append(f"| {names[what]} | " + " | ".join(cells + ratios) + " |")
+    if results.get("notes"):
+        lines += ["", results["notes"]]
     return "\n".join(lines)
 
 
@@ -287,9 +294,9 @@ def machine(device: str) -> dict[str, Any]:
             "python": platform.python_version(), "envpool": envpool_version, "date": time.strftime("%Y-%m-%d %H:%M")}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Measure, print the section, write it into ``--output`` and the raw numbers into ``--json``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.atari_speed", description=__doc__,
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run atari-speed``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n-envs", type=int, default=8, help="env copies (PPO and env-only)")
     parser.add_argument("--rounds", type=int, default=3, help="interleaved training rounds (medians reported)")
@@ -300,10 +307,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="cpu", help="torch device of the models")
     parser.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS), help="vec env kinds")
     parser.add_argument("--quick", action="store_true", help="1 round, 2000 env steps, 1 PPO rollout, 300 DQN steps")
-    parser.add_argument("--json", default="benchmarks/results/atari_speed.json", help="raw results ('' = none)")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run atari-speed [OPTIONS]``: measure; the results record the command."""
+    parser = build_parser()
+    args = parser.parse_args(list(argv))
     if args.quick:
         args.rounds, args.env_rounds, args.env_steps, args.ppo_rollouts, args.dqn_steps = 1, 1, 2000, 1, 300
     if min(args.n_envs, args.rounds, args.env_steps) < 1:
@@ -321,14 +331,14 @@ def main(argv: list[str] | None = None) -> int:
                       env_rounds=args.env_rounds)
     info = machine(args.device)
     info.update(load_before=load_before, load_after=round(os.getloadavg()[0], 2))
-    results = {"machine": info, "kinds": kinds, "n_envs": args.n_envs, "rounds": args.rounds,
-               "env_rounds": args.env_rounds,
-               "seconds": time.perf_counter() - started, "samples": samples, "summary": summarize(samples)}
-    from benchmarks.report import publish, recorded_argv
-
-    publish(markdown(results, recorded_argv(argv)), results, args.output, args.json, SECTION)
-    return 0
+    return {"command": " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))]),
+            "machine": info, "kinds": kinds, "n_envs": args.n_envs, "rounds": args.rounds,
+            "env_rounds": args.env_rounds,
+            "seconds": time.perf_counter() - started, "samples": samples, "summary": summarize(samples)}
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="atari_speed.json",
+              summary="Pong env and PPO/DQN training steps/s: DummyVecEnv vs SubprocVecEnv vs EnvPool",
+              run=run, render=markdown),
+)

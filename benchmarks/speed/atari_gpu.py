@@ -2,9 +2,9 @@
 
 ::
 
-    python -m benchmarks.atari_gpu --out DIR                    # one GPU + 16 cores: ~8 min (--budget-s 470)
-    python -m benchmarks.atari_gpu --out DIR --device cpu --tiny --budget-s 90   # smoke run on a CPU
-    python -m benchmarks.atari_gpu --render DIR/atari_gpu.json  # BENCHMARKS.md section atari-gpu (+ results files)
+    python -m benchmarks run atari-gpu --out DIR         # one GPU + 16 cores: ~8 min (--budget-s 470)
+    python -m benchmarks run --output '' --results DIR/r.json atari-gpu --out DIR --device cpu --tiny --budget-s 90
+    python -m benchmarks render atari-gpu                 # the section from benchmarks/results/atari_gpu.json
 
 Phases; ``DIR/atari_gpu.json`` is rewritten as each ends, so a failure keeps what was measured before it:
 
@@ -33,12 +33,9 @@ import os
 import platform
 import shutil
 import signal
-import subprocess
-import sys
-import threading
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,93 +43,25 @@ import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-from benchmarks.atari_speed import ENV_ID, cpu_name, env_rate, ppo_params, train_clock
+from benchmarks.harness import Benchmark
+from benchmarks.report import RESULTS_DIR
+from benchmarks.speed.atari_gpu_parts import (
+    JSON_NAME,
+    PNG_NAME,
+    SECTION,
+    TARGET,
+    GpuSampler,
+    curve_points,
+    curve_stats,
+    markdown,
+    plot_curve,
+)
+from benchmarks.speed.atari_speed import ENV_ID, cpu_name, env_rate, ppo_params, train_clock
 
-SECTION = "atari-gpu"
-JSON_NAME, PNG_NAME = "atari_gpu.json", "atari_gpu_curve.png"
 #: The larger-batch run must be this much faster than the entry's 16 envs to be used for learning.
 TRICK_MIN_GAIN = 1.3
-TARGET = 18.0  # the issue's aim: Pong above +18
-ROLLING = 20  # games in the rolling mean of the curve
 EVAL_RESERVE_S = 75.0  # kept for phase 3 and the files (GPU sizes; the CPU smoke run scales it): one greedy game of a
 #: half-trained Pong agent on the plain ALE env took ~28 s on the H200 machine, 16 on EnvPool about as long
-
-
-class GpuSampler:
-    """GPU utilisation (%) and memory (MiB) every ``interval_ms`` from ``nvidia-smi`` (else torch), in a thread.
-
-    nvidia-smi stamps each sample itself (its output may reach us in buffered chunks), so measurements register
-    their time spans with :meth:`track` and get their figures from :meth:`summary` after :meth:`close`.
-    """
-
-    def __init__(self, interval_ms: int = 500) -> None:
-        self.samples: list[tuple[float, float, float]] = []  # (perf_counter, util %, memory MiB)
-        self.source: str | None = None
-        self.spans: dict[str, tuple[float, float]] = {}
-        self._offset = time.time() - time.perf_counter()
-        self._stop = threading.Event()
-        self._proc: subprocess.Popen[str] | None = None
-        self._reader: threading.Thread | None = None
-        exe = shutil.which("nvidia-smi")
-        if exe is not None:
-            self._proc = subprocess.Popen(
-                [exe, "--query-gpu=timestamp,utilization.gpu,memory.used", "--format=csv,noheader,nounits",
-                 "-lms", str(interval_ms)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-            self.source = "nvidia-smi"
-            self._reader = threading.Thread(target=self._read_smi, daemon=True)
-        elif torch.cuda.is_available():
-            try:
-                torch.cuda.utilization()
-            except Exception:  # noqa: BLE001 - pynvml missing: no source
-                return
-            self.source = "torch.cuda.utilization"
-            self._reader = threading.Thread(target=self._poll_torch, args=(interval_ms / 1000,), daemon=True)
-        if self._reader is not None:
-            self._reader.start()
-
-    def _read_smi(self) -> None:
-        from datetime import datetime
-
-        assert self._proc is not None and self._proc.stdout is not None
-        for line in self._proc.stdout:
-            parts = [p.strip() for p in line.split(",")]
-            try:
-                stamp = datetime.strptime(parts[0], "%Y/%m/%d %H:%M:%S.%f").timestamp() - self._offset
-                self.samples.append((stamp, float(parts[1]), float(parts[2])))
-            except (ValueError, IndexError):
-                continue
-
-    def _poll_torch(self, interval: float) -> None:
-        while not self._stop.wait(interval):
-            self.samples.append((time.perf_counter(), float(torch.cuda.utilization()),
-                                 torch.cuda.memory_reserved() / 2**20))
-
-    def track(self, name: str, t0: float | None, t1: float | None) -> None:
-        """Register the span ``t0..t1`` (``time.perf_counter``) of measurement ``name``."""
-        if t0 is not None and t1 is not None:
-            self.spans[name] = (t0, t1)
-
-    def window(self, t0: float, t1: float) -> dict[str, float] | None:
-        """Mean / max utilisation and max memory of the samples between ``t0`` and ``t1`` (None: no samples)."""
-        inside = [(u, m) for t, u, m in list(self.samples) if t0 <= t <= t1]
-        if not inside:
-            return None
-        util = np.array([u for u, _ in inside])
-        return {"util_mean": round(float(util.mean()), 1), "util_max": float(util.max()),
-                "memory_max_mib": float(max(m for _, m in inside)), "samples": len(inside)}
-
-    def summary(self) -> dict[str, dict[str, float] | None]:
-        """The figures of every tracked span (after :meth:`close`, every sample has arrived)."""
-        return {name: self.window(t0, t1) for name, (t0, t1) in self.spans.items()}
-
-    def close(self) -> None:
-        """Stop sampling and wait for the samples still on their way."""
-        self._stop.set()
-        if self._proc is not None:
-            self._proc.terminate()
-            self._proc.wait(timeout=5)
-        if self._reader is not None:
-            self._reader.join(timeout=5)
 
 
 class Deadline(BaseCallback):
@@ -304,33 +233,6 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
     return result
 
 
-def curve_points(run_dir: Path) -> list[list[float]]:
-    """``[timestep, minutes since the start, game score]`` of every training game, in the order they ended."""
-    from sbagents.core.monitor_files import read_monitor_files
-    from sbagents.visualize.curves import load_run_curve
-
-    curve = load_run_curve(run_dir, ENV_ID)
-    episodes = read_monitor_files(run_dir)
-    start = episodes.t_start if episodes.t_start is not None else 0.0
-    minutes = (episodes.end_times - start) / 60.0
-    return [[int(t), round(float(m), 3), float(r)] for t, m, r in zip(curve.timesteps, minutes, curve.returns,
-                                                                      strict=False)]
-
-
-def curve_stats(points: list[list[float]]) -> dict[str, Any]:
-    """Rolling mean (:data:`ROLLING` games) at the end, its best, and when it first reached :data:`TARGET`."""
-    if not points:
-        return {"games": 0}
-    returns = np.array([p[2] for p in points])
-    k = min(ROLLING, len(returns))
-    rolling = np.convolve(returns, np.ones(k) / k, mode="valid")
-    reached = np.flatnonzero(rolling >= TARGET)
-    first = None if not len(reached) else points[int(reached[0]) + k - 1]
-    return {"games": len(points), "rolling_games": k, "final_rolling_mean": round(float(rolling[-1]), 2),
-            "best_rolling_mean": round(float(rolling.max()), 2),
-            "reached_target_at": None if first is None else {"timestep": first[0], "minutes": first[1]}}
-
-
 def evaluate_envpool(results: Results, model: Any, seed: int, tiny: bool) -> dict[str, Any]:
     """Phase 3: greedy games on EnvPool (one per env, in parallel)."""
     from stable_baselines3.common.evaluation import evaluate_policy
@@ -353,31 +255,6 @@ def evaluate_envpool(results: Results, model: Any, seed: int, tiny: bool) -> dic
            "returns": [float(r) for r in returns], "mean_frames": float(np.mean(lengths))}
     results.data["eval_envpool"] = out
     return out
-
-
-def plot_curve(points: list[list[float]], path: Path, title: str) -> None:
-    """Training game scores (dots) and their rolling mean against timesteps, the +18 aim dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
-    if points:
-        steps = np.array([p[0] for p in points])
-        returns = np.array([p[2] for p in points])
-        ax.scatter(steps, returns, s=4, alpha=0.3, label="training game")
-        k = min(ROLLING, len(returns))
-        rolling = np.convolve(returns, np.ones(k) / k, mode="valid")
-        ax.plot(steps[k - 1:], rolling, lw=2, label=f"mean of {k} games")
-    ax.axhline(TARGET, ls="--", color="grey", label=f"+{TARGET:g}")
-    ax.set(xlabel="timesteps", ylabel="game score", ylim=(-21.5, 21.5), title=title)
-    ax.legend(loc="lower right")
-    fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
 
 
 def machine(device: str) -> dict[str, Any]:
@@ -456,106 +333,28 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def _fmt_gpu(window: dict[str, float] | None) -> str:
-    return "-" if not window else f"{window['util_mean']:.0f}% (max {window['util_max']:.0f}%)"
-
-
-def markdown(data: dict[str, Any]) -> str:
-    """The ``atari-gpu`` section of BENCHMARKS.md from the results of :func:`run`."""
-    m = data["machine"]
-    command = " ".join(["python3 -m benchmarks.atari_gpu", *data.get("argv", [])])
-    lines = ["## Pong on EnvPool in one command on a GPU machine", "",
-             f"Command (on the device, after installing the wheels): `{command}`; {m['gpu'] or m['device']}, "
-             f"{m['cores']} cores ({m['cpu']}), Python {m['python']}, torch {m['torch']}, envpool {m['envpool']}, "
-             f"SB3 {m['stable_baselines3']}; {m['date']}; {data['seconds']:.0f} s in all "
-             f"(budget {data['budget_s']:.0f} s); GPU utilisation from {data.get('gpu_source') or 'nothing'}. "
-             "Rendered by `python -m benchmarks.atari_gpu --render <atari_gpu.json>`.", ""]
-    comp, gpu = data.get("compare") or {}, data.get("gpu") or {}
-    if comp.get("ppo"):
-        n = comp["n_envs"]
-        lines += [f"Side by side ({n} envs; env-only: random actions, same preprocessing; PPO: the "
-                  "`PongNoFrameskip-v4` entry, timed after one rollout; rollout: the collection phase alone):", "",
-                  "| vec env | env-only steps/s | PPO steps/s | PPO rollout steps/s | GPU busy (PPO) |",
-                  "|---|---:|---:|---:|---:|"]
-        order = [k for k in ("dummy", "subproc", "envpool") if k in comp["ppo"]]
-        for name, row in [(k, comp["ppo"][k]) for k in order + [k for k in comp["ppo"] if k not in order]]:
-            kind = name if name in comp["env"] else None
-            env = f"{comp['env'][kind]:,}" if kind else "-"
-            label = name if kind else f"envpool, {row['n_envs']} envs, batch {row['batch_size']}"
-            lines.append(f"| {label} | {env} | {row['fps']:,} | {row.get('rollout_fps', 0):,} | "
-                         f"{_fmt_gpu(gpu.get(f'ppo_{name}'))} |")
-        if comp.get("ratios"):
-            lines += ["", "Ratios: " + ", ".join(f"{k} {v:.2f}x" for k, v in comp["ratios"].items()) + "."]
-    choice = data.get("choice") or {}
-    learned = data.get("learn") or {}
-    if learned.get("steps"):
-        reached = learned.get("reached_target_at")
-        verdict = (f"the mean of {learned['rolling_games']} training games first reached +{TARGET:g} at "
-                   f"{reached['timestep']:,} steps ({reached['minutes']:.1f} min)" if reached else
-                   f"the mean of {learned.get('rolling_games', 0)} training games did not reach +{TARGET:g}")
-        p = learned["params"]
-        setting = f"{p['n_envs']} envs x {p['n_steps']} steps, batch {p['batch_size']}"
-        lines += ["", f"Learning: {choice.get('reason', '')}. PPO ({setting}) trained {learned['steps']:,} "
-                  f"steps in {learned['seconds']:.0f} s ({learned['fps']:,} steps/s overall, GPU "
-                  f"{_fmt_gpu(gpu.get('learn'))}); {learned['games']} games; {verdict}; rolling mean at the end "
-                  f"{learned.get('final_rolling_mean')}, best {learned.get('best_rolling_mean')}. "
-                  f"At {learned['fps']:,} steps/s, RL Zoo's 10M-step budget would take "
-                  f"{10_000_000 / learned['fps'] / 60:.0f} min."]
-        ale = learned.get("final_eval_ale")
-        ev = data.get("eval_envpool")
-        if ev:
-            lines.append(f"Greedy evaluation: EnvPool {ev['mean']:+.1f} +- {ev['std']:.1f} over {ev['n_games']} games"
-                         + (f"; plain ALE env (AtariWrapper, as `evaluate` plays) {ale['mean_return']:+.1f} over "
-                            f"{ale['n_episodes']} games." if ale else "."))
-        lines += ["", f"![Pong PPO on EnvPool](benchmarks/results/{PNG_NAME})"]
-    if data.get("errors"):
-        lines += ["", "Errors: " + "; ".join(data["errors"])]
-    if data.get("notes"):
-        lines += ["", "Notes: " + " ".join(data["notes"])]
-    return "\n".join(lines)
-
-
-def render(json_path: Path, output: str, results_dir: Path) -> str:
-    """Write the section into ``output`` and copy the JSON and PNG next to it into ``results_dir``."""
-    from benchmarks.report import write_section
-
-    data = json.loads(json_path.read_text())
-    text = markdown(data)
-    results_dir.mkdir(parents=True, exist_ok=True)
-    _atomic_write(results_dir / JSON_NAME, json_path.read_bytes())
-    png = json_path.with_name(PNG_NAME)
-    if png.exists():
-        _atomic_write(results_dir / PNG_NAME, png.read_bytes())
-    if output:
-        write_section(output, text, SECTION)
-    print(text)
-    return text
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the phases (``--out``), or render a results file into BENCHMARKS.md (``--render``)."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.atari_gpu", description=__doc__,
+def run_cli(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run atari-gpu --out DIR [OPTIONS]``: run the phases (files in ``DIR`` as each ends),
+    copy the curve into ``benchmarks/results/`` and return the results."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=None, help="folder for atari_gpu.json and atari_gpu_curve.png")
+    parser.add_argument("--out", required=True, help="folder for atari_gpu.json and atari_gpu_curve.png")
     parser.add_argument("--budget-s", type=float, default=470.0, help="seconds for all phases (default 470)")
     parser.add_argument("--device", default="auto", help="torch device (auto: cuda if available)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--tiny", action="store_true", help="4 envs and tiny measurements (the CPU smoke run)")
-    parser.add_argument("--render", default=None, metavar="JSON", help="write the section from a results file")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file --render updates ('' = none)")
-    parser.add_argument("--results-dir", default="benchmarks/results", help="where --render copies JSON and PNG")
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if args.render is not None:
-        render(Path(args.render), args.output, Path(args.results_dir))
-        return 0
-    if args.out is None:
-        parser.error("--out DIR (or --render JSON) is required")
+    args = parser.parse_args(list(argv))
     if args.budget_s < 30:
         parser.error("--budget-s must be >= 30")
-    data = run(Path(args.out), args.budget_s, args.device, args.seed, args.tiny,
-               list(sys.argv[1:] if argv is None else argv))
-    return 1 if data.get("errors") else 0
+    data = run(Path(args.out), args.budget_s, args.device, args.seed, args.tiny, list(argv))
+    png = Path(args.out) / PNG_NAME
+    if png.exists() and png.resolve() != (RESULTS_DIR / PNG_NAME).resolve():
+        _atomic_write(RESULTS_DIR / PNG_NAME, png.read_bytes())
+    return data
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results=JSON_NAME,
+              summary="Pong PPO on EnvPool on a GPU machine: fps side by side, GPU busy, learning curve",
+              run=run_cli, render=markdown),
+)

@@ -11,7 +11,9 @@ rows (no ``summary.json``, so the runs table reads the monitor file too). Then, 
   bounded amount per request): the first request's time, the number of requests and their total time, the peak
   resident memory and the resident memory before the first request (imports and the app).
 
-    python -m benchmarks.dashboard_hostile [--mib 1024] [--path DIR] [--output docs/dashboard.md] [--json FILE]
+    python -m benchmarks run dashboard-hostile [--mib 1024] [--path DIR]
+
+Results: ``benchmarks/results/dashboard_hostile.json``; section ``dashboard-hostile`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
@@ -26,10 +28,13 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from benchmarks.harness import Benchmark
 
 SECTION = "dashboard-hostile"
 RUN = "ddpg/sbagents_SmartHome-v0_1"
@@ -124,7 +129,12 @@ def child(scenario: str, folder: Path) -> dict[str, Any]:
             "points": len(data["train"]["returns"]), "rss_before_mib": before, "peak_mib": _peak_mib()}
 
 
-def run(mib: int, path: str | None = None) -> dict[str, Any]:
+#: A scenario's child process (``python -c CHILD SCENARIO FOLDER``): prints its results as one JSON line.
+CHILD = ("import json, sys; from pathlib import Path; from benchmarks.suites.dashboard_hostile import child; "
+         "print(json.dumps(child(sys.argv[1], Path(sys.argv[2]))))")
+
+
+def measure(mib: int, path: str | None = None) -> dict[str, Any]:
     """Generate the files, run both scenarios in child processes, return their results."""
     from benchmarks.report import machine_info  # not in the children: their memory is the dashboard's
 
@@ -134,9 +144,9 @@ def run(mib: int, path: str | None = None) -> dict[str, Any]:
         out: dict[str, Any] = {"machine": machine_info(), "mib": mib}
         env = {**os.environ, "SBAGENTS_CACHE_DIR": str(folder / "cache")}
         for scenario in ("log", "monitor"):
-            proc = subprocess.run([sys.executable, "-m", "benchmarks.dashboard_hostile", "--child", scenario,
-                                   "--path", str(folder / "logs")], capture_output=True, text=True, env=env,
-                                  check=True, cwd=Path(__file__).resolve().parents[1])
+            proc = subprocess.run([sys.executable, "-c", CHILD, scenario, str(folder / "logs")],
+                                  capture_output=True, text=True, env=env, check=True,
+                                  cwd=Path(__file__).resolve().parents[2])
             out[scenario] = json.loads(proc.stdout.strip().splitlines()[-1])
         return out
     finally:
@@ -144,11 +154,16 @@ def run(mib: int, path: str | None = None) -> dict[str, Any]:
             shutil.rmtree(folder, ignore_errors=True)
 
 
-def markdown(result: dict[str, Any], command: str) -> str:
+def markdown(result: dict[str, Any]) -> str:
+    """The ``dashboard-hostile`` section, from the results alone."""
     log, mon, m = result["log"], result["monitor"], result["machine"]
     return "\n".join([
+        "## Dashboard: a log without newline and a big monitor file", "",
         f"Machine: {m.get('cpu', '?')}, {m.get('cores', '?')} cores, Python {m.get('python', '?')}; "
-        f"{m.get('date', '')}. Command: `{command}`.", "",
+        f"{m.get('date', '')}. Command: `{result['command']}`.", "",
+        f"A {result['mib']} MiB transparency log without a newline beside a small log, and a {result['mib']} MiB "
+        "monitor file, each scenario served in a fresh process through the app's test client (see "
+        "[docs/dashboard.md](docs/dashboard.md) for the limits they test).", "",
         f"| {result['mib']} MiB files | measured |", "|---|---:|",
         f"| request for a small log, 0.2 s after one for the log without newline | {1000 * log['small_s']:.0f} ms |",
         f"| request for the log without newline (answers a note) | {1000 * log['big_s']:.0f} ms |",
@@ -161,26 +176,20 @@ def markdown(result: dict[str, Any], command: str) -> str:
     ])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.dashboard_hostile", description=__doc__,
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run dashboard-hostile [OPTIONS]``: measure; the results record the command."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--mib", type=int, default=1024, help="size of the log without newline and of the monitor file")
     parser.add_argument("--path", default=None, help="folder for the generated files (default: a temporary one)")
-    parser.add_argument("--output", default="docs/dashboard.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default="benchmarks/results/dashboard_hostile.json",
-                        help="raw results ('' = none)")
-    parser.add_argument("--child", choices=("log", "monitor"), help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.child:
-        print(json.dumps(child(args.child, Path(args.path))))
-        return 0
-    from benchmarks.report import publish
-
-    result = run(args.mib, args.path)
-    command = "python -m benchmarks.dashboard_hostile" + (f" --mib {args.mib}" if args.mib != 1024 else "")
-    publish(markdown(result, command), result, args.output, args.json, SECTION)
-    return 0
+    args = parser.parse_args(list(argv))
+    result = measure(args.mib, args.path)
+    result["command"] = f"python -m benchmarks run {SECTION}" + (f" --mib {args.mib}" if args.mib != 1024 else "")
+    return result
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="suites", results="dashboard_hostile.json",
+              summary="dashboard on hostile files: a 1 GiB log without newline, a 1 GiB monitor file",
+              run=run, render=markdown),
+)

@@ -5,7 +5,7 @@ of 1,000 episodes, ``evaluations.npz``), then, through the Flask app's test clie
 listing (every run read: the baseline), the next listings (rows cached, each run dir only ``stat``-ed; median of 5),
 and a listing after one run's files changed (that run re-read).
 
-    python -m benchmarks.dashboard_runs [--runs 200] [--output BENCHMARKS.md]
+    python -m benchmarks run dashboard-runs [--runs 200]
 """
 
 from __future__ import annotations
@@ -15,12 +15,14 @@ import json
 import statistics
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.report import machine_info, publish
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
 
 SECTION = "dashboard-runs"
 
@@ -44,7 +46,8 @@ def generate(folder: Path, n_runs: int, episodes: int = 1000) -> None:
         np.savez(run_dir / "evaluations.npz", timesteps=np.arange(1, 11) * 10_000, results=np.zeros((10, 5)))
 
 
-def run(n_runs: int = 200) -> dict[str, Any]:
+def measure(n_runs: int = 200) -> dict[str, Any]:
+    """Time ``/api/runs`` over ``n_runs`` generated run dirs: first listing, next ones (median of 5), one changed."""
     from sbagents.dashboard.app import create_app
     from sbagents.dashboard.folders import ServedFolders
 
@@ -69,8 +72,9 @@ def run(n_runs: int = 200) -> dict[str, Any]:
             "one_changed_s": one_changed, "cold_over_warm": cold / warm}
 
 
-def markdown(result: dict[str, Any], command: str) -> str:
-    m = result["machine"]
+def markdown(result: dict[str, Any]) -> str:
+    """The ``dashboard-runs`` section, from the results alone."""
+    m, command = result["machine"], result["command"]
     return "\n".join([
         "## Dashboard: listing runs", "",
         f"Machine: {m.get('cpu', '?')}, {m.get('cores', '?')} cores, Python {m.get('python', '?')}; "
@@ -85,18 +89,19 @@ def markdown(result: dict[str, Any], command: str) -> str:
     ])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.dashboard_runs", description=__doc__,
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run dashboard-runs [--runs N]``: measure; the results record the command."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=int, default=200, help="run dirs to generate")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default="benchmarks/results/dashboard_runs.json", help="raw results ('' = none)")
-    args = parser.parse_args(argv)
-    result = run(args.runs)
-    command = "python -m benchmarks.dashboard_runs" + (f" --runs {args.runs}" if args.runs != 200 else "")
-    publish(markdown(result, command), result, args.output, args.json, SECTION)
-    return 0
+    args = parser.parse_args(list(argv))
+    result = measure(args.runs)
+    result["command"] = " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))])
+    return result
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="dashboard_runs.json",
+              summary="dashboard /api/runs over 200 generated run dirs: first listing vs cached ones",
+              run=run, render=markdown),
+)

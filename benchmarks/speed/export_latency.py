@@ -7,38 +7,35 @@ weights; latency does not depend on the weights, parity barely does), then expor
 ``latency_table``): parity on observations recorded with the greedy policy, single-observation latency
 p50/p99 over ``--latency-n`` calls, one torch / onnxruntime thread.
 
-    python -m benchmarks.export_latency [--train-steps 2000] [--latency-n 1000] [--output BENCHMARKS.md]
+    python -m benchmarks run export-latency [--train-steps 2000] [--latency-n 1000] [--n-observations 1000]
+    python -m benchmarks run export-latency --quick    # smoke run: untrained, 200 calls, 200 observations
 
-Writes the section between ``<!-- export-latency:start -->`` / ``<!-- export-latency:end -->`` of
-``--output`` (the hand-made ``export`` section stays as it is).
+Results: ``benchmarks/results/export_latency.json``; section ``export-latency`` of ``BENCHMARKS.md``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 import time
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
-if __package__ in (None, ""):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.vec_env import VecNormalize
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
-
-import sbagents  # noqa: E402,F401  (registers the env ids)
-from benchmarks.report import machine_info, publish  # noqa: E402
-from sbagents.core.env_names import resolve_env  # noqa: E402
-from sbagents.core.experiment import build_experiment  # noqa: E402
-from sbagents.core.options import TrainSpec  # noqa: E402
-from sbagents.deploy.exporting import ExportChecks, export_run  # noqa: E402
-from sbagents.env_factory import make_vec, normalize_for_training  # noqa: E402
-from sbagents.pipeline.models import make_model  # noqa: E402
+import sbagents  # noqa: F401  (registers the env ids)
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
+from sbagents.core.env_names import resolve_env
+from sbagents.core.experiment import build_experiment
+from sbagents.core.options import TrainSpec
+from sbagents.deploy.exporting import ExportChecks, export_run
+from sbagents.env_factory import make_vec, normalize_for_training
+from sbagents.pipeline.models import make_model
 
 ENV_ID = "sbagents/SmartHome-v0"
 ALGO = "ddpg"
@@ -97,13 +94,6 @@ def run(
     }
 
 
-def command(results: dict[str, Any]) -> str:
-    """The command that reproduces ``results``."""
-    return (f"python -m benchmarks.export_latency --train-steps {results['train_steps']} "
-            f"--latency-n {results['latency_n']} --n-observations {results['n_parity_observations']} "
-            f"--seed {results['seed']}")
-
-
 def markdown(results: dict[str, Any]) -> str:
     """The ``export-latency`` Markdown section: sizes, parity and p50/p99 latency per variant."""
     m, lat = results["machine"], results["latency"]
@@ -122,7 +112,7 @@ def markdown(results: dict[str, Any]) -> str:
     lines = [
         "## Export latency: SmartHome DDPG, SB3 vs ONNX fp32 vs int8",
         "",
-        f"Command: `{command(results)}` (also run by `python -m benchmarks`). DDPG from the shipped zoo "
+        f"Command: `{results['command']}`. DDPG from the shipped zoo "
         f"config (`zoo_configs/ddpg.yml`, seed {results['seed']}) {weights}; parity = max abs action "
         f"difference vs `model.predict` on {results['n_parity_observations']:,} observations recorded with "
         f"the greedy policy (action bounds {bounds}); single-observation latency over "
@@ -145,25 +135,30 @@ def markdown(results: dict[str, Any]) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Arguments of ``python -m benchmarks.export_latency``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.export_latency",
+    """Options of ``python -m benchmarks run export-latency``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}",
                                      description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--train-steps", type=int, default=2000, help="DDPG steps before export (0: none)")
     parser.add_argument("--latency-n", type=int, default=1000, help="timed calls per variant")
     parser.add_argument("--n-observations", type=int, default=1000, help="observations for the parity check")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default="", help="Markdown file to update ('' to only print)")
-    parser.add_argument("--json", default="", help="raw results file ('' to skip)")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: no training, 200 calls, 200 observations (overrides those options)")
     return parser
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Measure, print the section, and write it into ``--output`` / the raw numbers into ``--json``."""
-    args = build_parser().parse_args(argv)
+def run_cli(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run export-latency [OPTIONS]``: measure; the results record the command."""
+    args = build_parser().parse_args(list(argv))
+    if args.quick:
+        args.train_steps, args.latency_n, args.n_observations = 0, 200, 200
     results = run(args.train_steps, args.latency_n, args.n_observations, args.seed)
-    publish(markdown(results), results, args.output, args.json, SECTION)
+    results["command"] = " ".join(["python -m benchmarks run", SECTION, *recorded_argv(list(argv))])
     return results
 
 
-if __name__ == "__main__":
-    main()
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="export_latency.json",
+              summary="SmartHome DDPG: SB3 predict vs ONNX fp32 vs int8 latency, sizes and parity",
+              run=run_cli, render=markdown),
+)

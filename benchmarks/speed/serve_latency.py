@@ -18,7 +18,7 @@ released by one barrier ("at once": all connect in the same instant) and once wi
 ``i x 20 ms`` later ("staggered"). Reported: requests lost (no 200 reply: connection reset or refused, dropped
 without a reply, timed out) and p50/p99 of the answered ones (a client's first includes its connect).
 
-    python -m benchmarks.serve_latency [--n 2000] [--clients 50] [--burst 1000] [--output BENCHMARKS.md]
+    python -m benchmarks run serve-latency [--n 2000] [--clients 50] [--burst 1000]
 """
 
 from __future__ import annotations
@@ -36,17 +36,19 @@ import tempfile
 import threading
 import time
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.report import machine_info, publish, recorded_argv
+from benchmarks.harness import Benchmark
+from benchmarks.report import machine_info, recorded_argv
 
 ENV_ID = "sbagents/SmartHome-v0"
 SECTION = "serve-latency"
 WARMUP = 50
-COMMAND = "python -m benchmarks.serve_latency"
+COMMAND = f"python -m benchmarks run {SECTION}"
 #: Start delay between clients in the staggered burst (seconds).
 STAGGER = 0.02
 
@@ -236,7 +238,7 @@ def markdown(result: dict[str, Any]) -> str:
     """The BENCHMARKS.md section."""
     m = result["machine"]
     base = result["stdio"]
-    command = result.get("command", COMMAND)
+    command = result["command"]
     lines = ["## Serving an exported policy: HTTP vs stdin/stdout", "",
              f"Machine: {m['cpu']}, {m['cores']} cores, Python {m['python']}; {m['date']}, load average "
              f"{result['load']} at the start. SmartHome DDPG (shipped "
@@ -269,21 +271,21 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_cli(argv: Sequence[str]) -> dict[str, Any]:
+    """``python -m benchmarks run serve-latency [OPTIONS]``: measure; the results record the command."""
     parser = argparse.ArgumentParser(prog=COMMAND, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--n", type=int, default=2000, help="timed round trips per variant")
     parser.add_argument("--clients", type=int, default=50, help="client threads of the bursts")
     parser.add_argument("--burst", type=int, default=1000, help="requests per burst, all clients together (0: none)")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default="benchmarks/results/serve_latency.json", help="raw results ('' = none)")
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
+    args = parser.parse_args(list(argv))
     result = run(args.n, args.clients, args.burst)
-    result["command"] = " ".join([COMMAND, *recorded_argv(argv)])
-    publish(markdown(result), result, args.output, args.json, SECTION)
-    return 0
+    result["command"] = " ".join([COMMAND, *recorded_argv(list(argv))])
+    return result
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="speed", results="serve_latency.json",
+              summary="serving an ONNX policy: HTTP vs stdin/stdout latency, memory, bursts of clients",
+              run=run_cli, render=markdown),
+)

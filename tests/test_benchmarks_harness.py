@@ -125,3 +125,28 @@ def test_seed_stats_are_reproducible_and_bracket_the_iqm() -> None:
     assert format_iqm(first).startswith("4.82 [")
     one = seed_stats([3.0])
     assert one["iqm_ci"] == [3.0, 3.0] and one["std"] == 0.0
+
+
+def test_suite_time_parses_pytest_and_renders_ratios(monkeypatch: pytest.MonkeyPatch) -> None:
+    from benchmarks.suites import suite_time
+
+    assert suite_time.pytest_counts("....\n1115 passed, 27 skipped, 33 warnings in 1185.87s (0:19:45)\n") == {
+        "passed": 1115, "skipped": 27}
+    assert suite_time.pytest_counts("3 failed, 10 passed, 1 error in 2.0s") == {"failed": 3, "passed": 10,
+                                                                                "error": 1}
+    walls = iter([100.0, 40.0, 20.0])
+
+    def fake_time_suite(rev: str, args: list[str]) -> dict[str, object]:
+        return {"rev": rev, "pytest_args": list(args), "wall_s": next(walls), "returncode": 0,
+                "counts": {"passed": 3}}
+
+    monkeypatch.setattr(suite_time, "time_suite", fake_time_suite)
+    monkeypatch.setattr(suite_time, "_rev", lambda rev: rev[:7])
+    results = suite_time.run(["--before", "aaaaaaaaa", "--after", "bbbbbbbbb"])
+    assert [r["label"] for r in results["runs"]] == ["whole suite", "whole suite", "developer loop"]
+    assert results["runs"][2]["pytest_args"] == ["-m", "not slow"]
+    section = suite_time.render(results)
+    assert "| aaaaaaa | whole suite | `-` | 3 passed | 0 | 100 | 1.00x |" in section
+    assert "| bbbbbbb | whole suite | `-` | 3 passed | 0 | 40 | 2.50x |" in section
+    assert "| bbbbbbb | developer loop | `-m not slow` | 3 passed | 0 | 20 | 5.00x |" in section
+    assert results["command"] == "python -m benchmarks run suite-time --before aaaaaaa --after bbbbbbb"

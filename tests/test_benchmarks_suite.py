@@ -162,6 +162,13 @@ def test_speed_markdown_has_ratios() -> None:
     assert {"1.20x", "1.40x"} <= set(ppo_64)  # batched / reference and no-op / reference at 64 envs
     stepping = next(r for r in rows if "7,500,000" in r)
     assert {"30.0x", "60.0x"} <= set(stepping)  # 7.5e6 / 2.5e5 and 1.5e7 / 2.5e5
+    # with the rounds recorded, the per-round ratios' range follows the ratio of the medians
+    env = results["envs"]["sbagents/GridWorld-v0"]  # type: ignore[index]
+    env["steps_per_s_rounds"] = {"reference": [2e5, 2.5e5, 3e5], "batched": [8e6, 7.5e6, 6e6]}
+    env["ppo_fps_rounds"] = {"reference_64": [5e4, 4e4], "batched_64": [6e4, 6e4]}
+    rows = _cells(speed.markdown(results))
+    assert "30.0x (20.00-40.00)" in next(r for r in rows if "7,500,000" in r)
+    assert "1.20x (1.20-1.50)" in next(r for r in rows if r[:2] == ["sbagents/GridWorld-v0", "64"])
 
 
 def test_noop_vec_env_replays_a_step_with_fresh_outputs() -> None:

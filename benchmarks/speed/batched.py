@@ -176,12 +176,25 @@ def ppo_fps(env_id: str, vec_kind: str, n_envs: int, min_steps: int = 24_000, se
     return fps
 
 
-def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, float]:
-    samples: dict[str, list[float]] = {k: [] for k in fns}
+def _median_rounds(fns: dict[str, Callable[[], float]], rounds: int,
+                   samples: dict[str, list[float]] | None = None) -> dict[str, float]:
+    """Run the measurements interleaved ``rounds`` times; their medians (each round's values appended to
+    ``samples`` when given, so the section can show the per-round ratios' range)."""
+    samples = {} if samples is None else samples
+    for key in fns:
+        samples.setdefault(key, [])
     for _ in range(rounds):
         for key, fn in fns.items():
             samples[key].append(fn())
-    return {k: statistics.median(v) for k, v in samples.items()}
+    return {k: statistics.median(samples[k]) for k in fns}
+
+
+def ratio_range(rounds: dict[str, list[float]] | None, num: str, den: str) -> str:
+    """`` (min-max)`` of the per-round ratios ``num / den`` (paired by round); ``""`` without rounds."""
+    if not rounds or len(rounds.get(num, [])) < 2:
+        return ""
+    ratios = [a / b for a, b in zip(rounds[num], rounds[den], strict=True)]
+    return f" ({min(ratios):.2f}-{max(ratios):.2f})"
 
 
 def measure(rounds: int = 3, quick: bool = False, env_ids: Sequence[str] = ENV_IDS) -> dict[str, Any]:
@@ -207,18 +220,23 @@ def measure(rounds: int = 3, quick: bool = False, env_ids: Sequence[str] = ENV_I
                 make_vec_kind(e, "noop", N_ENVS, 0, k), n
             ),
         }
-        env_rates = _median_rounds(fns, rounds)
+        env_rounds: dict[str, list[float]] = {}
+        env_rates = _median_rounds(fns, rounds, env_rounds)
         ppo: dict[str, float] = {}
+        ppo_rounds: dict[str, list[float]] = {}
         for n_envs in sorted({n_cfg, N_ENVS}):
             ppo_fns: dict[str, Callable[[], float]] = {
                 kind: partial(ppo_fps, env_id, kind, n_envs, 6_000 if quick else 48_000)
                 for kind in ("reference", "batched", "noop")
             }
-            rates = _median_rounds(ppo_fns, 1 if quick else rounds)
+            samples: dict[str, list[float]] = {}
+            rates = _median_rounds(ppo_fns, 1 if quick else rounds, samples)
             ppo.update({f"{kind}_{n_envs}": v for kind, v in rates.items()})
+            ppo_rounds.update({f"{kind}_{n_envs}": v for kind, v in samples.items()})
         batch = {str(n): ppo_kwargs(env_id, n).get("batch_size", 64) for n in sorted({n_cfg, N_ENVS})}
         results["envs"][env_id] = {"env_kwargs": kwargs, "config_n_envs": n_cfg, "steps_per_s": env_rates,
-                                   "ppo_fps": ppo, "ppo_batch_size": batch}
+                                   "ppo_fps": ppo, "ppo_batch_size": batch,
+                                   "steps_per_s_rounds": env_rounds, "ppo_fps_rounds": ppo_rounds}
     results["machine"]["load_before"] = [round(x, 2) for x in load_before]
     results["machine"]["load_after"] = [round(x, 2) for x in os.getloadavg()]
     results["seconds"] = round(time.perf_counter() - started, 1)
@@ -251,8 +269,10 @@ def markdown(results: dict[str, Any]) -> str:
     ]
     for env_id, r in results["envs"].items():
         s = r["steps_per_s"]
+        span = ratio_range(r.get("steps_per_s_rounds"), "batched", "reference")
         lines.append(f"| {env_id} | {_fmt(s['single'])} | {_fmt(s['reference'])} | {_fmt(s['batched'])} | "
-                     f"{s['batched'] / s['reference']:.1f}x | {_fmt(s['noop'])} | {s['noop'] / s['reference']:.1f}x |")
+                     f"{s['batched'] / s['reference']:.1f}x{span} | "
+                     f"{_fmt(s['noop'])} | {s['noop'] / s['reference']:.1f}x |")
     lines += [
         "",
         "PPO training fps (`model.learn` only, zoo hyperparameters, torch 1 thread). At an `n_envs` other than "
@@ -269,14 +289,16 @@ def markdown(results: dict[str, Any]) -> str:
             noop = r["ppo_fps"][f"noop_{n}"]
             tag = " (config)" if n == r["config_n_envs"] else ""
             batch = r["ppo_batch_size"][str(n)]
-            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x | "
+            span = ratio_range(r.get("ppo_fps_rounds"), f"batched_{n}", f"reference_{n}")
+            lines.append(f"| {env_id} | {n}{tag} | {batch} | {_fmt(ref)} | {_fmt(bat)} | {bat / ref:.2f}x{span} | "
                          f"{_fmt(noop)} | {noop / ref:.2f}x |")
     lines += [
         "",
         "Reference VecEnvs: GridWorld `make_vec_env` (DummyVecEnv of Monitor-wrapped envs); TreasureHunt, "
         "simple spread and pursuit `sbagents.multiagent.parameter_sharing.ParameterSharingVecEnv` (the `policies: "
         "shared` team "
-        "VecEnv). Medians of interleaved rounds. *No-op* is "
+        "VecEnv). Medians of interleaved rounds (in brackets, where recorded: the range of the per-round ratios). "
+        "*No-op* is "
         "`benchmarks.speed.noop_vec_env.NoOpVecEnv`: it returns fresh arrays and one fresh info dict per slot, as "
         "SB3 requires, and does no env work, so its figures are the ceiling of any VecEnv for these envs.",
     ]

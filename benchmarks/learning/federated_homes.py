@@ -13,13 +13,14 @@ criterion share and success rate on the held-out homes (``--episodes`` greedy ep
 Then personal fine-tuning (``--personal-steps``) of the federated policy in the client and held-out homes where it
 does worst: comfort and energy use before and after.
 
-    python -m benchmarks.federated_homes --seeds 0 1 2 --rounds 24 --local-steps 250
-    python -m benchmarks.federated_homes --seeds 0 --add fedprox:0.01 dp-fedavg:0.1 dp-fedavg:0.3   # more rows
-    python -m benchmarks.federated_homes --seeds 0 1 2 --add personal:27.5:95
+    python -m benchmarks run federated-homes --seeds 0 1 2 --rounds 24 --local-steps 250
+    python -m benchmarks run federated-homes --seeds 0 --add fedprox:0.01 dp-fedavg:0.1 dp-fedavg:0.3   # more rows
+    python -m benchmarks run federated-homes --seeds 0 1 2 --add personal:27.5:95
 
 ``--add STRATEGY:PARAM`` trains only the federation with that strategy (FedProx's mu, DP-FedAvg's noise
-multiplier with clip ``--dp-clip``) and adds its rows to the saved results of the same seeds; ``--add personal:T:L``
-trains the federation again and fine-tunes it for a user outside the population's ranges (T C, L lux).
+multiplier with clip ``--dp-clip``) and adds its rows to the saved results (``--stored``, by default the results
+file) of the same seeds; ``--add personal:T:L`` trains the federation again and fine-tunes it for a user outside the
+population's ranges (T C, L lux). Flower (``pip install -e ".[federated]"``) is imported only to train.
 """
 
 from __future__ import annotations
@@ -27,29 +28,27 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 
-from benchmarks.report import publish
-from sbagents.core.zoo_config import parse_overrides
-from sbagents.federated.evaluation import evaluate_homes, for_home
-from sbagents.federated.homes import Home, client_homes, held_out_homes
-from sbagents.federated.local import home_experiment, make_env, new_model
-from sbagents.federated.personal import personalize
-from sbagents.federated.runner import federate
-from sbagents.federated.settings import FederatedSettings
-
-RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "federated-homes"
 EVAL_SEED = 90_000
 
 
-def evaluate(model: Any, settings: FederatedSettings, episodes: int) -> dict[str, Any]:
+def evaluate(model: Any, settings: Any, episodes: int) -> dict[str, Any]:
     """Held-out and client homes' comfort of ``model``."""
+    from sbagents.federated.evaluation import evaluate_homes
+    from sbagents.federated.homes import client_homes, held_out_homes
+    from sbagents.federated.local import home_experiment
+
     exp = home_experiment(settings)
     held = evaluate_homes(model, exp, held_out_homes(settings.held_out, settings.seed), episodes, EVAL_SEED)
     clients = evaluate_homes(model, exp, client_homes(settings.homes, settings.seed), episodes, EVAL_SEED)
@@ -58,9 +57,12 @@ def evaluate(model: Any, settings: FederatedSettings, episodes: int) -> dict[str
             "heldout_per_home": held["per_home"], "client_per_home": clients["per_home"]}
 
 
-def train_alone(settings: FederatedSettings, homes: list[Home]) -> tuple[Any, float]:
+def train_alone(settings: Any, homes: list[Any]) -> tuple[Any, float]:
     """One learner on ``homes``' envs at once (one home: local only; all: centralized), for each home's share of
-    the federation's steps."""
+    the federation's steps (``settings``: a ``FederatedSettings``; ``homes``: ``Home`` objects)."""
+    from sbagents.federated.evaluation import for_home
+    from sbagents.federated.local import home_experiment, make_env, new_model
+
     steps = settings.total_local_steps * len(homes)
     exp = home_experiment(settings, n_timesteps=steps)
     if len(homes) == 1:
@@ -74,9 +76,13 @@ def train_alone(settings: FederatedSettings, homes: list[Home]) -> tuple[Any, fl
     return model, time.perf_counter() - start
 
 
-def run_seed(settings: FederatedSettings, episodes: int, personal_steps: int, logs: str) -> dict[str, Any]:
+def run_seed(settings: Any, episodes: int, personal_steps: int, logs: str) -> dict[str, Any]:
     """The three trainings of one seed, and personal fine-tuning of the federated policy."""
     from stable_baselines3 import DDPG
+
+    from sbagents.federated.homes import client_homes, held_out_homes
+    from sbagents.federated.personal import personalize
+    from sbagents.federated.runner import federate
 
     load = os.getloadavg()[0]
     fed = federate(settings, logs, final_eval_episodes=0, quiet=True, verbose=0)
@@ -105,10 +111,13 @@ def run_seed(settings: FederatedSettings, episodes: int, personal_steps: int, lo
             "dp_epsilon": fed.summary["federated"]["dp_epsilon"]}
 
 
-def personal_outside(settings: FederatedSettings, spec: str, episodes: int, personal_steps: int, logs: str
-                     ) -> dict[str, Any]:
+def personal_outside(settings: Any, spec: str, episodes: int, personal_steps: int, logs: str) -> dict[str, Any]:
     """``personal:T:L``: the federation trained again (same settings and seed), then fine-tuned for a user outside
     the population's ranges (T C, L lux), where the global policy has never been."""
+    from sbagents.federated.homes import Home
+    from sbagents.federated.personal import personalize
+    from sbagents.federated.runner import federate
+
     _, temp, light = spec.split(":")
     fed = federate(settings, logs, final_eval_episodes=0, quiet=True, verbose=0)
     home = Home(0, "outside", float(temp), float(light))
@@ -117,9 +126,11 @@ def personal_outside(settings: FederatedSettings, spec: str, episodes: int, pers
     return {"kind": "outside the ranges", "home": vars(home), "before": result.before, "after": result.after}
 
 
-def run_added(settings: FederatedSettings, spec: str, episodes: int, logs: str) -> tuple[str, dict[str, Any]]:
+def run_added(settings: Any, spec: str, episodes: int, logs: str) -> tuple[str, dict[str, Any]]:
     """One more federated row (``fedprox:MU`` or ``dp-fedavg:NOISE``): its name and its results."""
     from stable_baselines3 import DDPG
+
+    from sbagents.federated.runner import federate
 
     strategy, _, value = spec.partition(":")
     if strategy == "fedprox":
@@ -142,19 +153,14 @@ def run_added(settings: FederatedSettings, spec: str, episodes: int, logs: str) 
 def markdown(result: dict[str, Any]) -> str:
     """The BENCHMARKS.md section."""
     s = result["settings"]
-    params = " ".join(f"{k}:{v}" for k, v in result["params"].items())
-    seeds = " ".join(str(r["seed"]) for r in result["runs"])
     lines = ["## Federated homes: SmartHome DDPG across 8 non-IID homes (Flower)", "",
-             f"Command: `python -m benchmarks.federated_homes --seeds {seeds} --rounds {s['rounds']} --local-steps "
-             f"{s['local_steps']} --strategy {s['strategy']} --episodes {result['episodes']} --personal-steps "
-             f"{result['personal_steps']}" + (f" --params {params}" if params else "") + "`. "
-             f"8 client homes in 4 tastes (cool/warm x dim/bright corners of the preference ranges), 8 held-out users "
+             f"Command: `{result['command']}`. 8 client homes in 4 tastes (cool/warm x dim/bright corners of the "
+             "preference ranges), 8 held-out users "
              f"drawn over the whole ranges; every home trains {s['rounds']} x {s['local_steps']} steps. Local only: "
              f"home 0 alone, the same steps; centralized: one learner on the 8 homes' envs, their pooled steps. "
              f"Comfort share = steps after the warm-up within 1 C and 5 lux ({result['episodes']} greedy episodes per "
              "home); success = episodes with a share >= 97%.", "",
-             *[f"More rows: `python -m benchmarks.federated_homes --seeds {' '.join(map(str, a['seeds']))} --add "
-               f"{' '.join(a['add'])} --dp-clip {a['dp_clip']}`." for a in result.get("added", [])], "",
+             *[f"More rows: `{a['command']}`." for a in result.get("added", [])], "",
              "| seed | training | held-out comfort | held-out success | client homes' comfort | train s |",
              "|---:|---|---:|---:|---:|---:|"]
     for run in result["runs"]:
@@ -177,11 +183,22 @@ def markdown(result: dict[str, Any]) -> str:
                          f"lux | {100 * b['criterion_share']:.1f}% -> {100 * a['criterion_share']:.1f}% | "
                          f"{b['mean_energy']:.3f} -> {a['mean_energy']:.3f} | {b['mean_return']:.1f} -> "
                          f"{a['mean_return']:.1f} |")
-    return "\n".join(lines)
+    rows: list[StatsRow] = [(name, "held-out comfort (%)", stats, ".1f") for name, stats in result["stats"].items()]
+    return "\n".join([*lines, "", *stats_table("training", rows)])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.federated_homes", description=__doc__)
+def add_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[training]``: the held-out comfort share (%) over the seeds that have the row."""
+    names = list(dict.fromkeys(name for run in result["runs"] for name in run["rows"]))
+    stats = {name: stats_of([100 * run["rows"][name]["heldout_share"] for run in result["runs"]
+                             if name in run["rows"]]) for name in names}
+    return {**result, "stats": stats}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--rounds", type=int, default=24)
     parser.add_argument("--local-steps", type=int, default=250)
@@ -189,52 +206,73 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=2, help="episodes per home in the evaluations")
     parser.add_argument("--personal-steps", type=int, default=2000)
     parser.add_argument("--params", nargs="*", default=[], metavar="KEY:VALUE")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default=str(RESULTS / "federated_homes.json"), help="raw results ('' = none)")
-    parser.add_argument("--render-only", action="store_true", help="re-render the section from --json")
     parser.add_argument("--add", nargs="+", default=[], metavar="STRATEGY:PARAM",
                         help="only train these federations (fedprox:MU, dp-fedavg:NOISE, personal:T:L) and add "
-                             "their rows to --json's seeds")
+                             "their rows to --stored's seeds")
     parser.add_argument("--dp-clip", type=float, default=1.0, help="--add dp-fedavg: the update clip")
-    args = parser.parse_args(argv)
-    if args.render_only:
-        result = json.loads(Path(args.json).read_text())
-    elif args.add:
-        torch.set_num_threads(1)
-        result = json.loads(Path(args.json).read_text())
-        s = result["settings"]
-        with tempfile.TemporaryDirectory() as logs:
-            for run in result["runs"]:
-                if run["seed"] not in args.seeds:
-                    continue
-                for spec in args.add:
-                    settings = FederatedSettings(homes=8, rounds=s["rounds"], local_steps=s["local_steps"],
-                                                 seed=run["seed"], dp_clip=args.dp_clip,
-                                                 hyperparams=result["params"])
-                    if spec.startswith("personal:"):
-                        run["personal"].append(personal_outside(settings, spec, result["episodes"],
-                                                                result["personal_steps"], logs))
-                        print(json.dumps({"seed": run["seed"], "personal": run["personal"][-1]}), flush=True)
-                        continue
-                    name, row = run_added(settings, spec, result["episodes"], logs)
-                    run["rows"][name] = row
-                    print(json.dumps({"seed": run["seed"], name: row}), flush=True)
-        result.setdefault("added", []).append({"seeds": args.seeds, "add": args.add, "dp_clip": args.dp_clip})
-    else:
-        torch.set_num_threads(1)
-        params = parse_overrides(args.params, "--params")
-        runs = []
-        with tempfile.TemporaryDirectory() as logs:
-            for seed in args.seeds:
-                settings = FederatedSettings(homes=8, rounds=args.rounds, local_steps=args.local_steps,
-                                             strategy=args.strategy, seed=seed, hyperparams=params)
-                runs.append(run_seed(settings, args.episodes, args.personal_steps, logs))
-                print(json.dumps(runs[-1]), flush=True)
-        result = {"settings": {"rounds": args.rounds, "local_steps": args.local_steps, "strategy": args.strategy},
-                  "params": params, "episodes": args.episodes, "personal_steps": args.personal_steps, "runs": runs}
-    publish(markdown(result), result, args.output, None if args.render_only else args.json, SECTION)
-    return 0
+    parser.add_argument("--stored", default=str(RESULTS_DIR / "federated_homes.json"),
+                        help="--add: the results the rows are added to")
+    return parser
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def add_rows(result: dict[str, Any], args: argparse.Namespace, logs: str) -> None:
+    """``--add``: train the added federations for ``args.seeds`` and put their rows into ``result``."""
+    from sbagents.federated.settings import FederatedSettings
+
+    s = result["settings"]
+    for run in result["runs"]:
+        if run["seed"] not in args.seeds:
+            continue
+        for spec in args.add:
+            settings = FederatedSettings(homes=8, rounds=s["rounds"], local_steps=s["local_steps"],
+                                         seed=run["seed"], dp_clip=args.dp_clip, hyperparams=result["params"])
+            if spec.startswith("personal:"):
+                run["personal"].append(personal_outside(settings, spec, result["episodes"],
+                                                        result["personal_steps"], logs))
+                print(json.dumps({"seed": run["seed"], "personal": run["personal"][-1]}), flush=True)
+                continue
+            name, row = run_added(settings, spec, result["episodes"], logs)
+            run["rows"][name] = row
+            print(json.dumps({"seed": run["seed"], name: row}), flush=True)
+
+
+def train_seeds(args: argparse.Namespace, logs: str) -> dict[str, Any]:
+    """The three trainings (and the fine-tuning) of every seed."""
+    from sbagents.core.zoo_config import parse_overrides
+    from sbagents.federated.settings import FederatedSettings
+
+    params = parse_overrides(args.params, "--params")
+    runs = []
+    for seed in args.seeds:
+        settings = FederatedSettings(homes=8, rounds=args.rounds, local_steps=args.local_steps,
+                                     strategy=args.strategy, seed=seed, hyperparams=params)
+        runs.append(run_seed(settings, args.episodes, args.personal_steps, logs))
+        print(json.dumps(runs[-1]), flush=True)
+    return {"settings": {"rounds": args.rounds, "local_steps": args.local_steps, "strategy": args.strategy},
+            "params": params, "episodes": args.episodes, "personal_steps": args.personal_steps, "runs": runs}
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train every seed (or, with ``--add``, the added rows of the stored results); the results of the section."""
+    import torch
+
+    args = build_parser().parse_args(list(argv))
+    kept = [a for i, a in enumerate(argv) if "--stored" not in {a, argv[i - 1] if i else ""}]
+    command = shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(kept)])
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as logs:
+        if args.add:
+            result = load_results(Path(args.stored))
+            add_rows(result, args, logs)
+            result.setdefault("added", []).append({"seeds": args.seeds, "add": args.add, "dp_clip": args.dp_clip,
+                                                   "command": command})
+        else:
+            result = {"command": command, **train_seeds(args, logs)}
+    return add_stats(result)
+
+
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="learning", results="federated_homes.json",
+              summary="Federated SmartHome DDPG over 8 non-IID homes vs local only vs centralized, held-out comfort",
+              run=run, render=markdown),
+)

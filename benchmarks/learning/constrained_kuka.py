@@ -11,12 +11,14 @@ seed:
 - ``sac-lagrangian``: :class:`~sbagents.constrained.SACLagrangian` with ``cost_limit`` (episode cost).
 
 Each is evaluated greedily on fresh episodes: success rate, mean episode cost (EpCost) and the task return (reward
-without the penalty). Results are written after every method (``--json``), so an interrupted run keeps the finished
-runs, and a rerun with more ``--seeds`` only trains the missing (method, seed) pairs; ``--publish-only`` rebuilds the
-section from that file, and ``--evaluate-checkpoints`` adds the missing pairs from their newest checkpoint under
-``--logs`` (marked partial, with the steps they reached).
+without the penalty). The runs the results file already holds (``--stored``, by default
+``benchmarks/results/constrained_kuka.json``; same budget, settings and config entry) are kept and not redone, so a
+rerun with more ``--seeds`` only trains the missing (method, seed) pairs, and processes for different methods add
+their runs to each other's (the file is re-read just before the results are returned);
+``--evaluate-checkpoints`` adds the missing pairs from their newest checkpoint under ``--logs`` (marked partial,
+with the steps they reached). ``python -m benchmarks render constrained-kuka`` rebuilds the section.
 
-    python -m benchmarks.constrained_kuka [-n 120000] [--seeds 0 1 2] [--cost-limit 1] [--methods ...]
+    python -m benchmarks run constrained-kuka [-n 120000] [--seeds 0 1 2] [--cost-limit 1] [--methods ...]
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +40,9 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.monitor import Monitor
 
 import sbagents.envs  # noqa: F401  (registers the ids)
-from benchmarks.report import publish
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import RESULTS_DIR, recorded_argv
 from sbagents.constrained import SACLagrangian
 
 ROOT = Path(__file__).resolve().parent
@@ -99,7 +103,7 @@ def method_env(method: str) -> tuple[str, dict[str, Any], float, dict[str, Any]]
     return policy, {**entry.pop("env_kwargs"), "zone_penalty": penalty}, penalty, entry
 
 
-def run(
+def run_one(
     method: str, seed: int, n_timesteps: int, cost_limit: float, multiplier_lr: float, episodes: int, logs: Path
 ) -> dict[str, Any]:
     """Train one method on one seed (checkpoints every 10k steps under ``logs``), then evaluate it greedily."""
@@ -237,6 +241,11 @@ def markdown(result: dict[str, Any]) -> str:
             mean = {key: float(np.mean([r[key] for r in runs])) for key in ("success", "cost", "return")}
             lines.append(_row(f"**{method} mean**", "", mean))
     lines += ["", *findings(result)]
+    rows: list[StatsRow] = [(method, label, result["stats"][method][key], fmt)
+                            for method in METHODS if method in result["stats"]
+                            for key, (label, fmt) in STATS_METRICS.items()]
+    if rows:
+        lines += ["", *stats_table("method", rows)]
     done = {(r["method"], r["seed"]) for r in result["runs"]}
     missing = [f"{m} ({seed})" for seed in a["seeds"] for m in a["methods"] if (m, seed) not in done]
     if missing:
@@ -244,10 +253,25 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def recorded_command(argv: list[str]) -> str:
-    """The command as published: ``--logs`` (a folder of this machine, not a setting) left out."""
-    kept = [arg for i, arg in enumerate(argv) if arg != "--logs" and (i == 0 or argv[i - 1] != "--logs")]
-    return "python -m benchmarks.constrained_kuka " + shlex.join(kept)
+def recorded_command(argv: Sequence[str]) -> str:
+    """The command as published: ``--logs`` and ``--stored`` (folders of this machine, not settings) left out."""
+    local = {"--logs", "--stored"}
+    kept = [arg for i, arg in enumerate(argv) if arg not in local and (i == 0 or argv[i - 1] not in local)]
+    return shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(kept)])
+
+
+#: The metrics of the over-seeds table: run key -> (label, number format).
+STATS_METRICS = {"success": ("success", ".2f"), "cost": ("EpCost", ".2f"), "return": ("task return", ".1f")}
+
+
+def add_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[method][metric]``: greedy success, EpCost and task return over its seeds."""
+    stats = {}
+    for method in METHODS:
+        runs = sorted((r for r in result["runs"] if r["method"] == method), key=lambda r: r["seed"])
+        if runs:
+            stats[method] = {key: stats_of([r[key] for r in runs]) for key in STATS_METRICS}
+    return {**result, "stats": stats}
 
 
 def stored_runs(path: Path, args: argparse.Namespace, config: dict[str, Any]) -> list[dict[str, Any]]:
@@ -260,10 +284,10 @@ def stored_runs(path: Path, args: argparse.Namespace, config: dict[str, Any]) ->
 
 
 def merged(
-    path: Path, args: argparse.Namespace, config: dict[str, Any], command: str, outcome: dict[str, Any]
+    path: Path, args: argparse.Namespace, config: dict[str, Any], command: str, outcomes: list[dict[str, Any]]
 ) -> dict[str, Any]:
-    """The results file with ``outcome`` added, re-read just before writing, so that processes sharing one
-    ``--json`` (say, one per method) keep each other's runs; ``commands`` lists every command that added runs."""
+    """The results file with ``outcomes`` added, re-read just before returning, so that processes sharing one
+    results file (say, one per method) keep each other's runs; ``commands`` lists every command that added runs."""
     old = json.loads(path.read_text()) if path.exists() else {}
     runs = stored_runs(path, args, config)
     commands = old.get("commands", []) if runs else []
@@ -271,14 +295,17 @@ def merged(
     methods = [m for m in METHODS if m in {*(old["args"]["methods"] if runs else []), *args.methods}]
     return {
         "commands": [*commands, command] if command not in commands else commands,
-        "args": {**{k: v for k, v in vars(args).items() if k != "logs"}, "seeds": seeds, "methods": methods},
+        "args": {**{k: v for k, v in vars(args).items() if k not in ("logs", "stored")}, "seeds": seeds,
+                 "methods": methods},
         "config": config,
-        "runs": [*runs, outcome],
+        "runs": [*runs, *outcomes],
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.constrained_kuka", description=__doc__)
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-n", "--n-timesteps", type=int, default=120_000)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--cost-limit", type=float, default=1.0)
@@ -286,42 +313,36 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--logs", default="logs/constrained_kuka", help="checkpoints and final models")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument(
-        "--json",
-        default="benchmarks/results/constrained_kuka.json",
-        help="raw results; runs it already holds (same budget and settings) are kept, not redone",
-    )
-    parser.add_argument("--publish-only", action="store_true", help="rebuild the section from --json")
-    parser.add_argument(
-        "--evaluate-checkpoints",
-        action="store_true",
-        help="add the (method, seed) runs missing from --json from their newest checkpoint",
-    )
-    argv = sys.argv[1:] if argv is None else argv
-    args = parser.parse_args(argv)
-    path = Path(args.json)
-    if args.publish_only:
-        result = json.loads(path.read_text())
-        publish(markdown(result), result, args.output, None, SECTION)
-        return 0
+    parser.add_argument("--stored", default=str(RESULTS_DIR / "constrained_kuka.json"),
+                        help="results whose runs (same budget and settings) are kept, not redone")
+    parser.add_argument("--evaluate-checkpoints", action="store_true",
+                        help="add the (method, seed) runs missing from --stored from their newest checkpoint")
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train (or evaluate from checkpoints) the (method, seed) pairs ``--stored`` lacks; the merged results."""
+    args = build_parser().parse_args(list(argv))
+    path = Path(args.stored)
     th.set_num_threads(1)
-    command = recorded_command(argv)
+    command = recorded_command(list(argv))
     config = yaml.safe_load(CONFIG.read_text())[ENV]
+    outcomes = []
     for seed in args.seeds:
         for method in args.methods:
             if (method, seed) in {(r["method"], r["seed"]) for r in stored_runs(path, args, config)}:
                 continue
             if args.evaluate_checkpoints:
-                outcome = evaluate_checkpoint(method, seed, args.episodes, Path(args.logs))
+                outcomes.append(evaluate_checkpoint(method, seed, args.episodes, Path(args.logs)))
             else:
-                outcome = run(
-                    method, seed, args.n_timesteps, args.cost_limit, args.multiplier_lr, args.episodes, Path(args.logs)
-                )
-            result = merged(path, args, config, command, outcome)
-            publish(markdown(result), result, args.output, args.json, SECTION)
-    return 0
+                outcomes.append(run_one(method, seed, args.n_timesteps, args.cost_limit, args.multiplier_lr,
+                                        args.episodes, Path(args.logs)))
+            print(json.dumps({k: v for k, v in outcomes[-1].items() if k != "history"}), flush=True)
+    return add_stats(merged(path, args, config, command, outcomes))
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="learning", results="constrained_kuka.json",
+              summary="SAC, SAC with a -50 zone penalty and SAC-Lagrangian on RobustPickAndPlace: success and EpCost",
+              run=run, render=markdown),
+)

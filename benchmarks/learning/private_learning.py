@@ -6,31 +6,33 @@ the comfort criterion (``criterion_share``), the mean return, the training time 
 The hyperparameters of every row are the shipped DDPG entry with the overrides of ``--params`` (the same for all
 rows, epsilon = inf included, so the rows differ only in the noise).
 
-    python -m benchmarks.private_learning --epsilons inf 8 3 1 --seeds 0 1 2 \\
+    python -m benchmarks run private-smarthome --epsilons inf 8 3 1 --seeds 0 1 2 \\
         --params n_timesteps:20000 learning_starts:2000 batch_size:256 train_freq:4
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
+import shlex
 import tempfile
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
-from benchmarks.report import publish
-from sbagents.api import EvalOptions, ExecOptions, OutputOptions, PrivacyOptions, TrainSpec, train
-from sbagents.core.zoo_config import parse_overrides
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import recorded_argv
 
-RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "private-smarthome"
 ENV = "sbagents/SmartHome-v0"
 
 
-def run(epsilon: float, seed: int, params: dict[str, Any], clip: float, episodes: int, logs: str) -> dict[str, Any]:
+def run_one(epsilon: float, seed: int, params: dict[str, Any], clip: float, episodes: int,
+            logs: str) -> dict[str, Any]:
     """One run; epsilon = inf trains without DP."""
+    from sbagents.api import EvalOptions, ExecOptions, OutputOptions, PrivacyOptions, TrainSpec, train
+
     privacy = PrivacyOptions(epsilon=None if math.isinf(epsilon) else epsilon, clip=clip)
     load = os.getloadavg()[0]
     result = train(TrainSpec("ddpg", ENV, hyperparams=params), OutputOptions(logs),
@@ -43,15 +45,24 @@ def run(epsilon: float, seed: int, params: dict[str, Any], clip: float, episodes
             "mean_return": ev["mean_return"], "load": round(load, 2)}
 
 
+def add_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[str(epsilon)]``: the comfort share (%) and mean return over seeds."""
+    stats: dict[str, Any] = {}
+    for epsilon in result["epsilons"]:
+        runs = [r for r in result["runs"] if r["epsilon_target"] == epsilon]
+        stats[str(epsilon)] = {"comfort_pct": stats_of([100 * r["criterion_share"] for r in runs]),
+                               "mean_return": stats_of([r["mean_return"] for r in runs])}
+    return {**result, "stats": stats}
+
+
 def markdown(result: dict[str, Any]) -> str:
     """The BENCHMARKS.md section."""
     params = " ".join(f"{k}:{v}" for k, v in result["params"].items())
     lines = ["## Private agents: SmartHome DDPG with DP-SGD", "",
              f"`python -m sbagents.train --algo ddpg --env SmartHome-v0 --seed S --dp-epsilon E --dp-clip "
              f"{result['clip']} -params {params}` (no `--dp-epsilon` for inf), delta 1e-5, unit of privacy: one "
-             f"transition; final evaluation of {result['episodes']} greedy episodes. Command: `python -m "
-             f"benchmarks.private_learning --epsilons {' '.join(str(e) for e in result['epsilons'])} --seeds "
-             f"{' '.join(str(s) for s in result['seeds'])} --clip {result['clip']} --params {params}`.", "",
+             f"transition; final evaluation of {result['episodes']} greedy episodes. Command: "
+             f"`{result['command']}`.", "",
              "| epsilon (target) | seed | epsilon spent | noise multiplier | comfort criterion share | mean return | "
              "train s | load |", "|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["runs"]:
@@ -59,31 +70,43 @@ def markdown(result: dict[str, Any]) -> str:
         noise = "" if r["noise_multiplier"] is None else f"{r['noise_multiplier']:.2f}"
         lines.append(f"| {r['epsilon_target']} | {r['seed']} | {spent} | {noise} | {100 * r['criterion_share']:.1f}% | "
                      f"{r['mean_return']:.1f} | {r['train_s']:.0f} | {r['load']} |")
-    return "\n".join(lines)
+    rows: list[StatsRow] = []
+    for epsilon, stats in result["stats"].items():
+        rows += [(f"epsilon {epsilon}", "comfort share (%)", stats["comfort_pct"], ".1f"),
+                 (f"epsilon {epsilon}", "mean return", stats["mean_return"], ".1f")]
+    return "\n".join([*lines, "", *stats_table("epsilon (target)", rows)])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.private_learning", description=__doc__)
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__)
     parser.add_argument("--epsilons", type=float, nargs="+", default=[math.inf, 8, 3, 1])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--clip", type=float, default=1.0)
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--params", nargs="*", default=[], metavar="KEY:VALUE")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default=str(RESULTS / "private_smarthome.json"), help="raw results ('' = none)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate every (epsilon, seed); the results of the section."""
+    from sbagents.core.zoo_config import parse_overrides
+
+    args = build_parser().parse_args(list(argv))
     params = parse_overrides(args.params, "--params")
     runs = []
     with tempfile.TemporaryDirectory() as logs:
         for epsilon in args.epsilons:
             for seed in args.seeds:
-                runs.append(run(epsilon, seed, params, args.clip, args.episodes, logs))
-                print(json.dumps(runs[-1]), flush=True)
-    result = {"epsilons": args.epsilons, "seeds": args.seeds, "clip": args.clip, "episodes": args.episodes,
-              "params": params, "runs": runs}
-    publish(markdown(result), result, args.output, args.json, SECTION)
-    return 0
+                runs.append(run_one(epsilon, seed, params, args.clip, args.episodes, logs))
+                print(runs[-1], flush=True)
+    command = shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(list(argv))])
+    return add_stats({"command": command, "epsilons": args.epsilons, "seeds": args.seeds, "clip": args.clip,
+                      "episodes": args.episodes, "params": params, "runs": runs})
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="learning", results="private_smarthome.json",
+              summary="SmartHome DDPG with DP-SGD at several epsilons: comfort share and return over seeds",
+              run=run, render=markdown),
+)

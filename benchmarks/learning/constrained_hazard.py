@@ -13,34 +13,29 @@ episode cost and the task return (reward without the penalty: the penalty run's 
 compare). The plot shows the multiplier and the rollouts' mean episode cost over training from each constrained
 run's ``safety.json`` (``constraint.history``).
 
-    python -m benchmarks.constrained_hazard [--seeds 0 1 2] [-n STEPS] [--cost-limit 0.1]
+    python -m benchmarks run constrained-hazard [--seeds 0 1 2] [-n STEPS] [--cost-limit 0.1]
+
+The plot goes to ``benchmarks/results/constrained_hazard.png`` (``--plot``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shlex
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.report import publish
-from sbagents.api import (
-    ConstraintSpec,
-    EvalOptions,
-    EvaluateOptions,
-    ExecOptions,
-    OutputOptions,
-    RunRef,
-    TrainSpec,
-    evaluate,
-    train,
-)
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import RESULTS_DIR, recorded_argv
 
-RESULTS = Path(__file__).resolve().parent / "results"
 SECTION = "constrained-hazard"
 ENV = "sbagents/HazardGridWorld-v0"
 PENALTY = -50.0
@@ -54,9 +49,21 @@ METHODS: dict[str, tuple[str, dict[str, float], str | None]] = {
 }
 
 
-def run(method: str, seed: int, n_timesteps: int | None, cost_limit: float, episodes: int,
-        logs: Path) -> dict[str, Any]:
+def run_one(method: str, seed: int, n_timesteps: int | None, cost_limit: float, episodes: int,
+            logs: Path) -> dict[str, Any]:
     """Train one method on one seed through the ``train`` pipeline, then evaluate it greedily."""
+    from sbagents.api import (
+        ConstraintSpec,
+        EvalOptions,
+        EvaluateOptions,
+        ExecOptions,
+        OutputOptions,
+        RunRef,
+        TrainSpec,
+        evaluate,
+        train,
+    )
+
     _, env_kwargs, constraint = METHODS[method]
     folder = logs / f"{method.replace(' ', '_')}_{seed}"
     features = [ConstraintSpec(constraint, cost_limit)] if constraint else []
@@ -99,8 +106,10 @@ def plot(runs: list[dict[str, Any]], path: Path, cost_limit: float) -> None:
     fig.suptitle("PPO-Lagrangian and PID-Lagrangian on HazardGridWorld")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
     plt.close(fig)
+    os.replace(tmp, path)
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -115,8 +124,7 @@ def markdown(result: dict[str, Any]) -> str:
         f"--json` ({result['episodes']} greedy episodes). Cells: task return / mean episode cost (return without "
         f"the penalty; the best safe path returns {BEST_SAFE_RETURN:g} at cost 0, the hazard path 95 at cost 1, an "
         f"episode that never reaches the goal -50). Goal: share of runs whose greedy episodes reach the goal. "
-        f"Command: `python -m benchmarks.constrained_hazard --seeds {' '.join(map(str, seeds))}{n_flag} "
-        f"--cost-limit {limit:g}`; machine: 2 cores shared with other jobs, torch 1 thread; wall time "
+        f"Command: `{result['command']}`; machine: 2 cores shared with other jobs, torch 1 thread; wall time "
         f"{result['wall_s']:.0f} s.", "",
         "| method | flags | " + " | ".join(f"seed {s}" for s in seeds)
         + " | mean return | mean cost | goal | cost <= limit, return within 10% | final multiplier | train s |",
@@ -134,35 +142,59 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(f"| {method} | `{flags.format(limit=f'{limit:g}') or '(none)'}` | " + " | ".join(cells)
                      + f" | {np.mean([r['return'] for r in rows]):.1f} | {np.mean([r['cost'] for r in rows]):.2f} | "
                      f"{goal}/{len(rows)} | {ok}/{len(rows)} | {final} | {np.mean([r['train_s'] for r in rows]):.0f} |")
+    rows: list[StatsRow] = []
+    for method, stats in result["stats"].items():
+        rows += [(method, "task return", stats["return"], ".1f"), (method, "mean episode cost", stats["cost"], ".2f")]
+    lines += ["", *stats_table("method", rows)]
     lines += ["", "![multiplier and EpCost over training](benchmarks/results/constrained_hazard.png)"]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.constrained_hazard", description=__doc__)
+def add_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[method]``: the task return and the mean episode cost over seeds."""
+    stats = {}
+    for method in METHODS:
+        runs = [r for r in result["runs"] if r["method"] == method]
+        if runs:
+            stats[method] = {"return": stats_of([r["return"] for r in runs]),
+                             "cost": stats_of([r["cost"] for r in runs])}
+    return {**result, "stats": stats}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="budget (default: the entry's)")
     parser.add_argument("--cost-limit", type=float, default=0.1)
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--json", default=str(RESULTS / "constrained_hazard.json"), help="raw results ('' = none)")
-    parser.add_argument("--plot", default=str(RESULTS / "constrained_hazard.png"), help="PNG ('' = none)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--plot", default=str(RESULTS_DIR / "constrained_hazard.png"), help="PNG ('' = none)")
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate every (method, seed); the results of the section (and the plot)."""
+    args = build_parser().parse_args(list(argv))
     start, runs = time.perf_counter(), []
     with tempfile.TemporaryDirectory() as logs:
         for method in args.methods:
             for seed in args.seeds:
-                runs.append(run(method, seed, args.n_timesteps, args.cost_limit, args.episodes, Path(logs)))
+                runs.append(run_one(method, seed, args.n_timesteps, args.cost_limit, args.episodes, Path(logs)))
                 print(json.dumps({k: v for k, v in runs[-1].items() if k != "history"}), flush=True)
-    result = {"seeds": args.seeds, "n_timesteps": args.n_timesteps, "steps": runs[0]["n_timesteps"],
+    kept = [a for i, a in enumerate(argv) if "--plot" not in {a, argv[i - 1] if i else ""}]
+    result = {"command": shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(kept)]),
+              "seeds": args.seeds, "n_timesteps": args.n_timesteps, "steps": runs[0]["n_timesteps"],
               "cost_limit": args.cost_limit, "episodes": args.episodes,
               "wall_s": time.perf_counter() - start, "runs": runs}
     if args.plot:
         plot(runs, Path(args.plot), args.cost_limit)
-    publish(markdown(result), result, args.output, args.json, SECTION)
-    return 0
+    return add_stats(result)
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="learning", results="constrained_hazard.json",
+              summary="PPO, fixed penalty, PPO-Lagrangian and PID-Lagrangian on HazardGridWorld: return and cost",
+              run=run, render=markdown),
+)

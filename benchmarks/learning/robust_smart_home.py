@@ -7,34 +7,25 @@ under each attack (eps in VecNormalize standard deviations). Train time is the r
 (``train_seconds`` wall, ``train_cpu_seconds`` process CPU); the ratio is to the vanilla run of the same seed. Issue
 19's bar: clean success >= 0.97 and >= 0.9 under both attacks, in <= 3x the vanilla training time.
 
-    python -m benchmarks.robust_smart_home [--seeds 0 1 2] [--episodes 30] [--variants vanilla sa adv best ...]
-    python -m benchmarks.robust_smart_home --render benchmarks/results/robust_smart_home.json  # text only
+    python -m benchmarks run robust-smart-home [--seeds 0 1 2] [--episodes 30] [--variants vanilla sa adv best ...]
+    python -m benchmarks render robust-smart-home   # the section from benchmarks/results/robust_smart_home.json
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import shlex
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from statistics import mean
 from typing import Any
 
-from benchmarks.report import publish
-from sbagents.api import (
-    EvalOptions,
-    EvaluateOptions,
-    ExecOptions,
-    OutputOptions,
-    RunRef,
-    TrainSpec,
-    evaluate,
-    parse_robust,
-    train,
-)
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import recorded_argv
 
 ENV = "sbagents/SmartHome-v0"
 ALGO = "td3"
@@ -79,8 +70,20 @@ VARIANTS: dict[str, Variant] = {
 }
 
 
-def run(name: str, variant: Variant, seed: int, episodes: int, logs: str) -> dict[str, Any]:
+def run_one(name: str, variant: Variant, seed: int, episodes: int, logs: str) -> dict[str, Any]:
     """Train and evaluate one variant on one seed."""
+    from sbagents.api import (
+        EvalOptions,
+        EvaluateOptions,
+        ExecOptions,
+        OutputOptions,
+        RunRef,
+        TrainSpec,
+        evaluate,
+        parse_robust,
+        train,
+    )
+
     folder = os.path.join(logs, f"{name}_{seed}")
     load = os.getloadavg()[0]
     result = train(TrainSpec(ALGO, ENV, n_timesteps=variant.n_timesteps, conf_file=variant.conf_file),
@@ -130,10 +133,8 @@ def _fmt(value: Any, spec: str) -> str:
 
 def markdown(result: dict[str, Any]) -> str:
     """The BENCHMARKS.md section."""
-    seeds = " ".join(str(s) for s in result["seeds"])
     lines = ["## Robust SmartHome agents: TD3 vs SA regularizer vs adversarial rollouts under attack", "",
-             f"Command: `python -m benchmarks.robust_smart_home --seeds {seeds} --episodes {result['episodes']} "
-             f"--variants {' '.join(result['variants'])}` ({result['wall_s'] / 60:.0f} min wall). Machine: 2 cores "
+             f"Command: `{result['command']}` ({result['wall_s'] / 60:.0f} min wall). Machine: 2 cores "
              "shared with other jobs (the `load` column is the 1-minute load average when the run started), torch "
              f"1 thread. Each run: `python -m sbagents.evaluate --algo {ALGO} --env {ENV} -n {result['episodes']} "
              f"--attack \"{ATTACKS}\"` after training with:", ""]
@@ -152,38 +153,52 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(f"| {r['variant']} | {seed} | {r['n_timesteps']:.0f} | {r['train_s']:.0f} | {ratio} | "
                      f"{r['load']:.1f} | {r['none_success']:.2f} | {r['pgd_success']:.2f} | "
                      f"{r['critic_success']:.2f} | {returns} | {'met' if meets_bar(r) else 'not met'} |")
-    lines += ["", NOTES]
+    rows: list[StatsRow] = [(name, f"{label} success", result["stats"][name][key], ".2f")
+                            for name in result["variants"] for key, label in SUCCESS.items()]
+    lines += ["", *stats_table("variant", rows), "", NOTES]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+#: The success metrics of the over-seeds table: row key -> label.
+SUCCESS = {"none_success": "clean", "pgd_success": "PGD 0.2", "critic_success": "critic 0.2"}
+
+
+def add_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[variant][metric]``: the clean, PGD and critic success over seeds."""
+    stats = {name: {key: stats_of([r[key] for r in result["runs"] if r["variant"] == name]) for key in SUCCESS}
+             for name in result["variants"]}
+    return {**result, "stats": stats}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {SECTION}",
+                                     description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
-    parser.add_argument("--write", default="BENCHMARKS.md", help="markdown file to update ('' for none)")
-    parser.add_argument("--json", default="benchmarks/results/robust_smart_home.json", help="raw results ('' for none)")
-    parser.add_argument("--render", default=None, metavar="JSON",
-                        help="only rewrite the section from a results JSON of an earlier run")
-    args = parser.parse_args(argv)
-    if args.render:
-        result = json.loads(Path(args.render).read_text())
-        publish(markdown(result), result, args.write, None, SECTION)
-        return result
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate every (seed, variant); the results of the section."""
+    args = build_parser().parse_args(list(argv))
     start = time.perf_counter()
     rows = []
     with tempfile.TemporaryDirectory() as logs:
         for seed in args.seeds:
             for name in args.variants:
-                rows.append(run(name, VARIANTS[name], seed, args.episodes, logs))
-                print(json.dumps(rows[-1]), flush=True)
+                rows.append(run_one(name, VARIANTS[name], seed, args.episodes, logs))
+                print(rows[-1], flush=True)
     _ratios(rows)
-    result = {"seeds": args.seeds, "episodes": args.episodes, "variants": args.variants,
-              "variant_specs": {n: asdict(VARIANTS[n]) for n in args.variants}, "runs": rows,
-              "means": mean_rows(rows), "wall_s": time.perf_counter() - start}
-    publish(markdown(result), result, args.write, args.json, SECTION)
-    return result
+    command = shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(list(argv))])
+    return add_stats({"command": command, "seeds": args.seeds, "episodes": args.episodes, "variants": args.variants,
+                      "variant_specs": {n: asdict(VARIANTS[n]) for n in args.variants}, "runs": rows,
+                      "means": mean_rows(rows), "wall_s": time.perf_counter() - start})
 
 
-if __name__ == "__main__":
-    main()
+BENCHMARKS = (
+    Benchmark(name=SECTION, kind="learning", results="robust_smart_home.json",
+              summary="SmartHome TD3 vs SA regularizer vs adversarial rollouts: success under PGD and critic attacks",
+              run=run, render=markdown),
+)

@@ -1,4 +1,4 @@
-"""PettingZoo's SB3 action-mask tutorial rebuilt (benchmarks/games_tutorial.py): the wrapper's semantics, the
+"""PettingZoo's SB3 action-mask tutorial rebuilt (benchmarks/learning/games_tutorial.py): the wrapper's semantics, the
 reward-perspective flaw, and a short training run of the recipe usable by our game players."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 import torch
 from sb3_contrib import MaskablePPO
 
-from benchmarks.games_tutorial import (
+from benchmarks.learning.games_tutorial import (
     TUTORIAL_STEPS,
     FixedSB3ActionMaskWrapper,
     SB3ActionMaskWrapper,

@@ -7,13 +7,14 @@ model for each opponent (seats alternate). Bars (issue 16): tic-tac-toe no loss 
 >= 95% draws against minimax; connect four >= 98% wins against random and >= 60% against the heuristic within 15
 minutes of training; texas hold'em mean chips per hand against random > 0 with its 95% interval above zero.
 
-``tutorial``: PettingZoo's tutorial recipe (:mod:`benchmarks.games_tutorial`, both the upstream and the original
-2023 wrapper) at its 20,480 steps, ours at the same budget (``-n 20480``), and ours at the shipped budget (the rows
-of the game tasks run in the same command, else the saved ones), all evaluated by the same matches.
+``games-tutorial``: PettingZoo's tutorial recipe (:mod:`benchmarks.learning.games_tutorial`, both the upstream and
+the original 2023 wrapper) at its 20,480 steps, ours at the same budget (``-n 20480``), and ours at the shipped
+budget (the saved rows of the game benchmarks, copied into the tutorial's results), all evaluated by the same matches.
 
-    python -m benchmarks.games_learning connect4 tictactoe holdem tutorial --seeds 0 1 2
-    python -m benchmarks.games_learning connect4 --seeds 1 --add   # a seed beside the saved ones
-    python -m benchmarks.games_learning tutorial --render-only     # redraw a section from the saved results
+    python -m benchmarks run games-connect4 --seeds 0 1 2        # also games-tictactoe, games-holdem
+    python -m benchmarks run games-connect4 --seeds 1 --add      # a seed beside the saved ones
+    python -m benchmarks run games-tutorial --seeds 0 1 2
+    python -m benchmarks render games-tutorial                   # redraw a section from the saved results
 """
 
 from __future__ import annotations
@@ -21,22 +22,40 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-from benchmarks.report import write_section
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 
-RESULTS = Path(__file__).resolve().parent / "results"
 EVAL_SEED = 10_000
-#: ``--smoke``: games per match and training budget (a check that the script runs end to end; 0: off).
-SMOKE_GAMES = 0
-SMOKE_STEPS = 2048
+#: ``--smoke``: games per match and training budget (a check that the benchmark runs end to end).
+SMOKE_GAMES = 10
+SMOKE_STEPS = 256
+
+
+@dataclass(frozen=True)
+class Budget:
+    """How much a run plays: games per match (None: the game's own), training steps (None: the shipped config's or
+    the tutorial's) and whether seed 0's rating plot is copied into ``benchmarks/results``."""
+
+    games: int | None = None
+    steps: int | None = None
+    keep_elo: bool = True
+
+
+#: ``--smoke``'s budget.
+SMOKE = Budget(SMOKE_GAMES, SMOKE_STEPS, keep_elo=False)
 
 
 @dataclass(frozen=True)
@@ -86,38 +105,46 @@ def match_row(summary: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def evaluate_run(game: Game, logs: Path) -> dict[str, Any]:
+def evaluate_run(game: Game, logs: Path, budget: Budget) -> dict[str, Any]:
     """The latest run in ``logs`` against each of the game's opponents."""
     out = {}
     for opponent in game.opponents:
         done = cli("evaluate", "--algo", "ppo_mask", "--env", game.env, "-f", str(logs), "--opponent", opponent,
-                   "-n", str(SMOKE_GAMES or game.n_games), "--seed", str(EVAL_SEED), "--json")
+                   "-n", str(budget.games or game.n_games), "--seed", str(EVAL_SEED), "--json")
         out[opponent] = match_row(json.loads(done.stdout.splitlines()[-1]))
     return out
 
 
-def train_ours(game: Game, seed: int, logs: Path, budget: int | None = None) -> dict[str, Any]:
-    """Train with the shipped config (``-n budget`` if given) and evaluate; one row."""
-    budget = SMOKE_STEPS if SMOKE_GAMES else budget
-    extra = ["-n", str(budget)] if budget is not None else []
+def train_ours(game: Game, seed: int, logs: Path, budget: Budget, steps: int | None = None) -> dict[str, Any]:
+    """Train with the shipped config (``-n steps`` if given, the budget's steps first) and evaluate; one row.
+    Seed 0's rating plot at the shipped budget is copied to ``benchmarks/results/games_<game>_elo.png``."""
+    steps = budget.steps or steps
+    extra = ["-n", str(steps)] if steps is not None else []
     cli("train", "--algo", "ppo_mask", "--env", game.env, "--seed", str(seed), "-f", str(logs), *extra,
         "--final-eval-episodes", "0")
     run_dir = sorted((logs / "ppo_mask").iterdir(), key=lambda p: p.stat().st_mtime)[-1]
     summary = json.loads((run_dir / "summary.json").read_text())
     row = {"seed": seed, "n_timesteps": summary["n_timesteps"], "train_s": summary["train_seconds"],
-           "load": round(os.getloadavg()[0], 2), "vs": evaluate_run(game, logs)}
-    if seed == 0 and budget is None and not SMOKE_GAMES and (run_dir / "elo.png").exists():
-        shutil.copyfile(run_dir / "elo.png", RESULTS / f"games_{game.stem}_elo.png")
-        shutil.copyfile(run_dir / "elo.csv", RESULTS / f"games_{game.stem}_elo.csv")
+           "load": round(os.getloadavg()[0], 2), "vs": evaluate_run(game, logs, budget)}
+    if seed == 0 and steps is None and budget.keep_elo and (run_dir / "elo.png").exists():
+        for suffix in ("png", "csv"):
+            target = RESULTS_DIR / f"games_{game.stem}_elo.{suffix}"
+            shutil.copyfile(run_dir / f"elo.{suffix}", target.with_name(f".{target.name}.tmp"))
+            os.replace(target.with_name(f".{target.name}.tmp"), target)
     return row
 
 
-def tutorial_rows(name: str, seeds: list[int], logs: Path) -> list[dict[str, Any]]:
+def tutorial_rows(name: str, seeds: list[int], logs: Path, budget: Budget) -> list[dict[str, Any]]:
     """The tutorial recipe (both wrappers) and ours at its budget, per seed."""
     import numpy as np
     import torch
 
-    from benchmarks.games_tutorial import TUTORIAL_STEPS, eval_tutorial_recipe, train_tutorial_recipe
+    from benchmarks.learning.games_tutorial import (
+        TUTORIAL_EVAL_GAMES,
+        TUTORIAL_STEPS,
+        eval_tutorial_recipe,
+        train_tutorial_recipe,
+    )
     from sbagents.games.matches import match_summary, play_games
     from sbagents.games.players import ModelPlayer
     from sbagents.games.selfplay import make_selfplay_env
@@ -128,20 +155,20 @@ def tutorial_rows(name: str, seeds: list[int], logs: Path) -> list[dict[str, Any
     for seed in seeds:
         for variant in ("fixed", "original"):
             start = time.perf_counter()
-            steps = SMOKE_STEPS if SMOKE_GAMES else TUTORIAL_STEPS
+            steps = budget.steps or TUTORIAL_STEPS
             model = train_tutorial_recipe(game.env, steps, seed, variant=variant)
             seconds = time.perf_counter() - start
             vs = {}
             for opponent in game.opponents:
                 env = make_selfplay_env(game.env, opponent=opponent)
                 result = play_games(env, ModelPlayer(model, True, rng=np.random.default_rng(seed)),
-                                    SMOKE_GAMES or game.n_games, seed=EVAL_SEED)
+                                    budget.games or game.n_games, seed=EVAL_SEED)
                 vs[opponent] = match_row(match_summary(result, game.stem, "tutorial", opponent))
-            own = eval_tutorial_recipe(model, game.env)
+            own = eval_tutorial_recipe(model, game.env, budget.games or TUTORIAL_EVAL_GAMES)
             rows.append({"who": f"tutorial ({variant})", "seed": seed, "n_timesteps": steps,
                          "train_s": round(seconds, 1), "tutorial_winrate": own["winrate"], "vs": vs})
             print(json.dumps(rows[-1]), flush=True)
-        row = train_ours(game, seed, logs / f"{name}_tutorial_budget", TUTORIAL_STEPS)
+        row = train_ours(game, seed, logs / f"{name}_tutorial_budget", budget, TUTORIAL_STEPS)
         rows.append({"who": "sbagents", **row})
         print(json.dumps(rows[-1]), flush=True)
     return rows
@@ -157,8 +184,7 @@ def game_markdown(name: str, result: dict[str, Any]) -> str:
     lines = [f"## {game.title}: self-play MaskablePPO", "",
              f"`python -m sbagents.train --algo ppo_mask --env {game.env} --seed S` (shipped config), then "
              f"`python -m sbagents.evaluate --algo ppo_mask --env {game.env} --opponent O -n {game.n_games} --seed "
-             f"{EVAL_SEED} --json` on the final model, seats alternating. Command: `python -m "
-             f"benchmarks.games_learning {name} --seeds {' '.join(str(s) for s in result['seeds'])}`.", ""]
+             f"{EVAL_SEED} --json` on the final model, seats alternating. Command: `{result['command']}`.", ""]
     poker = name == "holdem"
     cols = [f"vs {o}: {'chips/hand (big blinds) [95% CI]' if poker else 'win / draw / loss'}"
             for o in game.opponents]
@@ -178,29 +204,30 @@ def game_markdown(name: str, result: dict[str, Any]) -> str:
         illegal = sum(v["illegal_moves"] for v in row["vs"].values())
         lines.append(f"| {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | " + " | ".join(cells)
                      + f" | {illegal} | {row['load']} | {'yes' if met(row) else 'no'} |")
-    if (RESULTS / f"games_{game.stem}_elo.png").exists():
-        lines += ["", f"Ratings of seed 0's snapshots during training: `benchmarks/results/games_{game.stem}_elo.png`"
-                  f" (`elo.csv` beside it)."]
+    rows: list[StatsRow] = [(f"vs {o}", label, result["stats"][o], fmt)
+                            for o in game.opponents for label, _, fmt in [_stats_metric(name, o)]]
+    lines += ["", *stats_table("opponent", rows)]
+    if result.get("elo_plot"):
+        lines += ["", f"Ratings of seed 0's snapshots during training: `{result['elo_plot']}` (`elo.csv` beside it)."]
     return "\n".join(lines)
 
 
-def tutorial_markdown(result: dict[str, Any], shipped: dict[str, Any]) -> str:
-    """The side-by-side section."""
+def tutorial_markdown(result: dict[str, Any]) -> str:
+    """The side-by-side section (``result["shipped"]``: the game benchmarks' rows at the shipped budget)."""
     lines = ["## Turn-based games: PettingZoo's SB3 tutorial recipe vs sbagents", "",
              "PettingZoo's tutorial (`tutorials/SB3/connect_four/sb3_connect_four_action_mask.py`) rebuilt in "
-             "`benchmarks/games_tutorial.py`: MaskablePPO with sb3-contrib's defaults, one env, 20,480 steps, one "
-             "policy through a single-agent wrapper of the AEC game. `fixed` is upstream's wrapper since May 2024 "
+             "`benchmarks/learning/games_tutorial.py`: MaskablePPO with sb3-contrib's defaults, one env, 20,480 steps, "
+             "one policy through a single-agent wrapper of the AEC game. `fixed` is upstream's wrapper since May 2024 "
              "(the reward of the agent that moved); `original` the July 2023 one (the reward of the agent to move "
              "next: a win is scored -1). sbagents: the shipped config at the tutorial's 20,480 steps and at its own "
              "budget. Every row is evaluated by the same matches (final model, greedy, seats alternating, "
              f"{GAMES['connect4'].n_games} games per opponent, seed {EVAL_SEED}); `tutorial metric` is the "
-             "tutorial's own evaluation (100 games, the model always second, wins over decisive games). Command: "
-             f"`python -m benchmarks.games_learning tutorial --seeds {' '.join(str(s) for s in result['seeds'])}`.",
-             ""]
+             f"tutorial's own evaluation (100 games, the model always second, wins over decisive games). Command: "
+             f"`{result['command']}`.", ""]
     for name in TUTORIAL_GAMES:
         game = GAMES[name]
         rows = [*result["games"][name], *({"who": "sbagents (shipped budget)", **r}
-                                          for r in shipped.get(name, {}).get("runs", []))]
+                                          for r in result["shipped"].get(name, []))]
         cols = [f"vs {o}: win / draw / loss" for o in game.opponents]
         lines += [f"### {game.title}", "", "| recipe | seed | timesteps | train s | " + " | ".join(cols)
                   + " | tutorial metric |", "|---|---:|---:|---:|" + "---|" * len(cols) + "---:|"]
@@ -211,75 +238,108 @@ def tutorial_markdown(result: dict[str, Any], shipped: dict[str, Any]) -> str:
             lines.append(f"| {row['who']} | {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | "
                          + " | ".join(cells) + f" | {metric} |")
         lines.append("")
-    return "\n".join(lines).rstrip()
+    rows: list[StatsRow] = [(f"{GAMES[name].title}: {who}", f"{label} vs {o}", stats, fmt)
+                            for name, by_who in result["stats"].items() for who, by_opponent in by_who.items()
+                            for o, stats in by_opponent.items() for label, _, fmt in [_stats_metric(name, o)]]
+    return "\n".join([*lines, *stats_table("recipe", rows)]).rstrip()
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the named tasks; write ``benchmarks/results/games_*.json`` and their BENCHMARKS.md sections."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.games_learning", description=__doc__)
-    parser.add_argument("tasks", nargs="+", choices=[*GAMES, "tutorial"])
+def _stats_metric(name: str, opponent: str) -> tuple[str, str, str]:
+    """The over-seeds metric of a match: label, key of the match row and number format (chips per hand for poker,
+    draw % against tic-tac-toe's minimax, win % otherwise)."""
+    if name == "holdem":
+        return "chips/hand (big blinds)", "mean_reward", ".3f"
+    if opponent == "minimax":
+        return "draw %", "draw_rate", ".1f"
+    return "win %", "win_rate", ".1f"
+
+
+def _match_value(name: str, opponent: str, vs: dict[str, Any]) -> float:
+    _, key, _ = _stats_metric(name, opponent)
+    return float(vs[opponent][key]) * (1 if key == "mean_reward" else 100)
+
+
+def add_game_stats(name: str, result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[opponent]``: chips per hand (hold'em), draw % (minimax) or win % over the seeds."""
+    stats = {o: stats_of([_match_value(name, o, r["vs"]) for r in result["runs"]]) for o in GAMES[name].opponents}
+    return {**result, "stats": stats}
+
+
+def add_tutorial_stats(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with ``stats[game][recipe][opponent]``: the game section's metric over the seeds of each recipe."""
+    stats: dict[str, Any] = {}
+    for name in TUTORIAL_GAMES:
+        rows = [*result["games"][name], *({"who": "sbagents (shipped budget)", **r}
+                                          for r in result["shipped"].get(name, []))]
+        stats[name] = {who: {o: stats_of([_match_value(name, o, r["vs"]) for r in rows if r["who"] == who])
+                             for o in GAMES[name].opponents}
+                       for who in dict.fromkeys(r["who"] for r in rows)}
+    return {**result, "stats": stats}
+
+
+def build_parser(task: str) -> argparse.ArgumentParser:
+    """The options of ``games-<task>``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run games-{task}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' = none)")
-    parser.add_argument("--add", action="store_true",
-                        help="keep the saved runs of other seeds (run seeds as separate commands, then --render-only)")
-    parser.add_argument("--render-only", action="store_true",
-                        help="rewrite the tasks' sections from the saved results (no training)")
+    if task != "tutorial":
+        parser.add_argument("--add", action="store_true",
+                            help="keep the saved runs of other seeds (from --stored; one command per seed)")
+    parser.add_argument("--stored", default=None,
+                        help="saved results: the runs --add keeps, or (tutorial) the game benchmarks' results "
+                             "folder whose shipped-budget rows are shown (default: benchmarks/results)")
     parser.add_argument("--smoke", action="store_true",
-                        help=f"{SMOKE_STEPS} training steps, 20 games per match, results into a temporary folder "
-                             "(checks the script; use with --output '')")
-    args = parser.parse_args(argv)
-    if args.smoke:
-        global RESULTS, SMOKE_GAMES
-        RESULTS, SMOKE_GAMES = Path(tempfile.mkdtemp(prefix="games_smoke_")), 20
-    RESULTS.mkdir(exist_ok=True)
-    if args.render_only:
-        for name in args.tasks:
-            text = (tutorial_markdown(_saved("tutorial"), {n: _saved(n) for n in TUTORIAL_GAMES}) if name == "tutorial"
-                    else game_markdown(name, _saved(name)))
-            print(text)
-            if args.output:
-                write_section(args.output, text, f"games-{name}")
-        return 0
-    done: dict[str, Any] = {}
+                        help=f"{SMOKE_STEPS} training steps, {SMOKE_GAMES} games per match, no rating plot kept "
+                             "(checks the benchmark; use with run --results and --output '')")
+    return parser
+
+
+def _command(task: str, argv: Sequence[str]) -> str:
+    kept = [a for i, a in enumerate(argv) if "--stored" not in {a, argv[i - 1] if i else ""}]
+    return shlex.join(["python", "-m", "benchmarks", "run", f"games-{task}", *recorded_argv(kept)])
+
+
+def run_game(name: str, argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate ``name`` on every seed; with ``--add``, beside the stored runs of other seeds."""
+    args = build_parser(name).parse_args(list(argv))
+    budget = SMOKE if args.smoke else Budget()
     with tempfile.TemporaryDirectory() as tmp:
-        for name in args.tasks:
-            if name == "tutorial":
-                continue
-            runs = [train_ours(GAMES[name], seed, Path(tmp) / f"{name}_{seed}") for seed in args.seeds]
-            for row in runs:
-                print(json.dumps(row), flush=True)
-            done[name] = _store(name, runs, args.add)
-            if args.output:
-                write_section(args.output, game_markdown(name, done[name]), f"games-{name}")
-        if "tutorial" in args.tasks:
-            result = {"seeds": args.seeds,
-                      "games": {n: tutorial_rows(n, args.seeds, Path(tmp)) for n in TUTORIAL_GAMES}}
-            (RESULTS / "games_tutorial.json").write_text(json.dumps(result, indent=1) + "\n")
-            shipped = {n: done.get(n) or _saved(n) for n in TUTORIAL_GAMES}
-            if args.output:
-                write_section(args.output, tutorial_markdown(result, shipped), "games-tutorial")
-    return 0
+        runs = [train_ours(GAMES[name], seed, Path(tmp) / f"{name}_{seed}", budget) for seed in args.seeds]
+    for row in runs:
+        print(json.dumps(row), flush=True)
+    stored = Path(args.stored or RESULTS_DIR / f"games_{name}.json")
+    saved = load_results(stored) if args.add and stored.exists() else {}
+    kept = [row for row in saved.get("runs", []) if row["seed"] not in set(args.seeds)]
+    merged = sorted([*kept, *runs], key=lambda row: row["seed"])
+    elo = f"benchmarks/results/games_{GAMES[name].stem}_elo.png"
+    result = {"command": _command(name, argv), "seeds": [row["seed"] for row in merged], "runs": merged,
+              "elo_plot": elo if (RESULTS_DIR.parent.parent / elo).exists() and budget.keep_elo else None}
+    return add_game_stats(name, result)
 
 
-def _store(name: str, runs: list[dict[str, Any]], add: bool) -> dict[str, Any]:
-    """Write ``games_<name>.json`` (with ``add``: beside the saved runs of other seeds; a lock keeps concurrent
-    commands for different seeds from losing each other's runs) and return what it holds."""
-    import fcntl
-
-    with (RESULTS / ".games.lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        seeds = {row["seed"] for row in runs}
-        kept = [row for row in _saved(name).get("runs", []) if row["seed"] not in seeds] if add else []
-        merged = sorted([*kept, *runs], key=lambda row: row["seed"])
-        result = {"seeds": [row["seed"] for row in merged], "runs": merged}
-        (RESULTS / f"games_{name}.json").write_text(json.dumps(result, indent=1) + "\n")
-    return result
+def run_tutorial(argv: Sequence[str]) -> dict[str, Any]:
+    """The tutorial recipe and ours at its budget on every seed, beside the saved rows at the shipped budget."""
+    args = build_parser("tutorial").parse_args(list(argv))
+    budget = SMOKE if args.smoke else Budget()
+    with tempfile.TemporaryDirectory() as tmp:
+        games = {n: tutorial_rows(n, args.seeds, Path(tmp), budget) for n in TUTORIAL_GAMES}
+    folder = Path(args.stored) if args.stored else RESULTS_DIR
+    shipped = {n: load_results(folder / f"games_{n}.json")["runs"] for n in TUTORIAL_GAMES
+               if (folder / f"games_{n}.json").exists()}
+    return add_tutorial_stats({"command": _command("tutorial", argv), "seeds": args.seeds, "games": games,
+                               "shipped": shipped})
 
 
-def _saved(name: str) -> dict[str, Any]:
-    path = RESULTS / f"games_{name}.json"
-    return json.loads(path.read_text()) if path.exists() else {}
+def _game_benchmark(name: str) -> Benchmark:
+    game = GAMES[name]
+    return Benchmark(name=f"games-{name}", kind="learning", results=f"games_{name}.json",
+                     summary=f"{game.title}: self-play MaskablePPO (shipped config) against fixed opponents",
+                     run=partial(run_game, name), render=partial(game_markdown, name))
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+BENCHMARKS = (
+    *(_game_benchmark(name) for name in ("connect4", "tictactoe", "holdem")),
+    Benchmark(name="games-tutorial", kind="learning", results="games_tutorial.json",
+              summary="PettingZoo's SB3 tutorial recipe vs sbagents on connect four and tic-tac-toe",
+              run=run_tutorial, render=tutorial_markdown),
+)

@@ -19,7 +19,7 @@ import shlex
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from statistics import mean
 from typing import Any
 
@@ -177,23 +177,28 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None,
+                        help="every variant's budget (default: each variant's own; a smaller one checks the "
+                             "benchmark, it does not measure it)")
     return parser
 
 
 def run(argv: Sequence[str]) -> dict[str, Any]:
     """Train and evaluate every (seed, variant); the results of the section."""
     args = build_parser().parse_args(list(argv))
+    variants = {name: replace(VARIANTS[name], n_timesteps=args.n_timesteps or VARIANTS[name].n_timesteps)
+                for name in args.variants}
     start = time.perf_counter()
     rows = []
     with tempfile.TemporaryDirectory() as logs:
         for seed in args.seeds:
             for name in args.variants:
-                rows.append(run_one(name, VARIANTS[name], seed, args.episodes, logs))
+                rows.append(run_one(name, variants[name], seed, args.episodes, logs))
                 print(rows[-1], flush=True)
     _ratios(rows)
     command = shlex.join(["python", "-m", "benchmarks", "run", SECTION, *recorded_argv(list(argv))])
     return add_stats({"command": command, "seeds": args.seeds, "episodes": args.episodes, "variants": args.variants,
-                      "variant_specs": {n: asdict(VARIANTS[n]) for n in args.variants}, "runs": rows,
+                      "variant_specs": {n: asdict(variants[n]) for n in args.variants}, "runs": rows,
                       "means": mean_rows(rows), "wall_s": time.perf_counter() - start})
 
 

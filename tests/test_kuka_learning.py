@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
 import torch
 from stable_baselines3 import DDPG, HerReplayBuffer
 
+from benchmarks.learning import kuka_curves, kuka_learning
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import lookup_entry
@@ -26,15 +24,6 @@ ENTRIES = [
     ("kuka_td3.yml", "td3", ["sbagents/PickAndPlace-v0", "sbagents/PickAndPlaceGoal-v0"]),
     ("kuka_tqc.yml", "tqc", ["sbagents/PickAndPlace-v0", "sbagents/PickAndPlaceGoal-v0", "PandaPush-v3"]),
 ]
-
-
-def _bench_module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("kuka_learning", ROOT / "benchmarks" / "kuka_learning.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses need the module registered
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.parametrize(("conf", "algo", "env_ids"), ENTRIES)
@@ -66,8 +55,7 @@ def test_book_ddpg_entry_runs(tmp_path: Path) -> None:
 
 
 def test_report_tables_and_plot(tmp_path: Path) -> None:
-    bench = _bench_module()
-    runs = []
+    curves = []
     for label, env_id, succ in [("ours", "sbagents/PickAndPlace-v0", [0.0, 0.5, 1.0]),
                                 ("panda-gym", "PandaPushDense-v3", [0.25, 0.25])]:
         run_dir = tmp_path / label
@@ -80,10 +68,14 @@ def test_report_tables_and_plot(tmp_path: Path) -> None:
             {"algo": "sac", "env": env_id, "n_timesteps": n * 1000, "train_seconds": 10.0, "fps": 100.0 * n,
              "eval": {"success_rate": succ[-1], "n_episodes": 50}}))
         (run_dir / "command.txt").write_text(f"python -m sbagents.train --env {env_id}")
-        runs.append((label, str(run_dir)))
-    text = bench.report(runs, tmp_path / "out" / "kuka", "title")
+        curves.append(kuka_curves.load_curve(label, run_dir))
+    kuka_curves.plot_curves(curves, tmp_path / "out" / "kuka.png", "title")
     assert (tmp_path / "out" / "kuka.png").stat().st_size > 10_000
-    assert (tmp_path / "out" / "kuka.md").read_text() == text
+    report = {"key": "main", "seed": 0, "n_episodes": 4, "runs": [kuka_curves.curve_run(c) for c in curves]}
+    results = json.loads(json.dumps({"reports": [report], "blocks": [{"text": "## title"}, {"summary": "main"},
+                                                                     {"curve": "main"}, {"commands": "main"}]}))
+    text = kuka_curves.render_blocks(results)
+    assert text.startswith("## title\n\n1 seed (seed 0) per run") and "(4 deterministic episodes)" in text
     rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in text.splitlines()
             if line.startswith("|") and not line.startswith("|-")]
     by_label = {r[0]: r for r in rows}
@@ -93,3 +85,59 @@ def test_report_tables_and_plot(tmp_path: Path) -> None:
     curve = {r[0]: r[1:] for r in rows if r[0].isdigit()}  # success % per evaluation step, ours then panda-gym
     assert curve["2000"][:2] == ["50", "25"] and curve["3000"][:2] == ["100", ""]
     assert "--env PandaPushDense-v3" in text
+
+
+def _fake_run_dir(run_dir: Path, env_id: str, success: list[float], folder: Path) -> None:
+    """A finished ``sbagents.train`` run dir: 4 evaluation episodes per point, a summary and its command."""
+    run_dir.mkdir(parents=True)
+    n = len(success)
+    np.savez(run_dir / "evaluations.npz", timesteps=np.arange(1, n + 1) * 1000, results=-np.ones((n, 4)),
+             ep_lengths=np.full((n, 4), 50),
+             successes=np.array([[k < round(4 * s) for k in range(4)] for s in success]))
+    (run_dir / "summary.json").write_text(json.dumps(
+        {"algo": "sac", "env": env_id, "n_timesteps": n * 1000, "train_seconds": 10.0, "fps": 100.0 * n,
+         "eval": {"success_rate": success[-1], "n_episodes": 50}}))
+    (run_dir / "command.txt").write_text(f"python -m sbagents.train --env {env_id} -f {folder}")
+
+
+def _fake_training(pair: kuka_learning.Pair, folder: Path) -> list[tuple[str, str]]:
+    suffix = f" {pair.name}" if pair.name else ""
+    runs = [("ours", pair.ours_env)] + ([("panda-gym", pair.panda_env)] if pair.panda else [])
+    for label, env_id in runs:
+        _fake_run_dir(folder / label, env_id, [0.0, 0.5], folder)
+    return [(label + suffix, str(folder / label)) for label, _ in runs]
+
+
+@pytest.mark.parametrize("section", list(kuka_learning.TASKS))
+def test_each_kuka_benchmark_trains_its_pairs(section: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``run`` (training stubbed) trains every default pair, writes one plot each and renders a section whose rows
+    are the runs'; the recorded command hides the machine's paths."""
+    monkeypatch.setattr(kuka_learning, "_train_both", lambda args, pair, conf, folder: _fake_training(pair, folder))
+    task = kuka_learning.TASKS[section]
+    results = json.loads(json.dumps(kuka_learning.run_task(section, [
+        "--panda-python", "/venv/bin/python", "-f", str(tmp_path / "out"), "-n", "2000", "--plots", str(tmp_path)])))
+    pairs = [key for key, pair in task.pairs.items() if pair.panda]
+    assert [r["key"] for r in results["reports"]] == pairs and results["seeds"] == [0]
+    assert results["commands"] == [f"python -m benchmarks run {section} --panda-python <panda-gym venv>/bin/python "
+                                   "-f <output dir> -n 2000"]
+    assert all((tmp_path / task.pairs[key].plot).exists() for key in pairs)
+    text = kuka_learning.render(results)
+    assert str(tmp_path) not in text and text.count("1 seed (seed 0) per run") == len(pairs)
+    summary = [r for r in text.splitlines() if r.startswith("| ours") or r.startswith("| panda-gym")]
+    assert len(summary) == 2 * len(pairs) and all("| 2000 | 50% | 50% | 50% (50) | 10 | 200 |" in r for r in summary)
+    assert "| 2000 | 50 | 50 |" in text
+
+
+def test_keep_stored_replaces_one_pair_and_keeps_the_notes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--pairs dense --keep-stored``: the stored HER report and every note stay; the dense tables are the new
+    run's."""
+    monkeypatch.setattr(kuka_learning, "_train_both", lambda args, pair, conf, folder: _fake_training(pair, folder))
+    stored = ROOT / "benchmarks" / "results" / "kuka_learning_random.json"
+    old = json.loads(stored.read_text())
+    results = kuka_learning.run_task("kuka-learning-random", [
+        "--pairs", "dense", "--keep-stored", "--stored", str(stored), "--panda-python", "python",
+        "-f", str(tmp_path), "--plots", str(tmp_path)])
+    assert results["blocks"] == old["blocks"] and results["reports"][0] == old["reports"][0]
+    assert [r["key"] for r in results["reports"]] == ["her", "dense"]
+    assert [r["n_timesteps"] for r in results["reports"][1]["runs"]] == [2000, 2000]
+    assert results["commands"][:-1] == old["commands"] and "--pairs dense --keep-stored" in results["commands"][-1]

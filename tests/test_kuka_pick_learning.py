@@ -9,7 +9,7 @@ import pytest
 import torch
 from stable_baselines3 import HerReplayBuffer
 
-from benchmarks import kuka_learning
+from benchmarks.learning import kuka_curves, kuka_learning
 from benchmarks.speed import learning_speed
 from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import load_yaml
@@ -54,16 +54,17 @@ def test_table_reports_ratios_to_the_first_variant() -> None:
 
 
 def test_pick_command_checkpoints_with_the_replay_buffer(tmp_path: Path) -> None:
-    args = kuka_learning.build_parser().parse_args(["pick", "--panda-python", "python", "-f", str(tmp_path)])
-    assert args.n_timesteps == 500_000 and args.conf == kuka_learning.PICK_CONF and args.pairs == ["pick"]
+    task = kuka_learning.TASKS["kuka-pick-learning"]
+    args = kuka_learning.build_parser(task.section).parse_args(["--panda-python", "python", "-f", str(tmp_path)])
+    assert args.n_timesteps == 500_000 and args.conf == task.conf and args.pairs == ["pick"]
     cmd = kuka_learning._train_cmd("python", "sac", OURS, args, [])
     assert cmd[cmd.index("--save-freq") + 1] == "50000" and "--save-replay-buffer" in cmd
     no_checkpoints = argparse.Namespace(**{**vars(args), "save_freq": 0})
     assert "--save-freq" not in kuka_learning._train_cmd("python", "sac", OURS, no_checkpoints, [])
-    entries = kuka_learning.pair_config(args.conf, kuka_learning.PICK_PAIRS["pick"], tmp_path / "config.yml")
+    entries = kuka_learning.pair_config(args.conf, task.pairs["pick"], tmp_path / "config.yml")
     assert set(load_yaml(tmp_path / "config.yml")) == {OURS, PANDA} == set(entries)
     command = f"python -m sbagents.train -conf {tmp_path}/pick/config.yml -f {tmp_path}/pick"
-    assert kuka_learning._portable(command, tmp_path) == (
+    assert kuka_curves.portable(command, tmp_path) == (
         "python -m sbagents.train -conf <output dir>/pick/config.yml -f <output dir>/pick")
 
 
@@ -78,7 +79,7 @@ def test_section_names_its_command_and_settings() -> None:
     assert f"{PANDA} steps/s" in text and "| 50 (1.00x) |" in text
 
 
-def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) -> None:
+def test_report_option_takes_the_note_and_hides_the_log_folder(tmp_path: Path) -> None:
     import json
 
     import numpy as np
@@ -89,11 +90,13 @@ def test_report_command_takes_a_note_and_hides_the_log_folder(tmp_path: Path) ->
              ep_lengths=np.full((1, 2), 50), successes=np.array([[True, False]]))
     (run_dir / "summary.json").write_text(json.dumps({"algo": "sac", "env": OURS, "n_timesteps": 1000}))
     (run_dir / "command.txt").write_text(f"python -m sbagents.train -f {tmp_path / 'runs'}")
-    kuka_learning.main(["report", "--run", f"ours={run_dir}", "--note", "pick", "--log-folder", str(tmp_path / "runs"),
-                        "--out", str(tmp_path / "out")])
-    text = (tmp_path / "out.md").read_text()
-    assert kuka_learning.PICK_NOTE in text and "-f <output dir>`" in text and str(tmp_path) not in text
-    assert "| 1000 | 50 |" in text
+    results = kuka_learning.run_task("kuka-pick-learning", ["--report", f"ours={run_dir}", "--log-folder",
+                                                            str(tmp_path / "runs"), "--plots", str(tmp_path)])
+    text = kuka_learning.render(results)
+    assert kuka_learning.PICK_NOTE.strip() in text and "-f <output dir>`" in text and str(tmp_path) not in text
+    assert "| 1000 | 50 |" in text and (tmp_path / "kuka_pick_learning.png").exists()
+    assert results["commands"] == ["python -m benchmarks run kuka-pick-learning --report ours=<output dir>/ours "
+                                   "--log-folder <output dir>"]
 
 
 def test_in_hand_config_trains_with_the_aid_and_evaluates_the_plain_task() -> None:
@@ -113,13 +116,11 @@ def test_in_hand_config_trains_with_the_aid_and_evaluates_the_plain_task() -> No
     evaluation.close()
 
 
-def test_a_subset_of_pairs_reports_beside_the_full_report() -> None:
-    pairs = kuka_learning.LIKE_PAIRS
-    assert kuka_learning.like_out(kuka_learning.LIKE_OUT, list(pairs), pairs) == kuka_learning.LIKE_OUT
-    dense = kuka_learning.like_out(kuka_learning.LIKE_OUT, ["dense"], pairs)
-    assert dense.name == "kuka_learning_random_dense" and dense.parent == kuka_learning.LIKE_OUT.parent
-    custom = Path("elsewhere/report")
-    assert kuka_learning.like_out(custom, ["dense"], pairs) == custom
+def test_each_pair_plots_beside_the_others() -> None:
+    """One PNG per pair (the dense pair's beside the HER pair's), so a pair run alone never overwrites another's."""
+    plots = {key: pair.plot for task in kuka_learning.TASKS.values() for key, pair in task.pairs.items()}
+    assert plots["her"] == "kuka_learning_random.png" and plots["dense"] == "kuka_learning_random_dense.png"
+    assert len(set(plots.values())) == len(plots)
 
 
 def test_learning_speed_run_records_its_command_and_renders(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -45,7 +45,7 @@ from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
 from benchmarks.report import RESULTS_DIR, recorded_argv
 from sbagents.constrained import SACLagrangian
 
-ROOT = Path(__file__).resolve().parent
+ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "kuka_constrained.yml"
 ENV = "sbagents/RobustPickAndPlace-v0"
 SECTION = "constrained-kuka"

@@ -46,7 +46,14 @@ from typing import Any
 import yaml
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.kuka_curves import curve_run, default_blocks, load_curve, plot_curves, render_blocks
+from benchmarks.learning.kuka_curves import (
+    curve_run,
+    default_blocks,
+    load_curve,
+    plot_curves,
+    portable,
+    render_blocks,
+)
 from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 from sbagents.core.zoo_config import load_yaml
 
@@ -238,8 +245,9 @@ def _report_runs(items: list[str]) -> list[tuple[str, str]]:
     return runs
 
 
-def _recorded(section: str, argv: Sequence[str]) -> str:
-    """The command as the section shows it: machine paths written ``<output dir>`` and ``<panda-gym venv>``."""
+def _recorded(section: str, argv: Sequence[str], log_folder: Path | None) -> str:
+    """The command as the section shows it: machine paths written ``<output dir>`` (also inside ``--report``'s run
+    dirs) and ``<panda-gym venv>``; ``--stored`` and ``--plots`` left out."""
     placeholders = {"-f": "<output dir>", "--log-folder": "<output dir>",
                     "--panda-python": "<panda-gym venv>/bin/python"}
     hidden = {"--stored", "--plots"}
@@ -247,8 +255,9 @@ def _recorded(section: str, argv: Sequence[str]) -> str:
     for i, arg in enumerate(argv):
         flag = argv[i - 1] if i else ""
         if arg not in hidden and flag not in hidden:
-            out.append(placeholders.get(flag, arg))
-    return shlex.join(["python", "-m", "benchmarks", "run", section, *recorded_argv(out)])
+            out.append(portable(placeholders.get(flag, arg), log_folder))
+    words = ["python", "-m", "benchmarks", "run", section, *recorded_argv(out)]
+    return " ".join(w if "<" in w else shlex.quote(w) for w in words)
 
 
 def measure_pair(task: Task, key: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -290,7 +299,7 @@ def run_task(section: str, argv: Sequence[str]) -> dict[str, Any]:
     task = TASKS[section]
     args = build_parser(section).parse_args(list(argv))
     keys = args.pairs[:1] if args.report else args.pairs
-    command = _recorded(section, argv)
+    command = _recorded(section, argv, args.log_folder)
     reports, blocks = [], []
     for i, key in enumerate(keys):
         report = measure_pair(task, key, args)

@@ -21,7 +21,7 @@ CONF = Path(__file__).resolve().parents[1] / "benchmarks" / "configs" / "kuka_ra
 GOAL_ID = "sbagents/PickAndPlaceGoal-v0"
 #: Entry of the dense Kuka run (one YAML file cannot hold two entries for one id).
 DENSE_KEY = GOAL_ID + "-dense"
-#: (our entry, panda-gym's entry) trained against each other by ``kuka_learning.py like``.
+#: (our entry, panda-gym's entry) trained against each other by ``python -m benchmarks run kuka-learning-random``.
 PAIRS = [(GOAL_ID, "PandaPush-v3"), (DENSE_KEY, "PandaPushDense-v3")]
 
 

@@ -161,7 +161,6 @@ def test_federated_tiny_run(monkeypatch: pytest.MonkeyPatch) -> None:
 
     saved = json.loads((RESULTS / "federated_homes.json").read_text())["runs"][1]
     monkeypatch.setattr(federated_homes, "run_seed", lambda settings, *a: {**saved, "seed": settings.seed})
-    pytest.importorskip("sbagents.federated.settings")
     results, section = _run("federated-homes", ["--seeds", "0", "1", "--rounds", "2", "--local-steps", "10"])
     assert results["command"] == "python -m benchmarks run federated-homes --seeds 0 1 --rounds 2 --local-steps 10"
     assert results["settings"] == {"rounds": 2, "local_steps": 10, "strategy": "fedavg"}

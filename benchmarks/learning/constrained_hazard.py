@@ -142,10 +142,11 @@ def markdown(result: dict[str, Any]) -> str:
         lines.append(f"| {method} | `{flags.format(limit=f'{limit:g}') or '(none)'}` | " + " | ".join(cells)
                      + f" | {np.mean([r['return'] for r in rows]):.1f} | {np.mean([r['cost'] for r in rows]):.2f} | "
                      f"{goal}/{len(rows)} | {ok}/{len(rows)} | {final} | {np.mean([r['train_s'] for r in rows]):.0f} |")
-    rows: list[StatsRow] = []
+    stats_rows: list[StatsRow] = []
     for method, stats in result["stats"].items():
-        rows += [(method, "task return", stats["return"], ".1f"), (method, "mean episode cost", stats["cost"], ".2f")]
-    lines += ["", *stats_table("method", rows)]
+        stats_rows += [(method, "task return", stats["return"], ".1f"),
+                       (method, "mean episode cost", stats["cost"], ".2f")]
+    lines += ["", *stats_table("method", stats_rows)]
     lines += ["", "![multiplier and EpCost over training](benchmarks/results/constrained_hazard.png)"]
     return "\n".join(lines)
 

@@ -39,7 +39,6 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.monitor import Monitor
 
-import sbagents.envs  # noqa: F401  (registers the ids)
 from benchmarks.harness import Benchmark
 from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
 from benchmarks.report import RESULTS_DIR, recorded_argv
@@ -81,7 +80,8 @@ def evaluate(model: Any, env: gym.Env[Any, Any], episodes: int, penalty: float) 
     success, costs, returns = [], [], []
     for episode in range(episodes):
         obs, _ = env.reset(seed=10_000 + episode)
-        done, total, cost, info = False, 0.0, 0.0, {}
+        done, total, cost = False, 0.0, 0.0
+        info: dict[str, Any] = {}
         while not done:
             action, _ = model.predict(obs, deterministic=True)
             obs, reward, terminated, truncated, info = env.step(action)
@@ -107,6 +107,8 @@ def run_one(
     method: str, seed: int, n_timesteps: int, cost_limit: float, multiplier_lr: float, episodes: int, logs: Path
 ) -> dict[str, Any]:
     """Train one method on one seed (checkpoints every 10k steps under ``logs``), then evaluate it greedily."""
+    import sbagents.envs  # noqa: F401  (registers the ids; imported here so that list and render need no pybullet)
+
     policy, env_kwargs, penalty, entry = method_env(method)
     env = Monitor(gym.make(ENV, **env_kwargs))
     folder = logs / f"{method.replace(' ', '_')}_{seed}"
@@ -144,6 +146,8 @@ def run_one(
 
 def evaluate_checkpoint(method: str, seed: int, episodes: int, logs: Path) -> dict[str, Any]:
     """Evaluate the newest checkpoint of an unfinished run (``model_<steps>_steps.zip``); marked ``partial``."""
+    import sbagents.envs  # noqa: F401  (registers the ids)
+
     folder = logs / f"{method.replace(' ', '_')}_{seed}"
     checkpoints = sorted(folder.glob("model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[1]))
     if not checkpoints:

@@ -238,10 +238,10 @@ def tutorial_markdown(result: dict[str, Any]) -> str:
             lines.append(f"| {row['who']} | {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | "
                          + " | ".join(cells) + f" | {metric} |")
         lines.append("")
-    rows: list[StatsRow] = [(f"{GAMES[name].title}: {who}", f"{label} vs {o}", stats, fmt)
-                            for name, by_who in result["stats"].items() for who, by_opponent in by_who.items()
-                            for o, stats in by_opponent.items() for label, _, fmt in [_stats_metric(name, o)]]
-    return "\n".join([*lines, *stats_table("recipe", rows)]).rstrip()
+    stats_rows: list[StatsRow] = [(f"{GAMES[name].title}: {who}", f"{label} vs {o}", stats, fmt)
+                                  for name, by_who in result["stats"].items() for who, by_opponent in by_who.items()
+                                  for o, stats in by_opponent.items() for label, _, fmt in [_stats_metric(name, o)]]
+    return "\n".join([*lines, *stats_table("recipe", stats_rows)]).rstrip()
 
 
 def _stats_metric(name: str, opponent: str) -> tuple[str, str, str]:

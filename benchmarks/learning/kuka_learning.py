@@ -264,7 +264,7 @@ def measure_pair(task: Task, key: str, args: argparse.Namespace) -> dict[str, An
     """Train (or, with ``--report``, read) one pair; its report, with its plot written."""
     pair = task.pairs[key]
     if args.report:
-        runs, folder = _report_runs(args.report), args.log_folder
+        runs = _report_runs(args.report)
     else:
         if (pair.panda and args.panda_python is None) or args.log_folder is None:
             raise SystemExit("training needs --panda-python and -f (or --report LABEL=RUN_DIR ...)")

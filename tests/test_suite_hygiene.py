@@ -27,5 +27,6 @@ def test_importorskip_only_for_third_party_packages() -> None:
 
 def test_the_scan_sees_importorskip_calls(tmp_path: Path) -> None:
     sample = tmp_path / "sample.py"
-    sample.write_text("import pytest\nx = pytest.importorskip('sbagents.multiagent')\ny = pytest.importorskip('mpe2')\n")
+    sample.write_text("import pytest\n"
+                      "x = pytest.importorskip('sbagents.multiagent')\ny = pytest.importorskip('mpe2')\n")
     assert _importorskip_targets(sample) == [(2, "sbagents.multiagent"), (3, "mpe2")]

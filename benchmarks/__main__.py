@@ -64,6 +64,14 @@ def render_into(text: str, chosen: Sequence[Benchmark]) -> str:
     return text
 
 
+def _check_results(chosen: Sequence[Benchmark]) -> None:
+    missing = [b for b in chosen if not b.results_path.is_file()]
+    if missing:
+        names = ", ".join(f"{b.name} ({b.results})" for b in missing)
+        raise SystemExit(f"error: no results file for {names} in benchmarks/results; measure with "
+                         f"`python -m benchmarks run {missing[0].name}`")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command; return the exit status (1: ``render --check`` found a stale section)."""
     args = build_parser().parse_args(argv)
@@ -85,6 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.all and not args.names:
         raise SystemExit("error: render needs benchmark names or --all")
     chosen = list(benchmarks.values()) if args.all else _pick(benchmarks, args.names)
+    _check_results(chosen)
     output = Path(args.output)
     old = output.read_text() if output.exists() else "# Benchmarks\n"
     new = render_into(old, chosen)

@@ -150,3 +150,13 @@ def test_suite_time_parses_pytest_and_renders_ratios(monkeypatch: pytest.MonkeyP
     assert "| bbbbbbb | whole suite | `-` | 3 passed | 0 | 40 | 2.50x |" in section
     assert "| bbbbbbb | developer loop | `-m not slow` | 3 passed | 0 | 20 | 5.00x |" in section
     assert results["command"] == "python -m benchmarks run suite-time --before aaaaaaa --after bbbbbbb"
+
+
+def test_render_without_results_file_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fake = Benchmark(name="fake", kind="speed", results="no_such_file.json", summary="a test double",
+                     run=lambda argv: {}, render=lambda r: "")
+    monkeypatch.setattr(harness_cli, "registry", lambda: {"fake": fake})
+    with pytest.raises(SystemExit) as info:
+        harness_cli.main(["render", "--output", str(tmp_path / "B.md"), "fake"])
+    assert str(info.value.code).startswith("error: no results file for fake (no_such_file.json)")
+    assert not (tmp_path / "B.md").exists()

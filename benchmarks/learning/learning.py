@@ -2,41 +2,98 @@
 
 Each run is exactly ``python -m sbagents.train --algo A --env E --seed S --final-eval-episodes N`` (the same
 library call), so ``train_seconds`` is the wall time of ``model.learn`` and the evaluation is the run's
-``summary.json``. Results go to ``benchmarks/results/learning_<env>_<algo>.json`` and a Markdown table is printed.
+``summary.json``. One benchmark per env; its results file ``benchmarks/results/learning_<env>.json`` holds every
+algorithm's runs and the per-seed statistics of their key metrics::
 
-Usage::
-
-    python -m benchmarks.learning --algo ppo --env treasure_hunt_v0 --seeds 0 1 2
-    python -m benchmarks.learning --algo ddpg td3 sac ppo --env sbagents/SmartHome-v0 --seeds 0 1 2
+    python -m benchmarks run learning-smarthome --algo ddpg td3 sac ppo --seeds 0 1 2
+    python -m benchmarks run learning-treasure-hunt-ppo --seeds 0 1 2
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
+import shlex
 import tempfile
-from pathlib import Path
+from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
-from benchmarks.report import write_section
-from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
-from sbagents.core.run_dir import env_stem
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_table import StatRow, iqm_note, metric_stats, stats_table
+from benchmarks.report import machine_info, recorded_argv
 
-RESULTS = Path(__file__).resolve().parent / "results"
+#: The env's key metric in ``eval.metrics`` (label, format); envs not listed have none beyond the return.
+KEY_METRICS: dict[str, tuple[str, str, str]] = {
+    "sbagents/SmartHome-v0": ("criterion_share", "comfort criterion share", ".3f"),
+    "treasure_hunt_v0": ("treasures_collected", "treasures/episode", ".2f"),
+}
+#: A metric's earlier name in recorded files.
+LEGACY_KEYS: dict[str, str] = {"treasures_collected": "treasures_per_episode"}
 
 
 def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, extra: dict[str, Any]) -> dict[str, Any]:
     """Train one seed with the shipped config; return its summary plus the machine load."""
+    from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
+
     load_before = os.getloadavg()[0]
     result = train(TrainSpec(algo, env), OutputOptions(log_folder), EvalOptions(final_eval_episodes=episodes),
                    ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(**extra))
     return {**result.summary, "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
 
 
+def key_metric(env: str, run: dict[str, Any]) -> float | None:
+    """The env's key metric of one run (``None`` when the env has none or the run lacks it)."""
+    if env not in KEY_METRICS:
+        return None
+    key = KEY_METRICS[env][0]
+    metrics = run["eval"].get("metrics", {})
+    value = metrics.get(key, metrics.get(LEGACY_KEYS.get(key, key)))  # files recorded before a key's rename
+    return None if value is None else float(value)
+
+
+def run_values(env: str, runs: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Per-seed values of the metrics the statistics table shows: key metric, mean return, success, train s."""
+    values: dict[str, list[float]] = {"mean_return": [float(r["eval"]["mean_return"]) for r in runs],
+                                      "train_seconds": [float(r["train_seconds"]) for r in runs]}
+    success = [r["eval"].get("success_rate") for r in runs]
+    if all(s is not None for s in success):
+        values["success_rate"] = [float(s) for s in success]
+    key = [key_metric(env, r) for r in runs]
+    if env in KEY_METRICS and all(v is not None for v in key):
+        values[KEY_METRICS[env][0]] = [float(v) for v in key if v is not None]
+    return values
+
+
+def build_parser(name: str, algos: Sequence[str]) -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {name}",
+                                     description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--algo", nargs="+", default=list(algos), help="algorithms (shipped zoo entries)")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--episodes", type=int, default=100, help="greedy evaluation episodes per seed")
+    parser.add_argument("--vec-env", default=None, help="vec env type passed to train (default: train's)")
+    return parser
+
+
+def run_env(name: str, env: str, algos: Sequence[str], argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate every algorithm and seed on ``env``; the results of benchmark ``name``."""
+    args = build_parser(name, algos).parse_args(list(argv))
+    extra = {"vec_env": args.vec_env} if args.vec_env else {}
+    runs: dict[str, list[dict[str, Any]]] = {}
+    with tempfile.TemporaryDirectory() as logs:
+        for algo in args.algo:
+            runs[algo] = [run_seed(algo, env, s, args.episodes, logs, extra) for s in args.seeds]
+    return {
+        "env": env, "algos": list(args.algo), "seeds": list(args.seeds), "episodes": args.episodes,
+        "command": " ".join(["python -m benchmarks run", name, *map(shlex.quote, recorded_argv(list(argv)))]),
+        "machine": machine_info(), "runs": runs,
+        "stats": {algo: metric_stats(run_values(env, rows)) for algo, rows in runs.items()},
+    }
+
+
 def table(rows: list[dict[str, Any]]) -> str:
-    """Markdown table of the runs."""
+    """Markdown table of one algorithm's runs."""
     metric_keys = sorted({k for r in rows for k in r["eval"]["metrics"]})
     head = ["algo", "env", "seed", "n_timesteps", "train s", "cpu s", "mean return", "success", *metric_keys, "load"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -51,32 +108,45 @@ def table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--algo", nargs="+", required=True)
-    parser.add_argument("--env", required=True)
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--episodes", type=int, default=100, help="greedy evaluation episodes per seed")
-    parser.add_argument("--write", default="BENCHMARKS.md", help="Markdown file to update ('' to skip)")
-    parser.add_argument("--vec-env", default=None, help="vec env type passed to train (default: train's)")
-    args = parser.parse_args()
-    extra = {"vec_env": args.vec_env} if args.vec_env else {}
-    RESULTS.mkdir(exist_ok=True)
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores")
-    tables = []
-    with tempfile.TemporaryDirectory() as logs:
-        for algo in args.algo:
-            rows = [run_seed(algo, args.env, s, args.episodes, logs, extra) for s in args.seeds]
-            (RESULTS / f"learning_{env_stem(args.env)}_{algo}.json").write_text(json.dumps(rows, indent=2) + "\n")
-            tables.append(table(rows))
-            print(tables[-1], flush=True)
-    command = f"python -m benchmarks.learning --algo {' '.join(args.algo)} --env {args.env} --seeds " + " ".join(
-        map(str, args.seeds))
-    text = f"## Learning: {args.env}\n\nCommand: `{command}` ({args.episodes} greedy evaluation episodes per seed, " \
-        f"shipped zoo configs).\n\n" + "\n\n".join(tables)
-    if args.write:
-        write_section(args.write, text, f"learning-{env_stem(args.env)}-{'-'.join(args.algo)}")
+def stat_rows(env: str, algo: str) -> list[StatRow]:
+    """The statistics table's rows of one algorithm (keys ``algo/metric`` of :func:`flat_stats`)."""
+    rows: list[StatRow] = []
+    if env in KEY_METRICS:
+        key, label, fmt = KEY_METRICS[env]
+        rows.append((f"{algo}: {label}", f"{algo}/{key}", fmt))
+    return rows + [(f"{algo}: mean return", f"{algo}/mean_return", ".1f"),
+                   (f"{algo}: success", f"{algo}/success_rate", ".2f"),
+                   (f"{algo}: train s", f"{algo}/train_seconds", ".1f")]
 
 
-if __name__ == "__main__":
-    main()
+def machine_line(machine: dict[str, Any] | None) -> list[str]:
+    """``Machine: ...`` of a run's :func:`benchmarks.report.machine_info` (nothing for results without it)."""
+    if not machine:
+        return []
+    return ["", f"Machine: {machine['cpu']}, {machine['cores']} cores, torch {machine['torch']}, "
+                f"SB3 {machine['stable_baselines3']}; run {machine['date']}."]
+
+
+def render(results: dict[str, Any]) -> str:
+    """The env's section: one table per algorithm, then the per-seed statistics of each."""
+    env, runs = results["env"], results["runs"]
+    flat = {f"{algo}/{key}": s for algo, by_key in results["stats"].items() for key, s in by_key.items()}
+    rows = [row for algo in results["algos"] for row in stat_rows(env, algo)]
+    n_seeds = len(results["seeds"])
+    lines = [f"## Learning: {env}", "",
+             f"Command: `{results['command']}` ({results['episodes']} greedy evaluation episodes per seed, "
+             "shipped zoo configs).", *machine_line(results.get("machine")), ""]
+    lines += ["\n\n".join(table(runs[algo]) for algo in results["algos"]), "", *stats_table(flat, rows), "",
+              iqm_note(n_seeds)]
+    return "\n".join(lines)
+
+
+BENCHMARKS = (
+    Benchmark(name="learning-smarthome", kind="learning", results="learning_sbagents_SmartHome-v0.json",
+              summary="SmartHome-v0: DDPG / TD3 / SAC / PPO with the shipped zoo entries, 3 seeds, greedy comfort",
+              run=partial(run_env, "learning-smarthome", "sbagents/SmartHome-v0", ("ddpg", "td3", "sac", "ppo")),
+              render=render),
+    Benchmark(name="learning-treasure-hunt-ppo", kind="learning", results="learning_treasure_hunt_v0.json",
+              summary="treasure_hunt_v0: PPO with the shipped zoo entry through train, 3 seeds, treasures/episode",
+              run=partial(run_env, "learning-treasure-hunt-ppo", "treasure_hunt_v0", ("ppo",)), render=render),
+)

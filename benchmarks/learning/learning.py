@@ -32,13 +32,16 @@ KEY_METRICS: dict[str, tuple[str, str, str]] = {
 LEGACY_KEYS: dict[str, str] = {"treasures_collected": "treasures_per_episode"}
 
 
-def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, extra: dict[str, Any]) -> dict[str, Any]:
-    """Train one seed with the shipped config; return its summary plus the machine load."""
+def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, extra: dict[str, Any],
+             n_timesteps: int | None = None) -> dict[str, Any]:
+    """Train one seed with the shipped config (``n_timesteps``: another budget); return its summary plus the
+    machine load."""
     from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
 
     load_before = os.getloadavg()[0]
-    result = train(TrainSpec(algo, env), OutputOptions(log_folder), EvalOptions(final_eval_episodes=episodes),
-                   ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(**extra))
+    result = train(TrainSpec(algo, env, n_timesteps), OutputOptions(log_folder),
+                   EvalOptions(final_eval_episodes=episodes), ExecOptions(seed=seed, verbose=0),
+                   sb3=Sb3Options(**extra))
     return {**result.summary, "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
 
 
@@ -72,6 +75,7 @@ def build_parser(name: str, algos: Sequence[str]) -> argparse.ArgumentParser:
     parser.add_argument("--algo", nargs="+", default=list(algos), help="algorithms (shipped zoo entries)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="greedy evaluation episodes per seed")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="training budget (default: the config's)")
     parser.add_argument("--vec-env", default=None, help="vec env type passed to train (default: train's)")
     return parser
 
@@ -83,7 +87,7 @@ def run_env(name: str, env: str, algos: Sequence[str], argv: Sequence[str]) -> d
     runs: dict[str, list[dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as logs:
         for algo in args.algo:
-            runs[algo] = [run_seed(algo, env, s, args.episodes, logs, extra) for s in args.seeds]
+            runs[algo] = [run_seed(algo, env, s, args.episodes, logs, extra, args.n_timesteps) for s in args.seeds]
     return {
         "env": env, "algos": list(args.algo), "seeds": list(args.seeds), "episodes": args.episodes,
         "command": " ".join(["python -m benchmarks run", name, *map(shlex.quote, recorded_argv(list(argv)))]),

@@ -44,11 +44,14 @@ def _date(data: dict[str, Any]) -> str:
     return str(data.get("date") or (data.get("machine") or {}).get("date", "-"))[:10]
 
 
-def _metric(values: Sequence[float], fmt: str) -> dict[str, Any]:
-    """The key metric's cells (per seed, mean +- std, IQM [95% CI]) from its per-seed values."""
-    from benchmarks.stats import seed_stats
+def _metric(values: Sequence[float], stats: dict[str, Any] | None, fmt: str) -> dict[str, Any]:
+    """The key metric's cells (per seed, mean +- std, IQM [95% CI]): from the statistics the file stores, else
+    computed from its per-seed values."""
+    if stats is None:
+        from benchmarks.stats import seed_stats
 
-    cells = stats_columns(seed_stats(values), fmt)
+        stats = seed_stats(values)
+    cells = stats_columns(stats, fmt)
     if len(values) < 2:
         cells[1:] = ["-", "-"]
     return dict(zip(("per_seed", "mean_std", "iqm_ci"), cells, strict=True))
@@ -66,7 +69,7 @@ def learning_rows(path: Path) -> list[dict[str, Any]]:
         rows.append({
             "env": env, "algo": algo, "seeds": _seeds([int(r["seed"]) for r in runs]),
             "n_timesteps": _range([r["n_timesteps"] for r in runs], ",d"), "metric": label,
-            **_metric([float(v) for v in values if v is not None], fmt),
+            **_metric([float(v) for v in values if v is not None], data.get("stats", {}).get(algo, {}).get(key), fmt),
             "success": _range([r["eval"].get("success_rate") for r in runs], ".2f"),
             "train_s": _range([r["train_seconds"] for r in runs], ".1f"),
             "date": _date(data), "file": path.name, "command": data["command"],
@@ -84,7 +87,8 @@ def treasure_hunt_row(path: Path) -> dict[str, Any]:
     return {
         "env": "treasure_hunt_v0", "algo": f"ppo (batched, {'/'.join(via)}{target})",
         "seeds": _seeds([int(r["seed"]) for r in runs]), "n_timesteps": _range([r["n_timesteps"] for r in runs], ",d"),
-        "metric": "treasures/episode", **_metric([float(r["treasures"]) for r in runs], ".2f"),
+        "metric": "treasures/episode",
+        **_metric([float(r["treasures"]) for r in runs], data.get("stats", {}).get("treasures"), ".2f"),
         "success": _range([r.get("success_rate") for r in runs], ".2f"),
         "train_s": _range([r["train_s"] for r in runs], ".1f"),
         "date": _date(data), "file": path.name, "command": data["command"],

@@ -57,16 +57,19 @@ def train_supports_batched() -> bool:
     return isinstance(probe.unwrapped, BatchedTreasureHuntVecEnv)
 
 
-def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> dict[str, Any]:
-    """Train one seed and evaluate the deterministic team; returns a JSON-able dict."""
+def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100,
+             n_timesteps: int | None = None) -> dict[str, Any]:
+    """Train one seed (``n_timesteps``: another budget than the config's) and evaluate the deterministic team;
+    returns a JSON-able dict."""
     torch.set_num_threads(1)
     ref = resolve_env(ENV)
-    exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref)
+    spec = TrainSpec("ppo", ENV, n_timesteps, params)
+    exp = build_experiment(spec, ref)
     if via == "train":
         from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, train
 
         with tempfile.TemporaryDirectory() as logs:
-            result = train(TrainSpec("ppo", ENV, hyperparams=params), OutputOptions(logs),
+            result = train(spec, OutputOptions(logs),
                            EvalOptions(eval_freq=-1, final_eval_episodes=0),
                            ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(vec_env="batched"))
             model, train_s = result.model, float(result.summary["train_seconds"])
@@ -114,8 +117,8 @@ def render(summary: dict[str, Any]) -> str:
         "",
         "Parameter-shared PPO, `zoo_configs/ppo.yml` entry `treasure_hunt_v0`"
         + (f" with overrides `{json.dumps(summary['params'])}`" if summary["params"] else "")
-        + "; deterministic team evaluated on 100 episodes (eval seed 10000 + seed). Target: >= 4.5 treasures "
-        f"in <= 90 s of training. Command: `{summary['command']}`.",
+        + f"; deterministic team evaluated on {summary.get('n_eval', 100)} episodes (eval seed 10000 + seed). "
+        f"Target: >= 4.5 treasures in <= 90 s of training. Command: `{summary['command']}`.",
         "",
         "| seed | path | n_envs | timesteps | train s | fps | treasures/episode | team return | success "
         "| load |",
@@ -138,6 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--params", type=json.loads, default={}, help="JSON overrides of the zoo entry")
     parser.add_argument("--via", choices=("auto", "train", "direct"), default="auto")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="training budget (default: the config's)")
+    parser.add_argument("--n-eval", type=int, default=100, help="evaluation episodes per seed")
     return parser
 
 
@@ -147,11 +152,12 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     via = args.via if args.via != "auto" else ("train" if train_supports_batched() else "direct")
     runs = []
     for seed in args.seeds:
-        row = run_seed(seed, args.params, via)
+        row = run_seed(seed, args.params, via, args.n_eval, args.n_timesteps)
         print(json.dumps(row), flush=True)
         runs.append(row)
     return {
         "params": args.params,
+        "n_eval": args.n_eval,
         "runs": runs,
         "min_treasures": min(r["treasures"] for r in runs),
         "max_train_s": max(r["train_s"] for r in runs),

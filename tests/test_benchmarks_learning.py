@@ -5,13 +5,19 @@ file is checked for every benchmark by tests/test_benchmarks_harness.py."""
 
 from __future__ import annotations
 
+import contextlib
+import importlib
+import io
 import json
+import subprocess
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
 
+import benchmarks.stats
 from benchmarks.harness import Benchmark, registry
 from benchmarks.learning import learning, pettingzoo_learning, recorded, rllib_learning, treasure_hunt_learning
 from benchmarks.learning.seed_table import iqm_note, stats_table
@@ -26,6 +32,12 @@ MINE = ("learning-smarthome", "learning-treasure-hunt-ppo", "recorded-learning",
 @pytest.fixture(autouse=True)
 def _one_thread() -> None:
     torch.set_num_threads(1)
+
+
+@pytest.fixture
+def quick_bootstrap(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tiny runs: the statistics with 500 bootstrap resamples instead of 20,000 (about 2 s each)."""
+    monkeypatch.setattr(benchmarks.stats, "seed_stats", partial(benchmarks.stats.seed_stats, reps=500))
 
 
 def _bench(name: str) -> Benchmark:
@@ -66,14 +78,14 @@ def test_stats_table_one_seed_shows_no_interval() -> None:
     assert iqm_note(1).startswith("1 seed") and "3 seeds" in iqm_note(3)
 
 
-@pytest.mark.parametrize(("name", "algos"), [("learning-smarthome", ["ppo", "ddpg"]),
+@pytest.mark.parametrize(("name", "algos"), [("learning-smarthome", ["sac", "ddpg"]),
                                              ("learning-treasure-hunt-ppo", ["ppo"])])
-def test_learning_tiny(name: str, algos: list[str]) -> None:
+def test_learning_tiny(name: str, algos: list[str], quick_bootstrap: None) -> None:
     bench = _bench(name)
-    results = bench.run(["--algo", *algos, "--seeds", "0", "1", "-n", "200", "--episodes", "2"])
+    options = ["--algo", *algos, "--seeds", "0", "1", "-n", "200", "--episodes", "2", "--eval-freq", "-1"]
+    results = bench.run(options)
     assert json.loads(json.dumps(results)) == results  # JSON-able
-    assert results["algos"] == algos and results["command"] == (
-        f"python -m benchmarks run {name} --algo {' '.join(algos)} --seeds 0 1 -n 200 --episodes 2")
+    assert results["algos"] == algos and results["command"] == f"python -m benchmarks run {name} {' '.join(options)}"
     section = bench.render(results)
     runs = [r for r in _cells(section) if r[0] in algos]
     assert [(r[0], r[2]) for r in runs] == [(a, s) for a in algos for s in ("0", "1")]
@@ -85,7 +97,7 @@ def test_learning_tiny(name: str, algos: list[str]) -> None:
     assert "Machine:" in section and "2 seeds" in section
 
 
-def test_treasure_hunt_learning_tiny() -> None:
+def test_treasure_hunt_learning_tiny(quick_bootstrap: None) -> None:
     bench = _bench("treasure-hunt-learning")
     results = bench.run(["--seeds", "0", "-n", "2048", "--n-eval", "3", "--via", "direct"])
     (run,) = results["runs"]
@@ -96,14 +108,30 @@ def test_treasure_hunt_learning_tiny() -> None:
     assert "evaluated on 3 episodes" in section and "1 seed" in section and "Target not met" in section
 
 
+def _cli_in_process(module: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """``python -m sbagents.<module> args`` run in this process (no interpreter start: seconds saved per call)."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = importlib.import_module(f"sbagents.{module}").main(list(args))
+    assert not code, (module, args)
+    return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
+
+
 @pytest.mark.parametrize("task", sorted(pettingzoo_learning.TASKS))
-def test_pettingzoo_tiny(task: str, tmp_path: Path) -> None:
+def test_pettingzoo_tiny(task: str, tmp_path: Path, quick_bootstrap: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every task on 64 steps of a shrunk config and 1-2 episodes; kaz through the real CLI subprocesses, the others
+    in-process."""
+    if task != "kaz":
+        monkeypatch.setattr(pettingzoo_learning, "cli", _cli_in_process)
     bench = _bench(f"pettingzoo-{task}")
     png = tmp_path / "curve.png"
-    results = bench.run(["--seeds", "0", "-n", "64", "--eval-episodes", "2", "--plot", str(png)])
-    assert png.stat().st_size > 0 and results["eval_episodes"] == 2 and results["seeds"] == [0]
+    episodes = "1" if task == "pursuit" else "2"  # 500 steps an episode
+    results = bench.run(["--seeds", "0", "-n", "64", "--eval-episodes", episodes, "--plot", str(png), "--params",
+                         "n_envs:2", "n_steps:16", "batch_size:32", "n_epochs:1"])
+    assert png.stat().st_size > 0 and results["eval_episodes"] == int(episodes) and results["seeds"] == [0]
     section = bench.render(results)
-    assert _cells(section)[1][0] == "0" and "evaluated on 2 episodes" in section
+    assert _cells(section)[1][0] == "0" and f"evaluated on {episodes} episodes" in section
+    assert "-params n_envs:2 n_steps:16 batch_size:32 n_epochs:1" in section
     assert _stat_row(section, "team return")[1] == f"{results['runs'][0]['mean_return']:.2f}"
     assert "random play" in section
     assert results["command"].startswith(f"python -m benchmarks run pettingzoo-{task} --seeds 0 -n 64")
@@ -140,7 +168,7 @@ def test_rllib_render_without_ray() -> None:
         "team_return": [-30.0, -29.0], "train_seconds": [10.0, 11.0]}  # no checkpoint saved: no statistics
 
 
-def test_rllib_tiny() -> None:
+def test_rllib_tiny(quick_bootstrap: None) -> None:
     from sbagents.rllib import ray_available
 
     if not ray_available():
@@ -184,7 +212,7 @@ def test_recorded_table_from_real_results(tmp_path: Path) -> None:
     assert recorded.render(results) == recorded.render(json.loads(json.dumps(results)))
 
 
-def test_recorded_generic_env(tmp_path: Path) -> None:
+def test_recorded_generic_env(tmp_path: Path, quick_bootstrap: None) -> None:
     def run(seed: int, mean_return: float) -> dict[str, Any]:
         return {"algo": "a2c", "env": "CartPole-v1", "seed": seed, "n_timesteps": 1000, "train_seconds": 2.0,
                 "eval": {"mean_return": mean_return, "success_rate": None, "metrics": {}}, "load_before": 1.0}

@@ -33,14 +33,14 @@ LEGACY_KEYS: dict[str, str] = {"treasures_collected": "treasures_per_episode"}
 
 
 def run_seed(algo: str, env: str, seed: int, episodes: int, log_folder: str, extra: dict[str, Any],
-             n_timesteps: int | None = None) -> dict[str, Any]:
-    """Train one seed with the shipped config (``n_timesteps``: another budget); return its summary plus the
-    machine load."""
+             n_timesteps: int | None = None, eval_freq: int | None = None) -> dict[str, Any]:
+    """Train one seed with the shipped config (``n_timesteps``: another budget; ``eval_freq``: another period of
+    the periodic evaluations, -1 for none); return its summary plus the machine load."""
     from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec, train
 
     load_before = os.getloadavg()[0]
     result = train(TrainSpec(algo, env, n_timesteps), OutputOptions(log_folder),
-                   EvalOptions(final_eval_episodes=episodes), ExecOptions(seed=seed, verbose=0),
+                   EvalOptions(eval_freq=eval_freq, final_eval_episodes=episodes), ExecOptions(seed=seed, verbose=0),
                    sb3=Sb3Options(**extra))
     return {**result.summary, "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2)}
 
@@ -76,6 +76,8 @@ def build_parser(name: str, algos: Sequence[str]) -> argparse.ArgumentParser:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=100, help="greedy evaluation episodes per seed")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="training budget (default: the config's)")
+    parser.add_argument("--eval-freq", type=int, default=None,
+                        help="env steps between periodic evaluations (default: train's; -1: none)")
     parser.add_argument("--vec-env", default=None, help="vec env type passed to train (default: train's)")
     return parser
 
@@ -87,7 +89,8 @@ def run_env(name: str, env: str, algos: Sequence[str], argv: Sequence[str]) -> d
     runs: dict[str, list[dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as logs:
         for algo in args.algo:
-            runs[algo] = [run_seed(algo, env, s, args.episodes, logs, extra, args.n_timesteps) for s in args.seeds]
+            runs[algo] = [run_seed(algo, env, s, args.episodes, logs, extra, args.n_timesteps, args.eval_freq)
+                          for s in args.seeds]
     return {
         "env": env, "algos": list(args.algo), "seeds": list(args.seeds), "episodes": args.episodes,
         "command": " ".join(["python -m benchmarks run", name, *map(shlex.quote, recorded_argv(list(argv)))]),
@@ -98,7 +101,7 @@ def run_env(name: str, env: str, algos: Sequence[str], argv: Sequence[str]) -> d
 
 def table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of one algorithm's runs."""
-    metric_keys = sorted({k for r in rows for k in r["eval"]["metrics"]})
+    metric_keys = sorted({k for r in rows for k, v in r["eval"]["metrics"].items() if isinstance(v, int | float)})
     head = ["algo", "env", "seed", "n_timesteps", "train s", "cpu s", "mean return", "success", *metric_keys, "load"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:

@@ -135,6 +135,17 @@ def run_one(task: Task, seed: int, budget: int | None, logs: Path) -> dict[str, 
     return row
 
 
+def with_params(train_args: Sequence[str], params: Sequence[str]) -> list[str]:
+    """``train_args`` with more ``-params`` overrides (merged into its own ``-params`` when it has one)."""
+    args = list(train_args)
+    if not params:
+        return args
+    if "-params" not in args:
+        return [*args, "-params", *params]
+    at = args.index("-params") + 1
+    return args[:at] + list(params) + args[at:]
+
+
 def _curve(run_dir: Path) -> dict[str, list[float]]:
     """The run's periodic evaluations (empty when the budget ended before the first one)."""
     path = run_dir / "evaluations.npz"
@@ -249,7 +260,8 @@ def render_task(name: str, result: dict[str, Any]) -> str:
     base = ", ".join(f"{k} play {v['mean_return']:.2f}" + (f" ({v['catches']:.2f} catches/episode)"
                                                              if "catches" in v else "")
                      for k, v in result["baselines"].items())
-    extra = f" {' '.join(task.train_args)}" if task.train_args else ""
+    train_args = with_params(task.train_args, result.get("params", []))
+    extra = f" {' '.join(train_args)}" if train_args else ""
     episodes = result.get("eval_episodes", task.eval_episodes)
     lines = [f"## {task.title}", "",
              f"`python -m sbagents.train --algo {task.algo} --env {task.env}{extra}` with the shipped config "
@@ -292,11 +304,13 @@ def plot(task: Task, result: dict[str, Any], path: Path) -> None:
 def build_parser(name: str) -> argparse.ArgumentParser:
     """The options of benchmark ``pettingzoo-<name>``."""
     parser = argparse.ArgumentParser(prog=f"python -m benchmarks run pettingzoo-{name}",
-                                     description=(__doc__ or "").splitlines()[0])
+                                     description=f"{TASKS[name].title}: PPO with the shipped config through the CLI")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("-n", "--n-timesteps", type=int, default=None,
                         help="training budget (default: the task's, else the config's n_timesteps)")
     parser.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the task's)")
+    parser.add_argument("--params", nargs="+", default=[], metavar="KEY:VALUE",
+                        help="more overrides of the zoo entry (train's -params), e.g. n_envs:2 n_steps:16")
     parser.add_argument("--plot", default=str(RESULTS_DIR / f"pettingzoo_{name}.png"),
                         help="curve PNG to write ('' to skip)")
     parser.add_argument("--add", action="store_true",
@@ -320,8 +334,8 @@ def run_task(name: str, argv: Sequence[str]) -> dict[str, Any]:
         if args.plot:
             plot(task, result, Path(args.plot))
         return result
-    task = replace(task, budget=args.n_timesteps or task.budget,
-                   eval_episodes=args.eval_episodes or task.eval_episodes)
+    task = replace(task, budget=args.n_timesteps or task.budget, eval_episodes=args.eval_episodes or task.eval_episodes,
+                   train_args=tuple(with_params(task.train_args, args.params)))
     budget = task.budget or config_experiment(task).n_timesteps
     seeds, runs = list(args.seeds), []
     with tempfile.TemporaryDirectory() as tmp:
@@ -334,7 +348,7 @@ def run_task(name: str, argv: Sequence[str]) -> dict[str, Any]:
         seeds = sorted({r["seed"] for r in runs})
     result = {"task": name, "env": task.env, "seeds": seeds, "budgets": [budget], "runs": runs,
               "baselines": {k: _baseline_row(task, v) for k, v in baselines(task).items()},
-              "eval_episodes": task.eval_episodes,
+              "eval_episodes": task.eval_episodes, **({"params": args.params} if args.params else {}),
               "evaluation": "greedy" if config_experiment(task).deterministic_eval else "sampling",
               "command": " ".join([f"python -m benchmarks run pettingzoo-{name}",
                                    *map(shlex.quote, recorded_argv(list(argv)))]),

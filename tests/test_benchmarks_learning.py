@@ -173,6 +173,7 @@ def test_rllib_tiny(quick_bootstrap: None) -> None:
 
     if not ray_available():
         pytest.skip("needs Ray RLlib (pip install -e '.[test,distributed]')")
+    pytest.importorskip("rliable", reason="the statistics need rliable (pip install -e '.[bench]')")
     bench = _bench("rllib-treasure_hunt_v0")
     results = bench.run(["--seeds", "0", "-n", "1000", "--n-eval", "2", "--num-env-runners", "1", "--params",
                          "train_batch_size_per_learner:1000", "minibatch_size:256", "num_envs_per_env_runner:2"])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +11,6 @@ import pytest
 import torch
 from cli_helpers import OTHER_SECTION, section_text
 
-from benchmarks import recorded
 from benchmarks.__main__ import main as bench_main
 from benchmarks.speed import batched, callback_overhead, export_latency
 
@@ -38,53 +36,6 @@ def _md_file(tmp_path: Path) -> Path:
     path = tmp_path / "BENCH.md"
     path.write_text("# Benchmarks\n\n" + OTHER_SECTION)
     return path
-
-
-def test_recorded_table_from_real_results(tmp_path: Path) -> None:
-    md = _md_file(tmp_path)
-    rows = recorded.main(["--output", str(md)])
-    by_file = {r["file"]: r for r in rows}
-    learning_files = sorted(p.name for p in RESULTS.glob("learning_*.json"))
-    assert learning_files and set(learning_files) <= set(by_file)
-    text = md.read_text()
-    assert OTHER_SECTION in text  # other sections stay
-    section = section_text(text, "recorded-learning")
-    for name in learning_files:  # key metric range recomputed from the file itself
-        runs: list[dict[str, Any]] = json.loads((RESULTS / name).read_text())
-        env, algo = runs[0]["env"], runs[0]["algo"]
-        row = by_file[name]
-        assert row["seeds"] == " ".join(str(s) for s in sorted(r["seed"] for r in runs))
-        assert f"`python -m benchmarks.learning --algo {algo} --env {env} --seeds {row['seeds']}`" in section
-        train = [r["train_seconds"] for r in runs]
-        assert row["train_s"].startswith(f"{min(train):.1f}")
-        if env == "treasure_hunt_v0":
-            metrics = [r["eval"]["metrics"] for r in runs]
-            vals = [m.get("treasures_collected", m.get("treasures_per_episode")) for m in metrics]
-            assert row["metric"] == "treasures/episode"
-            assert row["metric_range"] in (f"{min(vals):.2f}-{max(vals):.2f}", f"{min(vals):.2f}")
-        if env == "sbagents/SmartHome-v0":
-            share = min(r["eval"]["metrics"]["criterion_share"] for r in runs)
-            assert row["metric"] == "comfort criterion share"
-            assert row["metric_range"].startswith(f"{share:.1%}")
-        assert re.fullmatch(r"\d{4}-\d{2}-\d{2}( \(uncommitted\))?", row["date"])
-    th = json.loads((RESULTS / "treasure_hunt_learning.json").read_text())
-    th_row = by_file["treasure_hunt_learning.json"]
-    assert th_row["metric_range"].startswith(f"{min(r['treasures'] for r in th['runs']):.2f}")
-    assert "`python -m benchmarks.treasure_hunt_learning --seeds 0 1 2`" in section
-    assert len(_cells(section)) == len(rows) + 1  # header + one row per file
-
-
-def test_recorded_generic_env_and_uncommitted_file(tmp_path: Path) -> None:
-    def run(seed: int, mean_return: float) -> dict[str, Any]:
-        return {"algo": "a2c", "env": "CartPole-v1", "seed": seed, "n_timesteps": 1000, "train_seconds": 2.0,
-                "eval": {"mean_return": mean_return, "success_rate": None, "metrics": {}}, "load_before": 1.0}
-
-    (tmp_path / "learning_CartPole-v1_a2c.json").write_text(json.dumps([run(3, 120.5), run(1, 80.25)]))
-    (rows,) = recorded.collect(tmp_path)
-    assert (rows["metric"], rows["metric_range"], rows["success"], rows["seeds"]) == (
-        "mean return", "80.25-120.50", "-", "1 3")
-    assert rows["date"].endswith("(uncommitted)")  # tmp_path is not in a git repository
-    assert "--seeds 1 3" in recorded.markdown([rows])
 
 
 def test_callback_overhead_tiny(tmp_path: Path) -> None:

@@ -1,7 +1,7 @@
 """External PettingZoo envs through the library with their shipped zoo entries (shrunk to a few hundred steps):
 MPE (``mpe2``), SISL pursuit, Butterfly KAZ, an env with no entry of its own (the ``pettingzoo`` default), off-policy
 algorithms on a shared policy, TreasureHunt's competitive mode with one model per agent, and videos and ONNX exports
-of runs with one model per group. Learning on these envs is measured in ``benchmarks/pettingzoo_learning.py``.
+of runs with one model per group. Learning on these envs is measured in ``benchmarks/learning/pettingzoo_learning.py``.
 """
 
 from __future__ import annotations

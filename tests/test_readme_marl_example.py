@@ -10,7 +10,7 @@ import pytest
 from cli_helpers import cli, last_json
 
 README = Path(__file__).resolve().parents[1] / "README.md"
-RANDOM_RETURN = -19.65  # uniform random walkers, 200 episodes (benchmarks.team_baselines)
+RANDOM_RETURN = -19.65  # uniform random walkers, 200 episodes (benchmarks.learning.team_baselines)
 
 
 @pytest.fixture(scope="module")

@@ -2,25 +2,23 @@
 
 One run = train ``algo`` with the given hyperparameters for ``n_timesteps`` env (agent) steps, measure the
 wall time of ``model.learn`` only, then evaluate the deterministic team on 100 seeded episodes
-(:func:`sbagents.multiagent.team_eval.evaluate_team`). Prints one JSON line per seed and a summary line.
+(:func:`sbagents.multiagent.team_eval.evaluate_team`). A search helper with no results file or section of its own
+(the chosen config is the shipped ``zoo_configs/ppo.yml`` entry, measured by benchmark ``treasure-hunt-learning``).
 
-Example (the final PPO config)::
+Example (the final PPO config), one seed::
 
-    python benchmarks/treasure_hunt_search.py --algo ppo --seeds 0 1 2 --n-timesteps 150000 \\
-        --params '{"n_envs": 8, "n_steps": 64, "batch_size": 256, "n_epochs": 4, "learning_rate": 0.001}'
+    run("ppo", {"n_envs": 8, "n_steps": 64, "batch_size": 256, "n_epochs": 4, "learning_rate": 0.001},
+        {"observation": "egocentric"}, 150_000, seed=0)
 
-``--params`` is a JSON mapping with ``n_envs``, ``net_arch``, ``activation_fn`` (``tanh``/``relu``) and the
-algorithm's constructor kwargs; ``--env-kwargs`` a JSON mapping for ``parallel_env``.
+``params`` is a mapping with ``n_envs``, ``net_arch``, ``activation_fn`` (``tanh``/``relu``) and the algorithm's
+constructor kwargs; ``env_kwargs`` a mapping for ``parallel_env``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from typing import Any
 
-import numpy as np
 import torch
 from stable_baselines3 import DQN, PPO
 
@@ -73,36 +71,3 @@ def run(
         "success_rate": round(result["success_rate"], 3),
         "mean_length": round(result["mean_length"], 2),
     }
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--algo", choices=sorted(ALGOS), default="ppo")
-    parser.add_argument("--n-timesteps", type=int, default=150_000)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
-    parser.add_argument("--params", type=json.loads, default={})
-    parser.add_argument("--env-kwargs", type=json.loads, default={"observation": "egocentric"})
-    parser.add_argument("--n-eval", type=int, default=100)
-    parser.add_argument("--tag", default="")
-    args = parser.parse_args(argv)
-    rows = []
-    for seed in args.seeds:
-        row = run(args.algo, args.params, args.env_kwargs, args.n_timesteps, seed, args.n_eval)
-        rows.append(row)
-        print(json.dumps({"tag": args.tag, **row}), flush=True)
-    summary = {
-        "tag": args.tag,
-        "algo": args.algo,
-        "params": args.params,
-        "env_kwargs": args.env_kwargs,
-        "n_timesteps": args.n_timesteps,
-        "mean_treasures": round(float(np.mean([r["treasures"] for r in rows])), 3),
-        "min_treasures": min(r["treasures"] for r in rows),
-        "mean_train_s": round(float(np.mean([r["train_s"] for r in rows])), 1),
-        "max_train_s": max(r["train_s"] for r in rows),
-    }
-    print("SUMMARY " + json.dumps(summary), flush=True)
-
-
-if __name__ == "__main__":
-    main()

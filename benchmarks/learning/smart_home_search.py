@@ -2,24 +2,23 @@
 
 For each candidate (an RL Zoo style hyperparameter mapping, see ``CANDIDATES``) and seed, trains an SB3
 agent on ``sbagents/SmartHome-v0`` with one torch thread, then runs the greedy policy for
-``--eval-episodes`` episodes and reports the comfort ``criterion_share`` (share of steps after step 10
+``eval_episodes`` episodes and reports the comfort ``criterion_share`` (share of steps after step 10
 with temperature within 1 C and light within 5 lux of the preferences), averaged over episodes.
 
-Usage::
+A search helper with no results file or section of its own (the chosen candidates are the shipped zoo entries,
+measured by benchmark ``learning-smarthome``). Usage::
 
-    python benchmarks/smart_home_search.py --algo ddpg td3 sac ppo --seeds 0 1 2 [--out results.jsonl]
-    python benchmarks/smart_home_search.py --algo ddpg --candidate ddpg_fast --seeds 0 --export EXPORT_DIR
-    python benchmarks/smart_home_search.py --algo ddpg td3 sac ppo --print-yaml
+    torch.set_num_threads(1)
+    run("ddpg_fast", seed=0, eval_episodes=100)          # algo, candidate, seed, seconds, comfort
+    run("ddpg_fast", 0, 100, export_dir=Path("export"))  # also export to ONNX and check parity
+    print(zoo_yaml("ddpg"))                               # the recommended zoo entry
 
-Each result is one JSON line: algo, candidate, seed, train_seconds, criterion_share, mean errors.
-This script interprets the zoo keys itself (n_timesteps, n_envs, policy, normalize, policy_kwargs,
+This module interprets the zoo keys itself (n_timesteps, n_envs, policy, normalize, policy_kwargs,
 noise_type/noise_std, algorithm kwargs) so it runs before/without the project's config loader.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -177,6 +176,7 @@ def run(name: str, seed: int, eval_episodes: int, export_dir: Path | None = None
     With ``export_dir``, also export the trained policy there (``sbagents.deploy.onnx_export.export_run``, with int8)
     and add its parity / size / latency numbers to the result.
     """
+    _register()
     config = CANDIDATES[name]
     t0 = time.perf_counter()
     model, vec_norm = build(config, seed)
@@ -205,37 +205,3 @@ def run(name: str, seed: int, eval_episodes: int, export_dir: Path | None = None
         **{k: round(v, 4) for k, v in result.items()},
         **exported,
     }
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--algo", nargs="*", default=["ddpg"], choices=sorted(ALGOS))
-    parser.add_argument(
-        "--candidate", nargs="*", default=None, help="names in CANDIDATES (default: all of algo)"
-    )
-    parser.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
-    parser.add_argument("--eval-episodes", type=int, default=100)
-    parser.add_argument("--out", type=Path, default=None, help="append JSON lines here")
-    parser.add_argument("--export", type=Path, default=None, help="also export each policy under here")
-    parser.add_argument("--print-yaml", action="store_true", help="print the recommended zoo entries and exit")
-    args = parser.parse_args(argv)
-    if args.print_yaml:
-        for algo in args.algo:
-            print(f"# zoo_configs/{algo}.yml\n{zoo_yaml(algo)}")
-        return
-    torch.set_num_threads(1)
-    _register()
-    names = args.candidate or [n for n, c in CANDIDATES.items() if c["algo"] in args.algo]
-    for name in names:
-        for seed in args.seeds:
-            line = json.dumps(run(name, seed, args.eval_episodes, args.export))
-            print(line, flush=True)
-            if args.out is not None:
-                with args.out.open("a") as f:
-                    f.write(line + "\n")
-
-
-if __name__ == "__main__":
-    main()

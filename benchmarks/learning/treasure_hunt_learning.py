@@ -10,8 +10,9 @@ Two paths, same numbers: ``--via train`` runs :func:`sbagents.pipeline.training.
 on the batched env); ``--via direct`` builds the experiment from the zoo config and trains SB3 PPO on
 :func:`sbagents.batched.make_batched_vec_env` itself; ``auto`` (default) picks ``train`` when available.
 
-    python -m benchmarks.treasure_hunt_learning --seeds 0 1 2
-    python -m benchmarks.treasure_hunt_learning --seeds 0 --params '{"n_envs": 16}'
+    python -m benchmarks run treasure-hunt-learning --seeds 0 1 2
+    python -m benchmarks run --output '' --results /tmp/th.json treasure-hunt-learning --seeds 0 \\
+        --params '{"n_envs": 16}'
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import tempfile
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -28,7 +31,9 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.utils import set_random_seed
 
-from benchmarks.report import write_section
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_table import StatRow, iqm_note, metric_stats, stats_table
+from benchmarks.report import machine_info, recorded_argv
 from sbagents.batched import BatchedTreasureHuntVecEnv, make_batched_vec_env
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
@@ -52,16 +57,19 @@ def train_supports_batched() -> bool:
     return isinstance(probe.unwrapped, BatchedTreasureHuntVecEnv)
 
 
-def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> dict[str, Any]:
-    """Train one seed and evaluate the deterministic team; returns a JSON-able dict."""
+def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100,
+             n_timesteps: int | None = None) -> dict[str, Any]:
+    """Train one seed (``n_timesteps``: another budget than the config's) and evaluate the deterministic team;
+    returns a JSON-able dict."""
     torch.set_num_threads(1)
     ref = resolve_env(ENV)
-    exp = build_experiment(TrainSpec("ppo", ENV, hyperparams=params), ref)
+    spec = TrainSpec("ppo", ENV, n_timesteps, params)
+    exp = build_experiment(spec, ref)
     if via == "train":
         from sbagents.api import EvalOptions, ExecOptions, OutputOptions, Sb3Options, train
 
         with tempfile.TemporaryDirectory() as logs:
-            result = train(TrainSpec("ppo", ENV, hyperparams=params), OutputOptions(logs),
+            result = train(spec, OutputOptions(logs),
                            EvalOptions(eval_freq=-1, final_eval_episodes=0),
                            ExecOptions(seed=seed, verbose=0), sb3=Sb3Options(vec_env="batched"))
             model, train_s = result.model, float(result.summary["train_seconds"])
@@ -92,15 +100,25 @@ def run_seed(seed: int, params: dict[str, Any], via: str, n_eval: int = 100) -> 
     }
 
 
-def markdown(summary: dict[str, Any]) -> str:
-    """A Markdown section with one row per seed (written between the learning markers of BENCHMARKS.md)."""
+#: The statistics table's rows: label, key, format.
+STAT_ROWS: tuple[StatRow, ...] = (("treasures/episode", "treasures", ".2f"), ("team return", "team_return", ".2f"),
+                                  ("success", "success_rate", ".2f"), ("train s", "train_s", ".1f"))
+
+
+def run_values(runs: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Per-seed values of the statistics table's metrics."""
+    return {key: [float(r[key]) for r in runs] for _, key, _ in STAT_ROWS}
+
+
+def render(summary: dict[str, Any]) -> str:
+    """The section: one row per seed, then the statistics over the seeds."""
     lines = [
         "## TreasureHunt learning with the batched VecEnv",
         "",
         "Parameter-shared PPO, `zoo_configs/ppo.yml` entry `treasure_hunt_v0`"
         + (f" with overrides `{json.dumps(summary['params'])}`" if summary["params"] else "")
-        + "; deterministic team evaluated on 100 episodes (eval seed 10000 + seed). Target: >= 4.5 treasures "
-        "in <= 90 s of training. Command: `python -m benchmarks.treasure_hunt_learning --seeds 0 1 2`.",
+        + f"; deterministic team evaluated on {summary.get('n_eval', 100)} episodes (eval seed 10000 + seed). "
+        f"Target: >= 4.5 treasures in <= 90 s of training. Command: `{summary['command']}`.",
         "",
         "| seed | path | n_envs | timesteps | train s | fps | treasures/episode | team return | success "
         "| load |",
@@ -111,40 +129,49 @@ def markdown(summary: dict[str, Any]) -> str:
             f"| {r['seed']} | {r['via']} | {r['n_envs']} | {r['n_timesteps']:,} | {r['train_s']} | "
             f"{r['fps']:,} | {r['treasures']} | {r['team_return']} | {r['success_rate']} | {r['load']} |"
         )
+    met = "met" if summary["target_met"] else "not met"
+    lines += ["", *stats_table(summary["stats"], STAT_ROWS), "", f"Target {met}. " + iqm_note(len(summary["runs"]))]
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def build_parser() -> argparse.ArgumentParser:
+    """The benchmark's options."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks run treasure-hunt-learning",
+                                     description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--params", type=json.loads, default={}, help="JSON overrides of the zoo entry")
     parser.add_argument("--via", choices=("auto", "train", "direct"), default="auto")
-    parser.add_argument("--json", default="benchmarks/results/treasure_hunt_learning.json")
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' to skip)")
-    args = parser.parse_args(argv)
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="training budget (default: the config's)")
+    parser.add_argument("--n-eval", type=int, default=100, help="evaluation episodes per seed")
+    return parser
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Train and evaluate every seed; the results (runs, target, statistics over the seeds)."""
+    args = build_parser().parse_args(list(argv))
     via = args.via if args.via != "auto" else ("train" if train_supports_batched() else "direct")
     runs = []
     for seed in args.seeds:
-        row = run_seed(seed, args.params, via)
+        row = run_seed(seed, args.params, via, args.n_eval, args.n_timesteps)
         print(json.dumps(row), flush=True)
         runs.append(row)
-    summary = {
+    return {
         "params": args.params,
+        "n_eval": args.n_eval,
         "runs": runs,
         "min_treasures": min(r["treasures"] for r in runs),
         "max_train_s": max(r["train_s"] for r in runs),
         "mean_train_s": round(float(np.mean([r["train_s"] for r in runs])), 1),
         "target_met": all(r["treasures"] >= 4.5 and r["train_s"] <= 90 for r in runs),
+        "command": " ".join(["python -m benchmarks run treasure-hunt-learning",
+                             *map(shlex.quote, recorded_argv(list(argv)))]),
+        "machine": machine_info(),
+        "stats": metric_stats(run_values(runs)),
     }
-    print(json.dumps({k: v for k, v in summary.items() if k != "runs"}))
-    if args.json:
-        os.makedirs(os.path.dirname(args.json) or ".", exist_ok=True)
-        with open(args.json, "w") as fh:
-            json.dump(summary, fh, indent=2)
-    if args.output:
-        write_section(args.output, markdown(summary), "treasure-hunt-learning")
-    return summary
 
 
-if __name__ == "__main__":
-    main()
+BENCHMARKS = (
+    Benchmark(name="treasure-hunt-learning", kind="learning", results="treasure_hunt_learning.json",
+              summary="treasure_hunt_v0: parameter-shared PPO on the batched VecEnv, 3 seeds, target >= 4.5 in 90 s",
+              run=run, render=render),
+)

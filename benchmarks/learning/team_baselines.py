@@ -2,16 +2,15 @@
 ``mpe2.simple_spread_v3`` (each agent heads for its landmark of the assignment that minimises the summed distance).
 
 Both act through :func:`sbagents.multiagent.team_eval.run_team_episodes` on the same team VecEnvs the trained
-models are evaluated on, so their returns compare with the models' directly.
+models are evaluated on, so their returns compare with the models' directly. A helper of
+:mod:`benchmarks.learning.pettingzoo_learning` (whose sections show these baselines), not a benchmark of its own::
 
-    python -m benchmarks.team_baselines mpe2.simple_spread_v3 --episodes 300
+    baseline_summary("mpe2.simple_spread_v3", {}, "scripted", 300, 10_000, lambda _v: spread_assignment_actor(3))
 """
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import json
 from collections.abc import Callable
 from typing import Any
 
@@ -77,23 +76,3 @@ def baseline_summary(source: str, env_kwargs: dict[str, Any], policy: str, episo
         next(iter(venvs.values())).close()
     summary["policy"] = policy
     return summary
-
-
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("env", help="PettingZoo env module, e.g. mpe2.simple_spread_v3")
-    parser.add_argument("--env-kwargs", type=json.loads, default={})
-    parser.add_argument("--episodes", type=int, default=300)
-    parser.add_argument("--seed", type=int, default=10_000)
-    args = parser.parse_args(argv)
-    results = {"random": baseline_summary(args.env, args.env_kwargs, "random", args.episodes, args.seed)}
-    if args.env == "mpe2.simple_spread_v3":
-        n = int(args.env_kwargs.get("N", 3))
-        results["scripted"] = baseline_summary(args.env, args.env_kwargs, "scripted", args.episodes, args.seed,
-                                               lambda _venv: spread_assignment_actor(n))
-    print(json.dumps({k: round(v["mean_return"], 2) for k, v in results.items()}))
-    return results
-
-
-if __name__ == "__main__":
-    main()

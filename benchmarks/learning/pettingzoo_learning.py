@@ -5,12 +5,13 @@ scripted controller of :mod:`benchmarks.team_baselines`).
 
 Per task and seed: ``python -m sbagents.train --algo A --env E --seed S`` (periodic evaluations give the learning
 curve), then ``python -m sbagents.evaluate -n EPISODES --seed 10000 --json`` on the final model. simple_spread also
-evaluates the last checkpoint its run saved within 5 minutes of training (``--save-freq``), the same way. Writes
-``benchmarks/results/pettingzoo_<task>.json``, a curve PNG and the task's section of ``BENCHMARKS.md``.
+evaluates the last checkpoint its run saved within 5 minutes of training (``--save-freq``), the same way. One
+benchmark per task (``pettingzoo-<task>``, results ``benchmarks/results/pettingzoo_<task>.json``, a curve PNG beside
+it); the results hold per-seed statistics (mean +- std, IQM with its 95% bootstrap interval) of each metric::
 
-    python -m benchmarks.pettingzoo_learning spread --seeds 0 1 2
-    python -m benchmarks.pettingzoo_learning tag pursuit kaz --seeds 0 1 2
-    python -m benchmarks.pettingzoo_learning spread-ctde --seeds 1 2 --add    # beside the saved seed 0
+    python -m benchmarks run pettingzoo-spread --seeds 0 1 2
+    python -m benchmarks run pettingzoo-spread-ctde --seeds 1 2 --add    # beside the saved seed 0
+    python -m benchmarks run pettingzoo-tag --replot                     # redraw the PNG from the saved results
 """
 
 from __future__ import annotations
@@ -18,31 +19,36 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.report import write_section
-from benchmarks.team_baselines import baseline_summary, spread_assignment_actor
+from benchmarks.harness import Benchmark
+from benchmarks.learning.seed_table import StatRow, iqm_note, metric_stats, stats_table
+from benchmarks.learning.team_baselines import baseline_summary, spread_assignment_actor
+from benchmarks.report import RESULTS_DIR, load_results, machine_info, recorded_argv
 
 
 @dataclass
 class Task:
     """One benchmark: an env and config trained through the CLI.
 
-    :param budgets: ``-n`` values to train (None: the config's own ``n_timesteps``).
+    :param budget: ``-n`` to train (None: the config's own ``n_timesteps``).
     :param train_args: extra ``python -m sbagents.train`` arguments (e.g. ``-params critic:centralized``).
     """
 
     title: str
     env: str
     algo: str = "ppo"
-    budgets: tuple[int | None, ...] = (None,)
+    budget: int | None = None
     train_args: tuple[str, ...] = ()
     eval_episodes: int = 100
     metric: str | None = None  # a per-episode metric of the evaluation to report beside the team return
@@ -75,7 +81,7 @@ TASKS: dict[str, Task] = {
                          "(the greedy column, `evaluate --deterministic`, shows it). Trained on the batched pursuit "
                          "(`sbagents.batched.pursuit`, step for step the PettingZoo env)."),
     "kaz": Task("Butterfly knights_archers_zombies (vector observations)",
-                "pettingzoo.butterfly.knights_archers_zombies_v11", budgets=(500_000,), eval_episodes=50,
+                "pettingzoo.butterfly.knights_archers_zombies_v11", budget=500_000, eval_episodes=50,
                 note="Team return = zombies killed per episode (+1 per kill); an episode ends when a zombie reaches "
                      "the bottom or every agent is dead.",
                 train_args=("--eval-freq", "100000", "--eval-episodes", "5")),
@@ -111,12 +117,11 @@ def run_one(task: Task, seed: int, budget: int | None, logs: Path) -> dict[str, 
     summary = json.loads((run_dir / "summary.json").read_text())
     evaluation = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(logs), "-n",
                                 str(task.eval_episodes), "--seed", "10000", "--json").stdout.splitlines()[-1])
-    curve = np.load(run_dir / "evaluations.npz")
+    curve = _curve(run_dir)
     row = {"seed": seed, "n_timesteps": summary["n_timesteps"], "train_s": summary["train_seconds"],
            "mean_return": round(evaluation["mean_return"], 2), "std_return": round(evaluation["std_return"], 2),
            "metrics": evaluation["metrics"], "load": round(os.getloadavg()[0], 2),
-           "curve": {"timesteps": curve["timesteps"].tolist(),
-                     "mean_return": np.mean(curve["results"], axis=1).round(2).tolist()}}
+           "curve": curve}
     if task.greedy_too:
         greedy = json.loads(cli("evaluate", "--algo", task.algo, "--env", task.env, "-f", str(logs), "-n",
                                 str(task.eval_episodes), "--seed", "10000", "--deterministic", "--json"
@@ -128,6 +133,27 @@ def run_one(task: Task, seed: int, budget: int | None, logs: Path) -> dict[str, 
         row["catches"] = round(catches(evaluation), 2)
         row["catches_vs_random_adversaries"] = round(_tag_random_adversaries(task, run_dir, logs), 2)
     return row
+
+
+def with_params(train_args: Sequence[str], params: Sequence[str]) -> list[str]:
+    """``train_args`` with more ``-params`` overrides (merged into its own ``-params`` when it has one)."""
+    args = list(train_args)
+    if not params:
+        return args
+    if "-params" not in args:
+        return [*args, "-params", *params]
+    at = args.index("-params") + 1
+    return args[:at] + list(params) + args[at:]
+
+
+def _curve(run_dir: Path) -> dict[str, list[float]]:
+    """The run's periodic evaluations (empty when the budget ended before the first one)."""
+    path = run_dir / "evaluations.npz"
+    if not path.exists():
+        return {"timesteps": [], "mean_return": []}
+    curve = np.load(path)
+    return {"timesteps": curve["timesteps"].tolist(),
+            "mean_return": np.mean(curve["results"], axis=1).round(2).tolist()}
 
 
 def _evaluate_checkpoint(task: Task, run_dir: Path, summary: dict[str, Any], logs: Path) -> dict[str, Any]:
@@ -154,7 +180,7 @@ def _evaluate_checkpoint(task: Task, run_dir: Path, summary: dict[str, Any], log
 
 def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:
     """Catches per episode of random adversaries against the run's trained agent."""
-    from benchmarks.team_baselines import random_actor
+    from benchmarks.learning.team_baselines import random_actor
     from sbagents.api import RunRef
     from sbagents.core.run_dir import load_run
     from sbagents.env_factory import make_team_vecs
@@ -188,41 +214,70 @@ def _baseline_row(task: Task, summary: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def markdown(name: str, task: Task, result: dict[str, Any]) -> str:
-    """The task's section of BENCHMARKS.md."""
-    base = ", ".join(f"{k} play {v['mean_return']:.2f}" + (f" ({v['catches']:.2f} catches/episode)"
-                                                             if "catches" in v else "")
-                     for k, v in result["baselines"].items())
-    extra = f" {' '.join(task.train_args)}" if task.train_args else ""
-    how = "greedy" if config_experiment(task).deterministic_eval else "sampling"
-    lines = [f"## {task.title}", "",
-             f"`python -m sbagents.train --algo {task.algo} --env {task.env}{extra}` with the shipped config "
-             f"(budget `-n` as listed), {how} team evaluated on {task.eval_episodes} episodes (`python -m "
-             f"sbagents.evaluate -n {task.eval_episodes} --seed 10000`). Baselines on the same episodes: {base}. "
-             f"Command: `python -m benchmarks.pettingzoo_learning {name} --seeds "
-             f"{' '.join(str(s) for s in result['seeds'])}`. Curve: `benchmarks/results/pettingzoo_{name}.png`.", ""]
+def _cell(value: Any) -> str:
+    return "-" if value is None else str(value)
+
+
+def _header(task: Task) -> list[str]:
+    """The per-seed table's header and separator rows."""
     header = "| seed | timesteps | train s | team return |"
     header += " greedy team return |" if task.greedy_too else ""
     header += " catches/episode | catches, random adversaries |" if task.metric == "catches" else ""
     if task.checkpoint_seconds is not None:
         header += f" checkpoint <= {task.checkpoint_seconds:.0f} s: steps | train s | team return |"
-    lines += [header + " load |", "|" + "---:|" * (header.count("|") ) ]
-    for row in result["runs"]:
-        cells = f"| {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | {row['mean_return']:.2f} |"
-        cells += f" {row['greedy_return']:.2f} |" if task.greedy_too else ""
-        if task.metric == "catches":
-            cells += f" {row['catches']:.2f} | {row['catches_vs_random_adversaries']:.2f} |"
-        if task.checkpoint_seconds is not None:
-            ck = row["checkpoint"]
-            cells += f" {ck['timesteps']:,} | {ck['train_s']} | {ck['mean_return']} |"
-        lines.append(cells + f" {row['load']} |")
+    return [header + " load |", "|" + "---:|" * header.count("|")]
+
+
+def _row(task: Task, row: dict[str, Any]) -> str:
+    """One seed's table row."""
+    cells = f"| {row['seed']} | {row['n_timesteps']:,} | {row['train_s']:.0f} | {row['mean_return']:.2f} |"
+    cells += f" {row['greedy_return']:.2f} |" if task.greedy_too else ""
+    if task.metric == "catches":
+        cells += f" {row['catches']:.2f} | {row['catches_vs_random_adversaries']:.2f} |"
+    if task.checkpoint_seconds is not None:
+        ck = row["checkpoint"]
+        cells += f" {ck['timesteps']:,} | {_cell(ck['train_s'])} | {_cell(ck['mean_return'])} |"
+    return cells + f" {row['load']} |"
+
+
+#: The statistics table's rows: label, key, format (metrics a task does not record are left out).
+STAT_ROWS: tuple[StatRow, ...] = (("team return", "mean_return", ".2f"), ("greedy team return", "greedy_return", ".2f"),
+                                  ("catches/episode", "catches", ".2f"),
+                                  ("catches, random adversaries", "catches_vs_random_adversaries", ".2f"),
+                                  ("checkpoint team return", "checkpoint_return", ".2f"), ("train s", "train_s", ".0f"))
+
+
+def run_values(runs: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Per-seed values of every metric of :data:`STAT_ROWS` that all runs have."""
+    flat = [{**r, "checkpoint_return": (r.get("checkpoint") or {}).get("mean_return")} for r in runs]
+    return {key: [float(r[key]) for r in flat] for _, key, _ in STAT_ROWS
+            if all(r.get(key) is not None for r in flat)}
+
+
+def render_task(name: str, result: dict[str, Any]) -> str:
+    """The task's section of BENCHMARKS.md, from its results alone."""
+    task = TASKS[name]
+    base = ", ".join(f"{k} play {v['mean_return']:.2f}" + (f" ({v['catches']:.2f} catches/episode)"
+                                                             if "catches" in v else "")
+                     for k, v in result["baselines"].items())
+    train_args = with_params(task.train_args, result.get("params", []))
+    extra = f" {' '.join(train_args)}" if train_args else ""
+    episodes = result.get("eval_episodes", task.eval_episodes)
+    lines = [f"## {task.title}", "",
+             f"`python -m sbagents.train --algo {task.algo} --env {task.env}{extra}` with the shipped config "
+             f"(budget `-n` as listed), {result['evaluation']} team evaluated on {episodes} episodes (`python -m "
+             f"sbagents.evaluate -n {episodes} --seed 10000`). Baselines on the same episodes: {base}. "
+             f"Command: `{result['command']}`. Curve: `benchmarks/results/pettingzoo_{name}.png`.", ""]
+    lines += _header(task) + [_row(task, row) for row in result["runs"]]
+    lines += ["", *stats_table(result["stats"], STAT_ROWS), "", iqm_note(len(result["runs"]))]
     if task.note:
         lines += ["", task.note]
     return "\n".join(lines)
 
 
-def plot(name: str, task: Task, result: dict[str, Any], path: Path) -> None:
-    """Team return against timesteps, one line per seed and budget, with the baselines as horizontal lines."""
+def plot(task: Task, result: dict[str, Any], path: Path) -> None:
+    """Team return against timesteps, one line per seed, with the baselines as horizontal lines (written to a
+    temporary file renamed into place)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -235,71 +290,77 @@ def plot(name: str, task: Task, result: dict[str, Any], path: Path) -> None:
     for key, summary in result["baselines"].items():
         ax.axhline(summary["mean_return"], linestyle="--", color="grey" if key == "random" else "black", label=key)
     ax.set_xlabel("agent steps")
-    ax.set_ylabel(f"team return ({'greedy' if config_experiment(task).deterministic_eval else 'sampling'} "
-                  "evaluation)")
+    ax.set_ylabel(f"team return ({result['evaluation']} evaluation)")
     ax.set_title(task.title)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=110)
     plt.close(fig)
+    os.replace(tmp, path)
 
 
-def run_task(name: str, seeds: list[int], output: str, results_dir: Path, add: bool = False) -> dict[str, Any]:
-    """Every seed and budget of one task; writes its JSON, PNG and BENCHMARKS.md section.
+def build_parser(name: str) -> argparse.ArgumentParser:
+    """The options of benchmark ``pettingzoo-<name>``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run pettingzoo-{name}",
+                                     description=f"{TASKS[name].title}: PPO with the shipped config through the CLI")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None,
+                        help="training budget (default: the task's, else the config's n_timesteps)")
+    parser.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the task's)")
+    parser.add_argument("--params", nargs="+", default=[], metavar="KEY:VALUE",
+                        help="more overrides of the zoo entry (train's -params), e.g. n_envs:2 n_steps:16")
+    parser.add_argument("--plot", default=str(RESULTS_DIR / f"pettingzoo_{name}.png"),
+                        help="curve PNG to write ('' to skip)")
+    parser.add_argument("--add", action="store_true",
+                        help="add these seeds' runs to the saved results' runs of the other seeds")
+    parser.add_argument("--replot", action="store_true",
+                        help="no training: redraw the PNG from the saved results and return them unchanged")
+    return parser
 
-    :param add: keep the saved JSON's runs of other seeds (same budgets) and add these seeds' runs to them.
-    """
-    task = TASKS[name]
-    full = config_experiment(task).n_timesteps
-    budgets = [full if b is None else full // -b if b < 0 else b for b in task.budgets]
-    runs = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for budget in budgets:
-            for seed in seeds:
-                row = run_one(task, seed, budget, Path(tmp) / f"n{budget}")
-                print(json.dumps({k: v for k, v in row.items() if k != "curve"}), flush=True)
-                runs.append(row)
-    path = results_dir / f"pettingzoo_{name}.json"
-    if add and path.exists():
-        saved = json.loads(path.read_text())
-        runs = sorted([r for r in saved["runs"] if r["seed"] not in seeds] + runs, key=lambda r: r["seed"])
-        seeds = sorted({r["seed"] for r in runs})
-    result = {"task": name, "env": task.env, "seeds": seeds, "budgets": budgets, "runs": runs,
-              "baselines": {k: _baseline_row(task, v) for k, v in baselines(task).items()}}
-    results_dir.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2) + "\n")
-    render(name, result, output, results_dir)
+
+def _saved(name: str) -> dict[str, Any]:
+    result: dict[str, Any] = load_results(RESULTS_DIR / f"pettingzoo_{name}.json")
     return result
 
 
-def render(name: str, result: dict[str, Any], output: str, results_dir: Path) -> None:
-    """The task's PNG, and its section of ``output`` (printed; written unless ``output`` is empty)."""
+def run_task(name: str, argv: Sequence[str]) -> dict[str, Any]:
+    """Every seed of one task; its results (and its curve PNG)."""
+    args = build_parser(name).parse_args(list(argv))
     task = TASKS[name]
-    plot(name, task, result, results_dir / f"pettingzoo_{name}.png")
-    text = markdown(name, task, result)
-    print(text)
-    if output:
-        write_section(output, text, f"pettingzoo-{name}")
+    if args.replot:
+        result = _saved(name)
+        if args.plot:
+            plot(task, result, Path(args.plot))
+        return result
+    task = replace(task, budget=args.n_timesteps or task.budget, eval_episodes=args.eval_episodes or task.eval_episodes,
+                   train_args=tuple(with_params(task.train_args, args.params)))
+    budget = task.budget or config_experiment(task).n_timesteps
+    seeds, runs = list(args.seeds), []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            row = run_one(task, seed, budget, Path(tmp) / f"n{budget}")
+            print(json.dumps({k: v for k, v in row.items() if k != "curve"}), flush=True)
+            runs.append(row)
+    if args.add:
+        runs = sorted([r for r in _saved(name)["runs"] if r["seed"] not in seeds] + runs, key=lambda r: r["seed"])
+        seeds = sorted({r["seed"] for r in runs})
+    result = {"task": name, "env": task.env, "seeds": seeds, "budgets": [budget], "runs": runs,
+              "baselines": {k: _baseline_row(task, v) for k, v in baselines(task).items()},
+              "eval_episodes": task.eval_episodes, **({"params": args.params} if args.params else {}),
+              "evaluation": "greedy" if config_experiment(task).deterministic_eval else "sampling",
+              "command": " ".join([f"python -m benchmarks run pettingzoo-{name}",
+                                   *map(shlex.quote, recorded_argv(list(argv)))]),
+              "machine": machine_info(), "stats": metric_stats(run_values(runs))}
+    if args.plot:
+        plot(task, result, Path(args.plot))
+    return result
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("tasks", nargs="+", choices=sorted(TASKS))
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--output", default="BENCHMARKS.md", help="Markdown file to update ('' to skip)")
-    parser.add_argument("--results", default="benchmarks/results", help="folder for the JSON and PNG files")
-    parser.add_argument("--render-only", action="store_true",
-                        help="no training: redraw the PNG and the BENCHMARKS.md section from the saved JSON")
-    parser.add_argument("--add", action="store_true",
-                        help="add these seeds to the saved JSON's runs (of the other seeds) instead of replacing them")
-    args = parser.parse_args(argv)
-    for name in args.tasks:
-        if args.render_only:
-            render(name, json.loads((Path(args.results) / f"pettingzoo_{name}.json").read_text()), args.output,
-                   Path(args.results))
-        else:
-            run_task(name, args.seeds, args.output, Path(args.results), args.add)
-
-
-if __name__ == "__main__":
-    main()
+BENCHMARKS = tuple(
+    Benchmark(name=f"pettingzoo-{name}", kind="learning", results=f"pettingzoo_{name}.json",
+              summary=f"{task.title}: PPO through the CLI with the shipped config vs random play, per seed",
+              run=partial(run_task, name), render=partial(render_task, name))
+    for name, task in TASKS.items()
+)

@@ -90,7 +90,7 @@ the same shape is accepted and gives the same actions (the policy casts to float
 from __future__ import annotations
 
 import importlib
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import gymnasium as gym
 import numpy as np
@@ -124,9 +124,13 @@ class SB3ActionMaskWrapper(pettingzoo.utils.BaseWrapper, gym.Env):  # type: igno
               ) -> tuple[Any, dict[str, Any]]:
         super().reset(seed, options)  # type: ignore[call-arg]  # (mypy resolves super() to gymnasium.Env)
         first = self.possible_agents[0]
-        # Instance attributes: SB3 needs spaces, not the AEC env's per-agent space functions.
-        self.observation_space = super().observation_space(first)["observation"]  # type: ignore[operator]
-        self.action_space = super().action_space(first)  # type: ignore[operator]
+        # A masked game's observation space is a Dict of its "observation" and its "action_mask".
+        observations = cast(gym.spaces.Dict, super().observation_space(first))
+        # Instance attributes: SB3 needs spaces, not the AEC env's per-agent space functions. They shadow
+        # PettingZoo's methods on purpose: this class is both an AECEnv (methods) and a gym.Env (attributes), whose
+        # declarations of these names conflict (the class's ignore[misc]); no annotation can express the shadowing.
+        self.observation_space = observations["observation"]  # type: ignore[method-assign, assignment]
+        self.action_space = super().action_space(first)  # type: ignore[method-assign, assignment]
         return self.observe(self.agent_selection), {}  # AEC reset returns nothing: observe, and no info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
@@ -146,7 +150,8 @@ class SB3ActionMaskWrapper(pettingzoo.utils.BaseWrapper, gym.Env):  # type: igno
 class FixedSB3ActionMaskWrapper(SB3ActionMaskWrapper):
     """The tutorial after PettingZoo PR #1203: the next agent's observation, the acting agent's outcome."""
 
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+    # Gymnasium's step (a 5-tuple), like the original's, not the AEC step (None): the same conflict of the two bases.
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
         actor = self.agent_selection
         super(SB3ActionMaskWrapper, self).step(action)  # the AEC step (skipping the original's return)
         return (self.observe(self.agent_selection), self._cumulative_rewards[actor], self.terminations[actor],

@@ -7,7 +7,7 @@ format the stored figures (no rliable, no bootstrap at render time).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from benchmarks.stats import stats_columns
@@ -18,7 +18,7 @@ StatRow = tuple[str, str, str]
 LOWER_IS_BETTER: frozenset[str] = frozenset({"train_seconds", "train_s"})
 
 
-def metric_stats(values: dict[str, Sequence[float]]) -> dict[str, dict[str, Any]]:
+def metric_stats(values: Mapping[str, Sequence[float]]) -> dict[str, dict[str, Any]]:
     """:func:`benchmarks.stats.seed_stats` of each metric's per-seed values (needs rliable)."""
     from benchmarks.stats import seed_stats
 

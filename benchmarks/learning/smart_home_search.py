@@ -167,7 +167,7 @@ class OnnxPredictor:
         self.session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
 
     def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
-        return self.session.run(None, {"obs": np.asarray(obs, dtype=np.float32)})[0], None
+        return np.asarray(self.session.run(None, {"obs": np.asarray(obs, dtype=np.float32)})[0]), None
 
 
 def run(name: str, seed: int, eval_episodes: int, export_dir: Path | None = None) -> dict[str, Any]:

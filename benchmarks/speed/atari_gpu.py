@@ -192,10 +192,10 @@ def choose(compare_out: dict[str, Any] | None, tiny: bool) -> dict[str, Any]:
         return {"params": ppo_params(n_envs), "fps": fps, "reason": "phase 1 incomplete: the entry's settings"}
     gain = ppo[big]["fps"] / ppo["envpool"]["fps"]
     if gain >= TRICK_MIN_GAIN:
-        params = {k: compare_out["ppo"][big][k] for k in ("n_envs", "batch_size")}
-        return {"params": {**params, "n_steps": 128}, "fps": compare_out["ppo"][big]["fps"],
+        params = {k: ppo[big][k] for k in ("n_envs", "batch_size")}
+        return {"params": {**params, "n_steps": 128}, "fps": ppo[big]["fps"],
                 "reason": f"{big}: {gain:.2f}x the fps of {n_envs} envs (>= {TRICK_MIN_GAIN}x): kept"}
-    return {"params": ppo_params(n_envs), "fps": compare_out["ppo"]["envpool"]["fps"],
+    return {"params": ppo_params(n_envs), "fps": ppo["envpool"]["fps"],
             "reason": f"{big}: {gain:.2f}x the fps of {n_envs} envs (< {TRICK_MIN_GAIN}x): the entry's {n_envs} envs"}
 
 
@@ -225,6 +225,7 @@ def learn(results: Results, sampler: GpuSampler, device: str, seed: int, deadlin
                        callbacks=[stop, progress], sb3=Sb3Options(vec_env="envpool", log_interval=10))
     wall = (stop.t1 or time.perf_counter()) - (stop.t0 or time.perf_counter())
     sampler.track("learn", stop.t0, stop.t1)
+    assert result.model is not None, "an SB3 run of one algorithm returns its model"
     info.update(steps=int(result.model.num_timesteps), seconds=round(wall, 1),
                 fps=round(result.model.num_timesteps / max(wall, 1e-9)),
                 curve=curve_points(result.run_dir),
@@ -251,6 +252,7 @@ def evaluate_envpool(results: Results, model: Any, seed: int, tiny: bool) -> dic
                                            return_episode_rewards=True)
     finally:
         venv.close()
+    assert isinstance(returns, list), "return_episode_rewards=True: one return per game"
     out = {"n_games": n, "mean": float(np.mean(returns)), "std": float(np.std(returns)),
            "returns": [float(r) for r in returns], "mean_frames": float(np.mean(lengths))}
     results.data["eval_envpool"] = out
@@ -262,7 +264,7 @@ def machine(device: str) -> dict[str, Any]:
     from importlib.metadata import version
 
     gpu = torch.cuda.get_device_name(0) if device.startswith("cuda") and torch.cuda.is_available() else None
-    versions = {}
+    versions: dict[str, str | None] = {}
     for name in ("envpool", "stable_baselines3", "ale_py", "gymnasium"):
         try:
             versions[name] = version(name)
@@ -279,7 +281,8 @@ def run(out: Path, budget_s: float, device: str, seed: int, tiny: bool, argv: li
 
     :param argv: the command's arguments, recorded (``--out``'s folder as ``$OUT``).
     """
-    argv = [("$OUT" if i and argv[i - 1] == "--out" else a) for i, a in enumerate(argv or [])]
+    given = argv or []
+    argv = [("$OUT" if i and given[i - 1] == "--out" else a) for i, a in enumerate(given)]
     start = time.perf_counter()
     deadline_all = start + budget_s
     out.mkdir(parents=True, exist_ok=True)

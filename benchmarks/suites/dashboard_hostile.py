@@ -117,7 +117,8 @@ def child(scenario: str, folder: Path) -> dict[str, Any]:
         return {"small_s": small_s, "small_status": small.status_code, "big_s": big["s"],
                 "big_status": big["status"], "peak_mib": _peak_mib()}
     before = _rss_mib()
-    times, episodes = [], 0
+    times: list[float] = []
+    episodes = 0
     while len(times) < 10_000:
         start = time.perf_counter()
         data = client.get(f"/api/curves/0/{MONITOR_RUN}").get_json()

@@ -73,7 +73,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     """Time the variants one after the other; the machine line and load averages beside them."""
     args = build_parser().parse_args(list(argv))
     before, after = _rev(args.before), _rev(args.after)
-    variants = [(before, "whole suite", []), (after, "whole suite", [])]
+    variants: list[tuple[str, str, list[str]]] = [(before, "whole suite", []), (after, "whole suite", [])]
     if not args.no_quick_loop:
         variants.append((after, "developer loop", ["-m", "not slow"]))
     load_before = load_average()

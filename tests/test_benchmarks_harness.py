@@ -134,7 +134,7 @@ def test_suite_time_parses_pytest_and_renders_ratios(monkeypatch: pytest.MonkeyP
         "passed": 1115, "skipped": 27}
     assert suite_time.pytest_counts("3 failed, 10 passed, 1 error in 2.0s") == {"failed": 3, "passed": 10,
                                                                                 "error": 1}
-    walls = iter([100.0, 40.0, 20.0])
+    walls = iter([100.0, 40.0, 20.0, 100.0, 50.0, 40.0])
 
     def fake_time_suite(rev: str, args: list[str]) -> dict[str, object]:
         return {"rev": rev, "pytest_args": list(args), "wall_s": next(walls), "returncode": 0,
@@ -150,6 +150,9 @@ def test_suite_time_parses_pytest_and_renders_ratios(monkeypatch: pytest.MonkeyP
     assert "| bbbbbbb | whole suite | `-` | 3 passed | 0 | 40 | 2.50x |" in section
     assert "| bbbbbbb | developer loop | `-m not slow` | 3 passed | 0 | 20 | 5.00x |" in section
     assert results["command"] == "python -m benchmarks run suite-time --before aaaaaaa --after bbbbbbb"
+    with_xdist = suite_time.run(["--before", "aaaaaaaaa", "--after", "bbbbbbbbb", "--xdist", "2", "--no-quick-loop"])
+    assert [r["pytest_args"] for r in with_xdist["runs"]] == [[], [], ["-n", "2", "--dist", "loadfile"]]
+    assert "--xdist 2 --no-quick-loop" in with_xdist["command"]
 
 
 def test_render_without_results_file_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

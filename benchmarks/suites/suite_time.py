@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--before", required=True, help="the commit before (a git revision)")
     parser.add_argument("--after", default="HEAD", help="the commit after (default: HEAD)")
     parser.add_argument("--no-quick-loop", action="store_true", help="skip the -m 'not slow' variant")
+    parser.add_argument("--xdist", type=int, default=0, metavar="N",
+                        help="also run the whole suite at --after with pytest-xdist's N workers (-n N --dist loadfile)")
     parser.add_argument("--pytest-args", nargs="*", default=[], help="extra pytest arguments for every variant "
                         "(e.g. a test file, for a smoke run)")
     return parser
@@ -74,6 +76,9 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     args = build_parser().parse_args(list(argv))
     before, after = _rev(args.before), _rev(args.after)
     variants: list[tuple[str, str, list[str]]] = [(before, "whole suite", []), (after, "whole suite", [])]
+    if args.xdist:
+        variants.append((after, f"whole suite, {args.xdist} xdist workers", ["-n", str(args.xdist), "--dist",
+                                                                             "loadfile"]))
     if not args.no_quick_loop:
         variants.append((after, "developer loop", ["-m", "not slow"]))
     load_before = load_average()
@@ -82,7 +87,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
         row = time_suite(rev, [*extra, *args.pytest_args])
         rows.append({"label": label, **row, "load_after": load_average()})
         print(f"{label} at {rev}: {row['wall_s']:.0f} s, {row['counts']}", flush=True)
-    argv_text = " ".join(["--before", before, "--after", after, *(["--no-quick-loop"] if args.no_quick_loop else []),
+    argv_text = " ".join(["--before", before, "--after", after, *(["--xdist", str(args.xdist)] if args.xdist else []),
+                          *(["--no-quick-loop"] if args.no_quick_loop else []),
                           *(["--pytest-args", *args.pytest_args] if args.pytest_args else [])])
     return {"command": f"python -m benchmarks run {NAME} {argv_text}",
             "machine": {**machine_info(), "load_before": load_before}, "runs": rows}

@@ -248,6 +248,7 @@ def test_cli_serves_and_stops_on_sigint(logs: Path) -> None:
 
     port = _free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # a subprocess on purpose: a real server, stopped by Ctrl-C (SIGINT)
     proc = subprocess.Popen([sys.executable, "-m", "sbagents.dashboard", "-f", str(logs), "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=default_sigint)
@@ -275,6 +276,7 @@ def test_cli_serves_and_stops_on_sigint(logs: Path) -> None:
 def test_the_dashboard_loads_neither_torch_nor_sb3() -> None:
     code = ("import sys, sbagents.dashboard.__main__, sbagents.dashboard.app; "
             "print(sorted(m for m in ('torch', 'stable_baselines3') if m in sys.modules))")
+    # a subprocess on purpose: what a fresh interpreter imports (this one has torch loaded already)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -283,6 +285,7 @@ def test_without_flask_one_line_says_what_to_install(logs: Path) -> None:
     code = ("import sys; sys.modules['flask'] = None; from sbagents.cli_common import run; "
             "from sbagents.dashboard.__main__ import main; "
             "run('python -m sbagents.dashboard', lambda: main(sys.argv[1:]))")
+    # a subprocess on purpose: simulates a missing dependency (Flask), which this interpreter has imported
     proc = subprocess.run([sys.executable, "-c", code, "-f", str(logs)], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
         "python -m sbagents.dashboard: error: the dashboard needs Flask and plotly (flask is missing): "

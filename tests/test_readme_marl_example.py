@@ -35,6 +35,7 @@ def test_the_example_passes_pettingzoo_api_and_seed_tests(package: Path, monkeyp
     parallel_seed_test(parallel_env)
 
 
+@pytest.mark.slow  # learning: the README's own command and budget (~40 s here)
 def test_the_readme_command_trains_it(package: Path) -> None:
     command = re.search(r"python -m sbagents\.train (--algo ppo --env my_marl\.meet_v0 -n \d+)", README.read_text())
     assert command is not None

@@ -300,6 +300,7 @@ def test_deployment_on_localhost_end_to_end(tmp_path: Path) -> None:
     port = free_port()
     logs = tmp_path / "logs"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # subprocesses on purpose: a real deployment, one server and two homes talking over localhost
     server = subprocess.Popen(
         [sys.executable, "-m", "sbagents.federated", "--deploy", "--port", str(port), "--homes", "2", "--rounds",
          "2", "--local-steps", "150", "--held-out", "1", "--eval-episodes", "1", "--final-eval-episodes", "2",

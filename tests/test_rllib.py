@@ -64,6 +64,8 @@ def test_without_ray_the_backend_says_how_to_install_it(tmp_path: Path) -> None:
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text("raise ImportError('no ray here')\n")
     env = {**os.environ, "PYTHONPATH": f"{tmp_path / 'site'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    # a subprocess on purpose: Ray must be missing (a fake package first on PYTHONPATH), which a process that has
+    # imported it cannot simulate
     result = subprocess.run([sys.executable, "-m", "sbagents.train", "--backend", "rllib", "--algo", "ppo", "--env",
                              RUN, "-f", str(tmp_path)], capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 2
@@ -159,6 +161,7 @@ def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: 
     from sbagents.core.options import EvaluateOptions
     from sbagents.rllib.evaluation import evaluate_run, load_modules
 
+    # a subprocess on purpose: the run is stopped by SIGTERM mid-training
     proc = popen("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "1000000", "--num-env-runners",
                  "0", "-f", str(tmp_path), "--seed", "1", "--eval-freq", "-1", "--verbose", "0", *SMALL,
                  "policies:per_agent")

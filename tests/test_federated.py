@@ -249,7 +249,7 @@ def _rounds(run_dir: Path) -> list[dict[str, str]]:
 @needs_simulation
 def test_simulation_two_homes_two_rounds_writes_a_normal_run_dir(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
-    done = cli("federated", "--homes", "2", "--rounds", "2", "--local-steps", "150", "--held-out", "2",
+    done = cli("federated.__main__", "--homes", "2", "--rounds", "2", "--local-steps", "150", "--held-out", "2",
                "--eval-episodes", "1", "--final-eval-episodes", "2", "--strategy", "fedprox", "-f", str(logs),
                "--personalize", "1", "--personal-steps", "200", "-params", "learning_starts:100", "batch_size:32")
     assert done.returncode == 0, done.stderr[-3000:]
@@ -284,7 +284,7 @@ def test_simulation_dp_fedavg_reports_its_epsilon(tmp_path: Path) -> None:
     from sbagents.federated.strategies import dp_epsilon
 
     # learning starts in round 2: round 1's updates are zero (Flower's clipping mod divides by their norm)
-    done = cli("federated", "--homes", "2", "--rounds", "2", "--local-steps", "150", "--held-out", "1",
+    done = cli("federated.__main__", "--homes", "2", "--rounds", "2", "--local-steps", "150", "--held-out", "1",
                "--eval-episodes", "1", "--final-eval-episodes", "0", "--strategy", "dp-fedavg", "--dp-clip", "0.5",
                "--dp-noise", "1.0", "-f", str(tmp_path), "-params", "learning_starts:200", "batch_size:32")
     assert done.returncode == 0, done.stderr[-3000:]
@@ -336,7 +336,7 @@ def test_deployment_port_in_use_and_no_server_are_one_line(tmp_path: Path) -> No
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        done = cli("federated", "--deploy", "--port", str(port), "--homes", "2", "-f", str(tmp_path))
+        done = cli("federated.__main__", "--deploy", "--port", str(port), "--homes", "2", "-f", str(tmp_path))
         check_error(done.returncode, done.stderr, f"--port {port}: cannot listen on 127.0.0.1:{port}")
         assert not (tmp_path / "ddpg").exists()  # checked before a run dir exists
         home = cli("federated.home", "--home", "0", "--port", str(port), "--superlink", "127.0.0.1:1")

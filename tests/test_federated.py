@@ -296,6 +296,7 @@ def test_simulation_dp_fedavg_reports_its_epsilon(tmp_path: Path) -> None:
 
 
 @needs_flower
+@pytest.mark.slow  # a server and two homes in their own interpreters (~60 s here)
 def test_deployment_on_localhost_end_to_end(tmp_path: Path) -> None:
     port = free_port()
     logs = tmp_path / "logs"

@@ -156,6 +156,7 @@ def test_trust_and_compare_pages_draw(page: Page, served: tuple[str, Path]) -> N
     expect(page.locator("#cmp-0 .legend")).to_contain_text("mean of 2")
 
 
+@pytest.mark.slow  # a real training run in a subprocess while the page follows it (~12-20 s here)
 def test_a_training_run_appears_and_its_new_decisions_show(page: Page, served: tuple[str, Path]) -> None:
     base, logs = served
     before = set((logs / "ddpg").iterdir())

@@ -245,6 +245,7 @@ def _hazard_env() -> Any:
 PID_GAINS = {"kp": 0.1, "ki": 0.1, "kd": 0.0}  # the shipped entry's (zoo_configs/ppo.yml)
 
 
+@pytest.mark.slow  # learning: the entry's 50k steps (~30 s here)
 def test_pid_lagrangian_learns_the_safe_path() -> None:
     """HazardGridWorld: the short path (return 95) crosses a hazard (cost 1), the safe one returns 87.
 
@@ -420,6 +421,7 @@ def test_trained_agent_continues_its_multiplier_under_the_new_cost_limit(
     assert not list((tmp_path / "x").glob("ppo/*"))
 
 
+@pytest.mark.slow  # learning: 20k + 50k steps (~45 s here)
 def test_train_cli_plain_ppo_takes_the_hazard_path_lagrangian_the_safe_one(tmp_path: Path) -> None:
     """The shipped entry through ``train``: reward-only PPO takes the short path through a hazard (return 95, cost
     1; 20k steps), ``--constraint lagrangian --cost-limit 0.1`` the safe one (return 87, cost 0; the entry's 50k).
@@ -431,5 +433,5 @@ def test_train_cli_plain_ppo_takes_the_hazard_path_lagrangian_the_safe_one(tmp_p
     for name, args in runs.items():
         assert _train(tmp_path / name, "--final-eval-episodes", "1", *args) == 0  # greedy, deterministic env
     plain, lagrangian = (summary(next((tmp_path / k).glob("ppo/*_1")))["eval"] for k in runs)
-    assert (plain["mean_return"], plain["mean_cost"]) == (95.0, 1.0)
+    assert plain["mean_cost"] >= 1.0 and plain["mean_return"] >= 0.95 * 95  # the hazard path: above the safe 87
     assert lagrangian["mean_cost"] <= 0.1 and lagrangian["mean_return"] >= 0.9 * 87

@@ -230,16 +230,18 @@ def _free_port() -> int:
 
 
 def test_cli_bad_input(logs: Path, tmp_path: Path) -> None:
-    missing = cli("dashboard", "-f", str(tmp_path / "nope"))
+    """In this process: each error ends before the server starts. (``sbagents.dashboard`` is a package: its
+    ``main`` is in ``__main__``, which ``cli`` imports by name.)"""
+    missing = cli("dashboard.__main__", "-f", str(tmp_path / "nope"))
     assert missing.returncode == 2 and len(missing.stderr.strip().splitlines()) == 1
     assert "no such folder" in missing.stderr and "Traceback" not in missing.stderr
-    exposed = cli("dashboard", "-f", str(logs), "--host", "0.0.0.0")
+    exposed = cli("dashboard.__main__", "-f", str(logs), "--host", "0.0.0.0")
     assert exposed.returncode == 2 and "--token" in exposed.stderr and len(exposed.stderr.strip().splitlines()) == 1
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
         port = busy.getsockname()[1]
-        taken = cli("dashboard", "-f", str(logs), "--port", str(port))
+        taken = cli("dashboard.__main__", "-f", str(logs), "--port", str(port))
     assert taken.returncode == 2 and "in use" in taken.stderr and len(taken.stderr.strip().splitlines()) == 1
 
 
@@ -248,6 +250,7 @@ def test_cli_serves_and_stops_on_sigint(logs: Path) -> None:
 
     port = _free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # a subprocess on purpose: a real server, stopped by Ctrl-C (SIGINT)
     proc = subprocess.Popen([sys.executable, "-m", "sbagents.dashboard", "-f", str(logs), "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=default_sigint)
@@ -275,6 +278,7 @@ def test_cli_serves_and_stops_on_sigint(logs: Path) -> None:
 def test_the_dashboard_loads_neither_torch_nor_sb3() -> None:
     code = ("import sys, sbagents.dashboard.__main__, sbagents.dashboard.app; "
             "print(sorted(m for m in ('torch', 'stable_baselines3') if m in sys.modules))")
+    # a subprocess on purpose: what a fresh interpreter imports (this one has torch loaded already)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 
@@ -283,6 +287,7 @@ def test_without_flask_one_line_says_what_to_install(logs: Path) -> None:
     code = ("import sys; sys.modules['flask'] = None; from sbagents.cli_common import run; "
             "from sbagents.dashboard.__main__ import main; "
             "run('python -m sbagents.dashboard', lambda: main(sys.argv[1:]))")
+    # a subprocess on purpose: simulates a missing dependency (Flask), which this interpreter has imported
     proc = subprocess.run([sys.executable, "-c", code, "-f", str(logs)], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [
         "python -m sbagents.dashboard: error: the dashboard needs Flask and plotly (flask is missing): "
@@ -333,7 +338,7 @@ def test_a_constrained_run_shows_its_multiplier_and_episode_costs(tmp_path: Path
     """A real ``train --constraint`` run with a transparency log: the trust view gets the multiplier's history from
     safety.json and each training episode's cost from the log (the hazard grid's cost column)."""
     monkeypatch.setenv("SBAGENTS_CACHE_DIR", str(tmp_path / "cache"))
-    trained = cli("train", "--algo", "ppo", "--env", "sbagents/HazardGridWorld-v0", "-n", "1024", "-f",
+    trained = cli("train", "--algo", "ppo", "--env", "sbagents/HazardGridWorld-v0", "-n", "512", "-f",
                   str(tmp_path / "logs"), "--seed", "0", "--constraint", "lagrangian", "--cost-limit", "0.5",
                   "--eval-freq", "0", "--final-eval-episodes", "0", "--transparency-log", "-params", "n_envs:4",
                   "n_steps:64", "batch_size:64")

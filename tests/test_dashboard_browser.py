@@ -49,6 +49,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "SBAGENTS_CACHE_DIR": str(logs.parent / "cache")}
+    # a subprocess on purpose: a real server the browser talks to while the tests run, stopped by Ctrl-C
     proc = subprocess.Popen([sys.executable, "-m", "sbagents.dashboard", "-f", str(logs), "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=default_sigint)
@@ -155,9 +156,11 @@ def test_trust_and_compare_pages_draw(page: Page, served: tuple[str, Path]) -> N
     expect(page.locator("#cmp-0 .legend")).to_contain_text("mean of 2")
 
 
+@pytest.mark.slow  # a real training run in a subprocess while the page follows it (~12-20 s here)
 def test_a_training_run_appears_and_its_new_decisions_show(page: Page, served: tuple[str, Path]) -> None:
     base, logs = served
     before = set((logs / "ddpg").iterdir())
+    # a subprocess on purpose: the run trains while the page follows it, and is stopped with Ctrl-C (SIGINT)
     train = popen("train", "--algo", "ddpg", "--env", "sbagents/SmartHome-v0", "-n", "5000", "-f", str(logs),
                   "--seed", "3", "--eval-freq", "0", "--transparency-log")
     try:

@@ -12,15 +12,16 @@ from cli_helpers import cli, last_json, summary
 
 TTT = "pettingzoo.classic.tictactoe_v3"
 SMALL = ["n_envs:2", "n_steps:256", "batch_size:256",
-         "self_play:{snapshot_freq: 1024, elo_games: 6, elo_freq: 2048, eval_opponent: minimax, "
+         "self_play:{snapshot_freq: 512, elo_games: 6, elo_freq: 1024, eval_opponent: minimax, "
          "mix: {random: 0.3, minimax: 0.2}}"]
 
 
 @pytest.fixture(scope="module")
 def ttt_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     logs = tmp_path_factory.mktemp("games")
-    done = cli("train", "--algo", "ppo_mask", "--env", TTT, "-n", "4096", "-f", str(logs), "--seed", "1",
-               "--eval-freq", "2048", "--eval-episodes", "4", "-params", *SMALL)
+    """One small self-play run (plumbing, not learning) that the tests below only read."""
+    done = cli("train", "--algo", "ppo_mask", "--env", TTT, "-n", "2048", "-f", str(logs), "--seed", "1",
+               "--eval-freq", "1024", "--eval-episodes", "4", "-params", *SMALL)
     assert done.returncode == 0, done.stderr
     return logs
 
@@ -32,12 +33,12 @@ def run_dir(logs: Path) -> Path:
 def test_self_play_run_writes_pool_ratings_and_best_model(ttt_run: Path) -> None:
     rd = run_dir(ttt_run)
     steps = sorted(int(p.stem.split("_")[1]) for p in (rd / "opponents").glob("snapshot_*.zip"))
-    assert steps[0] == 0 and len(steps) >= 4  # the start, every 1024 steps, and each rating round
+    assert steps[0] == 0 and len(steps) >= 4  # the start, every 512 steps, and each rating round
     for name in ("best_model.zip", "elo.png", "evaluations.npz", "tictactoe_v3.zip"):
         assert (rd / name).is_file(), name
     rows = list(csv.DictReader((rd / "elo.csv").open()))
     players = {r["player"]: r for r in rows}
-    assert {"random", "minimax", "step_2048", "step_4096"} <= set(players)
+    assert {"random", "minimax", "step_1024", "step_2048"} <= set(players)
     assert float(players["random"]["elo"]) == 0 and float(players["minimax"]["elo"]) > 0
     assert all(int(r["games"]) > 0 for r in rows)
     best = max((r for r in rows if r["player"].startswith("step_")), key=lambda r: float(r["elo"]))
@@ -138,6 +139,7 @@ def test_unsupported_game_commands_point_to_play(ttt_run: Path, module: str, arg
     assert done.returncode == 2 and message in done.stderr and "sbagents.play" in done.stderr
 
 
+@pytest.mark.slow  # learning (~14 s here)
 def test_users_own_masked_game_trains_and_is_measured(tmp_path: Path) -> None:
     """A user's module:callable AEC game with masks: self-play finds Nim's winning rule (leave a multiple of 4)."""
     done = cli("train", "--algo", "ppo_mask", "--env", "tests.user_envs.nim_game:nim", "-n", "12288", "-f",
@@ -149,7 +151,8 @@ def test_users_own_masked_game_trains_and_is_measured(tmp_path: Path) -> None:
     result = last_json(cli("evaluate", "--algo", "ppo_mask", "--env", "tests.user_envs.nim_game:nim", "-f",
                            str(tmp_path), "--opponent", "random", "-n", "200", "--json").stdout)
     first = result["per_seat"]["first"]  # type: ignore[index]
-    assert first["win_rate"] == 1.0 and result["illegal_moves"] == 0  # the first seat always wins with the rule
+    # the first seat always wins with the rule: a learned (PPO) policy, so a threshold rather than an exact 1.0
+    assert first["win_rate"] >= 0.95 and result["illegal_moves"] == 0
     assert result["win_rate"] > 0.75  # type: ignore[operator]
 
 
@@ -158,6 +161,7 @@ def test_summary_json_is_plain_data(ttt_run: Path) -> None:
     assert np.isfinite(data["eval"]["mean_reward"]) and data["eval"]["n_episodes"] > 0
 
 
+@pytest.mark.slow  # learning (~20 s here)
 def test_shipped_tictactoe_entry_learns_on_a_small_budget(tmp_path: Path) -> None:
     """The shipped tic-tac-toe entry on 1/16 of its budget (seeded): already far better than random play."""
     done = cli("train", "--algo", "ppo_mask", "--env", TTT, "-n", "24576", "-f", str(tmp_path), "--seed", "0",

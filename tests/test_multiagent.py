@@ -159,6 +159,7 @@ def test_short_ppo_learn_and_team_eval_callback(tmp_path: Path) -> None:
     assert buffer is not None and len(buffer) == 4 and all(e["l"] == 50 for e in buffer)
 
 
+@pytest.mark.slow  # learning: 300k steps (~80 s here; 100k steps only reach ~1.5 treasures)
 def test_ppo_beats_random_on_small_budget() -> None:
     """Random play collects ~1.9 treasures/episode; a short seeded PPO run must reach >= 3.5."""
     env_kwargs = EGO

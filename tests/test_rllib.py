@@ -64,6 +64,8 @@ def test_without_ray_the_backend_says_how_to_install_it(tmp_path: Path) -> None:
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text("raise ImportError('no ray here')\n")
     env = {**os.environ, "PYTHONPATH": f"{tmp_path / 'site'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    # a subprocess on purpose: Ray must be missing (a fake package first on PYTHONPATH), which a process that has
+    # imported it cannot simulate
     result = subprocess.run([sys.executable, "-m", "sbagents.train", "--backend", "rllib", "--algo", "ppo", "--env",
                              RUN, "-f", str(tmp_path)], capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 2
@@ -104,6 +106,7 @@ def _progress(run_dir: Path) -> list[dict[str, str]]:
 
 
 @needs_ray
+@pytest.mark.slow  # a local Ray cluster (~13 s here)
 def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) -> None:
     result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "3000", "--num-env-runners",
                  "2", "-f", str(tmp_path), "--seed", "3", "--eval-freq", "2000", "--save-freq", "1000", "--verbose",
@@ -154,11 +157,13 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
 
 
 @needs_ray
+@pytest.mark.slow  # a Ray run in a subprocess (~19 s here)
 def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: Path) -> None:
     from sbagents.core.env_names import resolve_env
     from sbagents.core.options import EvaluateOptions
     from sbagents.rllib.evaluation import evaluate_run, load_modules
 
+    # a subprocess on purpose: the run is stopped by SIGTERM mid-training
     proc = popen("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "1000000", "--num-env-runners",
                  "0", "-f", str(tmp_path), "--seed", "1", "--eval-freq", "-1", "--verbose", "0", *SMALL,
                  "policies:per_agent")
@@ -183,12 +188,20 @@ def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: 
 
 
 @needs_ray
-def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path) -> None:
+@pytest.mark.slow  # two Ray runs (~25 s here)
+def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 request: pytest.FixtureRequest) -> None:
     """The user package's heterogeneous relay_v0 (a scout that leaves early) trains one RLModule per group, and
     mpe2.simple_spread_v3 trains with its shipped entry; evaluate reads both like SB3 runs."""
+    from sbagents.registration import PETTINGZOO_ENVS
     from sbagents.rllib.evaluation import load_modules
 
     user_envs = Path(__file__).resolve().parent / "user_envs"
+    # in this process the working folder is not on sys.path as with ``python -m``: put the user's package there
+    # for this test only, and leave the env registry as it was
+    monkeypatch.syspath_prepend(str(user_envs))
+    saved = dict(PETTINGZOO_ENVS)
+    request.addfinalizer(lambda: (PETTINGZOO_ENVS.clear(), PETTINGZOO_ENVS.update(saved)))
     logs = tmp_path / "logs"
     result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-n", "2000",
                  "--num-env-runners", "0", "-f", str(logs), "--seed", "1", "--eval-freq", "-1", "--verbose", "0",

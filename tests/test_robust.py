@@ -128,7 +128,7 @@ def test_train_logs_penalty_and_round_trip(cls: type[SATD3], tmp_path) -> None: 
 
     model.logger.record = spy  # type: ignore[method-assign]
     before = [p.detach().clone() for p in model.actor.parameters()]
-    model.learn(300)
+    model.learn(200)  # plumbing: a small budget
     penalties = [d["robust/sa_penalty"] for d in seen if "robust/sa_penalty" in d]
     eps = [d["robust/eps"] for d in seen if "robust/eps" in d]
     assert penalties and all(np.isfinite(penalties)) and max(penalties) > 0
@@ -215,8 +215,8 @@ def test_train_cli_robust_run_is_recorded_and_evaluates(tmp_path) -> None:  # ty
     from tests.cli_helpers import cli
 
     spec = "sa+adv:0.2,kappa=2,attack=critic,share=0.5"
-    args = ["--algo", "td3", "--env", "sbagents/SmartHome-v0", "-n", "700", "-f", str(tmp_path), "--seed", "0",
-            "--eval-freq", "0", "--final-eval-episodes", "2", "-params", "learning_starts:300", "--verbose", "0"]
+    args = ["--algo", "td3", "--env", "sbagents/SmartHome-v0", "-n", "300", "-f", str(tmp_path), "--seed", "0",
+            "--eval-freq", "0", "--final-eval-episodes", "1", "-params", "learning_starts:200", "--verbose", "0"]
     trained = cli("train", *args, "--robust", spec)
     assert trained.returncode == 0, trained.stderr
     run_dir = tmp_path / "td3" / "sbagents_SmartHome-v0_1"

@@ -111,6 +111,7 @@ def greedy_cost(model: SAC) -> float:
     return 4.0 * max(float(action.ravel()[0]), 0.0) ** 2
 
 
+@pytest.mark.slow  # learning (~10 s here)
 def test_lagrangian_respects_the_limit_where_sac_does_not() -> None:
     sac = SAC("MlpPolicy", SpeedBandit(), **small(learning_rate=1e-2))
     sac.learn(400)

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Iterator
+import shutil
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -70,20 +71,37 @@ def quiet(folder: Path, seed: int = 0, episodes: int = 20) -> tuple[Any, ...]:
         ExecOptions(seed=seed, verbose=0)
 
 
-def relay_run(folder: Path, algo: str, n: int = 15000, **team: Any) -> Any:
+def relay_run(folder: Path, algo: str, n: int = 7500, **team: Any) -> Any:
+    """A relay run on ``n`` agent steps (every mode reached the optimal 25 at 4,000 here: about a 2x margin)."""
     return train(TrainSpec(algo, RELAY, n, {**PARAMS[algo], **team}), *quiet(folder))
+
+
+@pytest.fixture(scope="module")
+def relay_runs(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, str], tuple[Path, Any]]:
+    """Train once, read many: each (algo, policies) relay run trained at most once for this module; a test that
+    writes into a run copies its folder first."""
+    runs: dict[tuple[str, str], tuple[Path, Any]] = {}
+
+    def get(algo: str, policies: str) -> tuple[Path, Any]:
+        if (algo, policies) not in runs:
+            folder = tmp_path_factory.mktemp(f"relay_{algo}_{policies}")
+            runs[algo, policies] = folder, relay_run(folder, algo, policies=policies)
+        return runs[algo, policies]
+
+    return get
 
 
 @pytest.mark.parametrize(("algo", "policies"), [("ppo", "shared"), ("ppo", "per_group"), ("ppo", "per_agent"),
                                                 ("a2c", "shared"), ("a2c", "per_group"), ("a2c", "per_agent"),
                                                 ("dqn", "shared")])
-def test_every_policy_mode_learns_the_relay(tmp_path: Path, algo: str, policies: str) -> None:
-    result = relay_run(tmp_path, algo, policies=policies)
+def test_every_policy_mode_learns_the_relay(relay_runs: Callable[[str, str], tuple[Path, Any]], algo: str,
+                                            policies: str) -> None:
+    folder, result = relay_runs(algo, policies)
     files = sorted(p.name for p in result.run_dir.glob("relay_v0*.zip"))
     expected = {"shared": ["relay_v0.zip"], "per_group": ["relay_v0.scout.zip", "relay_v0.worker.zip"],
                 "per_agent": ["relay_v0.scout_0.zip", "relay_v0.worker_0.zip", "relay_v0.worker_1.zip"]}
     assert files == expected[policies]
-    summary = evaluate(RunRef(algo, RELAY, tmp_path))
+    summary = evaluate(RunRef(algo, RELAY, folder))
     assert summary["mean_return"] >= OPTIMAL - 1, summary
     per_agent = summary["metrics"]["per_agent_return"]
     assert per_agent["scout_0"] <= 5 and per_agent["worker_0"] <= 10  # real steps only: the scout acts 5 times
@@ -110,8 +128,9 @@ def test_centralized_critic_learns_and_exports_its_actor(tmp_path: Path) -> None
     assert sidecar["observation_space"]["shape"] == [obs_dim]
 
 
-def test_per_group_run_exports_one_policy_per_group(tmp_path: Path) -> None:
-    relay_run(tmp_path, "ppo", policies="per_group")
+def test_per_group_run_exports_one_policy_per_group(relay_runs: Callable[[str, str], tuple[Path, Any]],
+                                                   tmp_path: Path) -> None:
+    shutil.copytree(relay_runs("ppo", "per_group")[0], tmp_path, dirs_exist_ok=True)  # the export writes into it
     reports = export_groups(RunRef("ppo", RELAY, tmp_path), int8=True, n_observations=200)
     assert set(reports) == {"scout", "worker"}
     for group, report in reports.items():

@@ -11,7 +11,7 @@ RUN = "treasure_hunt_v0"
 
 
 def test_train_and_evaluate_team(tmp_path: Path) -> None:
-    result = cli("train", "--algo", "ppo", "--env", RUN, "-n", "12000", "-f", str(tmp_path), "--seed", "0",
+    result = cli("train", "--algo", "ppo", "--env", RUN, "-n", "4000", "-f", str(tmp_path), "--seed", "0",
                  "--verbose", "0", "--env-kwargs", "max_cycles:30")
     assert result.returncode == 0, result.stderr
     run_dir = tmp_path / "ppo" / f"{RUN}_1"
@@ -42,7 +42,7 @@ def test_train_and_evaluate_team(tmp_path: Path) -> None:
 
 def test_same_seed_same_team_results(tmp_path: Path) -> None:
     for _ in range(2):
-        result = cli("train", "--algo", "ppo", "--env", RUN, "-n", "20000", "-f", str(tmp_path), "--seed", "4",
+        result = cli("train", "--algo", "ppo", "--env", RUN, "-n", "8000", "-f", str(tmp_path), "--seed", "4",
                      "--verbose", "0", "--eval-freq", "-1")
         assert result.returncode == 0, result.stderr
     first, second = (summary(tmp_path / "ppo" / f"{RUN}_{k}") for k in (1, 2))

@@ -41,7 +41,7 @@ def cli(module: str, *args: str, cwd: Path | None = None, timeout: float = 600) 
 
     del timeout
     prog = f"python -m sbagents.{module}"
-    main = importlib.import_module(f"sbagents.{module}").main
+    main = cli_main(module)
     out, err = io.StringIO(), io.StringIO()
     saved_cwd, saved_argv, saved_env = os.getcwd(), sys.argv, dict(os.environ)
     threads = torch.get_num_threads()
@@ -103,9 +103,17 @@ def summary(run_dir: Path) -> dict[str, Any]:
     return result
 
 
+def cli_main(module: str) -> Any:
+    """The ``main`` that ``python -m sbagents.<module>`` runs: the module's, or its package's ``__main__``'s."""
+    imported = importlib.import_module(f"sbagents.{module}")
+    if not hasattr(imported, "main") and hasattr(imported, "__path__"):
+        imported = importlib.import_module(f"sbagents.{module}.__main__")
+    return imported.main
+
+
 def run_main(module: str, *args: str) -> int:
     """``python -m sbagents.<module> args`` in this process; returns the exit code."""
-    main = importlib.import_module(f"sbagents.{module}").main
+    main = cli_main(module)
     with pytest.raises(SystemExit) as exit_info:
         run(f"python -m sbagents.{module}", lambda: main(list(args)))
     return int(exit_info.value.code or 0)

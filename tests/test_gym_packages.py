@@ -153,12 +153,13 @@ def test_missing_package_and_unknown_id_are_one_line_errors(tmp_path: Path) -> N
 
 
 def test_make_fn_finds_user_env_in_a_fresh_worker_process(monkeypatch: pytest.MonkeyPatch) -> None:
-    """SubprocVecEnv workers start with an empty registry: ``EnvRef.make_fn`` imports the package there."""
+    """SubprocVecEnv workers start with an empty registry: ``EnvRef.make_fn`` imports the package there (a user's,
+    or sbagents' own registration)."""
     monkeypatch.syspath_prepend(str(USER_ENVS))
     ref = resolve_env("TinyEnv-v0", ["tiny_env_pkg"])
     assert ref.env_id == "TinyEnv-v0" and ref.modules == ("tiny_env_pkg",)
     assert resolve_env("tiny_env_pkg:TinyEnv-v0").modules == ("tiny_env_pkg",)
-    assert resolve_env("sbagents/GridWorld-v0").make_fn() == "sbagents/GridWorld-v0"
+    assert resolve_env("CartPole-v1").make_fn() == "CartPole-v1"
     venv = make_vec_env(
         ref.make_fn(), n_envs=1, seed=0, vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "spawn"}
     )
@@ -168,3 +169,10 @@ def test_make_fn_finds_user_env_in_a_fresh_worker_process(monkeypatch: pytest.Mo
         assert np.asarray(obs)[0] == 1 and rewards[0] == -1.0
     finally:
         venv.close()
+    # sbagents' own ids too, where this process's __main__ (pytest here) does not import sbagents
+    own = make_vec_env(resolve_env("sbagents/GridWorld-v0").make_fn(), n_envs=1, seed=0, vec_env_cls=SubprocVecEnv,
+                       vec_env_kwargs={"start_method": "spawn"})
+    try:
+        assert np.asarray(own.reset()).shape == (1, *own.observation_space.shape)
+    finally:
+        own.close()

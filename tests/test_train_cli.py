@@ -63,10 +63,7 @@ def test_default_run_prints_path_and_93(tmp_path: Path) -> None:
     assert s["eval"]["mean_return"] == OPTIMUM and s["eval"]["success_rate"] == 1.0
 
 
-@pytest.mark.parametrize("algo", [
-    "qlearning", "sarsa", pytest.param("dqn", marks=pytest.mark.slow), pytest.param("ppo", marks=pytest.mark.slow),
-    pytest.param("a2c", marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize("algo", ["qlearning", "sarsa", pytest.param("dqn", marks=pytest.mark.slow), "ppo", "a2c"])
 def test_zoo_config_reaches_optimal_return(zoo_run: ZooRun, algo: str) -> None:
     """The zoo entry's budget learns GridWorld: a learning check (the full budget)."""
     result, folder = zoo_run(algo)
@@ -89,7 +86,6 @@ def test_verbose_2_prints_sb3_tables_and_0_only_the_result(tmp_path: Path) -> No
     assert quiet.stdout.startswith("run dir: ")
 
 
-@pytest.mark.slow  # trains PPO's zoo budget (shared with test_zoo_config_reaches_optimal_return[ppo])
 def test_evaluate_json_and_table(zoo_run: ZooRun) -> None:
     trained, tmp_path = zoo_run("ppo")  # evaluate only reads the run
     assert trained.returncode == 0, trained.stderr
@@ -145,6 +141,7 @@ def test_same_seed_same_results(tmp_path: Path) -> None:
     assert last_json(evals[0].stdout) == last_json(evals[1].stdout)
 
 
+@pytest.mark.slow  # two new interpreters
 def test_concurrent_runs_get_distinct_dirs(tmp_path: Path) -> None:
     # subprocesses: two processes racing for the next run dir is the point
     procs = [popen("train", "--algo", "ppo", "-f", str(tmp_path), "-n", "1024", "--verbose", "0") for _ in range(2)]

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import optuna
+import pytest
 from cli_helpers import cli, popen, summary
 
 STUDY_DB = "ppo/sbagents_GridWorld-v0_tune.db"
@@ -27,6 +28,7 @@ def finished_trials(db: Path) -> int:
     return int(count)
 
 
+@pytest.mark.slow  # a study of three trials (and a new interpreter)
 def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:
     # plumbing, not learning: trials of 8,192 steps (a few seconds each, long enough to kill the third mid-way)
     args = ("--algo", "ppo", "--env", "GridWorld-v0", "--n-trials", "3", "-n", "8192", "-f", str(tmp_path),

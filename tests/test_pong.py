@@ -1,7 +1,7 @@
 """Pong through the CLI: the zoo's ``atari`` entry, identical wrapping in evaluation, full-game scores, video.
 
-One short DQN run (1,000 steps, 500 of them learning, a 5,000-transition buffer: plumbing, not learning) is shared by the tests of this module; long
-training belongs in ``benchmarks/speed/pong_throughput.py``.
+One short DQN run (1,000 steps, learning from step 500, a 5,000-transition buffer: plumbing, not learning) is
+shared by the tests of this module; long training belongs in ``benchmarks/speed/pong_throughput.py``.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from cli_helpers import cli, last_json, popen, summary
+from cli_helpers import cli, cli_subprocess, last_json, popen, summary
 from stable_baselines3 import PPO
 
 from sbagents.api import RunRef, export
@@ -45,7 +45,8 @@ def zoo_run(tmp_path_factory: pytest.TempPathFactory) -> ZooRun:
 
 
 def test_default_run_prints_path_and_93(tmp_path: Path) -> None:
-    result = cli("train", cwd=tmp_path)  # README command 1, as a newcomer runs it
+    # a subprocess: README command 1 as a newcomer runs it (a fresh interpreter: nothing on stderr, no warning)
+    result = cli_subprocess("train", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "learned path (8 moves):" in result.stdout
     assert "return: 93" in result.stdout

@@ -132,7 +132,7 @@ def monitor_rows(run_dir: Path) -> list[tuple[str, str]]:
 
 def test_same_seed_same_results(tmp_path: Path) -> None:
     for _ in range(2):
-        result = cli("train", "--algo", "dqn", "-f", str(tmp_path), "--seed", "5", "-n", "3000", "--verbose", "0")
+        result = cli("train", "--algo", "dqn", "-f", str(tmp_path), "--seed", "5", "-n", "2000", "--verbose", "0")
         assert result.returncode == 0, result.stderr
     a, b = tmp_path / "dqn" / f"{RUN}_1", tmp_path / "dqn" / f"{RUN}_2"
     assert summary(a)["eval"] == summary(b)["eval"]
@@ -158,7 +158,9 @@ def test_concurrent_runs_get_distinct_dirs(tmp_path: Path) -> None:
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupt_keeps_model_and_logs(tmp_path: Path, sig: signal.Signals) -> None:
     # a subprocess: the signal's delivery to a running training is the point
-    proc = popen("train", "--algo", "ppo", "-f", str(tmp_path), "-n", "10000000", "--seed", "0", "--verbose", "0")
+    # --eval-freq 1024: the first evaluation after one rollout (the default for 10M steps waits 25,000 steps)
+    proc = popen("train", "--algo", "ppo", "-f", str(tmp_path), "-n", "10000000", "--seed", "0", "--verbose", "0",
+                 "--eval-freq", "1024")
     run_dir = tmp_path / "ppo" / f"{RUN}_1"
     deadline = time.time() + 120
     while not (run_dir / "evaluations.npz").exists():  # training is under way once an evaluation ran

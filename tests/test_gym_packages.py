@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -65,14 +66,12 @@ def test_user_env_trains_with_default_config_and_evaluates(tmp_path: Path) -> No
     assert summary["eval"]["mean_return"] == 7.0 and summary["eval"]["success_rate"] == 1.0
     config = yaml.safe_load((run_dir / "TinyEnv-v0" / "config.yml").read_text())
     assert config["learning_rate"] == 0.1 and config["gamma"] == 0.9  # qlearning.yml's `default` entry
-    # evaluate: the package must be imported again (a fresh process), by flag or by module:EnvId
-    for env_args in (
-        ["--env", "TinyEnv-v0", "--gym-packages", "tiny_env_pkg"],
-        ["--env", "tiny_env_pkg:TinyEnv-v0"],
-    ):
-        ev = user_cli(
-            "evaluate", "--algo", "qlearning", *env_args, "-f", "logs", "-n", "3", "--json", cwd=tmp_path
-        )
+    # evaluate: the package must be imported again (a fresh process), by flag or by module:EnvId (both at once)
+    env_args = (["--env", "TinyEnv-v0", "--gym-packages", "tiny_env_pkg"], ["--env", "tiny_env_pkg:TinyEnv-v0"])
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        evaluations = list(pool.map(lambda args: user_cli("evaluate", "--algo", "qlearning", *args, "-f", "logs", "-n",
+                                                          "3", "--json", cwd=tmp_path), env_args))
+    for ev in evaluations:
         assert ev.returncode == 0, ev.stderr
         report = json.loads(ev.stdout.strip().splitlines()[-1])
         assert report["env"] == "TinyEnv-v0" and report["mean_return"] == 7.0 and report["mean_length"] == 4.0

@@ -1,6 +1,6 @@
 """Pong through the CLI: the zoo's ``atari`` entry, identical wrapping in evaluation, full-game scores, video.
 
-One short DQN run (1,000 steps, learning from step 500, a 5,000-transition buffer: plumbing, not learning) is
+One short DQN run (1,000 steps, learning from step 900, a 5,000-transition buffer: plumbing, not learning) is
 shared by the tests of this module; long training belongs in ``benchmarks/speed/pong_throughput.py``.
 """
 
@@ -43,7 +43,7 @@ def pong_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "0",
         "-params",
         "buffer_size:5000",
-        "learning_starts:500",
+        "learning_starts:900",
         "--eval-freq",
         "-1",
         "--final-eval-episodes",
@@ -62,7 +62,7 @@ def test_train_uses_the_atari_recipe(pong_run: Path) -> None:
     assert config["frame_stack"] == 4 and config["policy"] == "CnnPolicy"
     assert config["optimize_memory_usage"] is True
     assert config["replay_buffer_kwargs"] == {"handle_timeout_termination": False}
-    assert config["buffer_size"] == 5000 and config["learning_starts"] == 500  # -params overrides
+    assert config["buffer_size"] == 5000 and config["learning_starts"] == 900  # -params overrides
     s = summary(run_dir)
     assert s["n_timesteps"] == 1000 and s["eval"]["n_episodes"] == 1
 

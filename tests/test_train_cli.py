@@ -198,31 +198,32 @@ def test_list_progress_tensorboard_and_checkpoints(tmp_path: Path) -> None:
     for name in ("sbagents/GridWorld-v0", "sbagents/SmartHome-v0", "sbagents/RobustPickAndPlace-v0",
                  "treasure_hunt_v0", "qlearning", "tqc", "crossq"):
         assert name in listing.stdout
-    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "2048",
-                 "-P", "-tb", str(tmp_path / "tb"), "--save-freq", "1024", "-params", "n_envs:2")
+    # two rollouts of 2 x 128 steps, a checkpoint after each
+    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "512",
+                 "-P", "-tb", str(tmp_path / "tb"), "--save-freq", "256", "-params", "n_envs:2")
     assert result.returncode == 0, result.stderr
-    assert "2048/2048" in result.stderr and "step/s" in result.stderr  # -P: the bar, though stderr is a pipe
+    assert "512/512" in result.stderr and "step/s" in result.stderr  # -P: the bar, though stderr is a pipe
     run_dir = tmp_path / "ppo" / f"{RUN}_1"
-    assert sorted(p.name for p in run_dir.glob("rl_model_*_steps.zip")) == ["rl_model_1024_steps.zip",
-                                                                            "rl_model_2048_steps.zip"]
+    assert sorted(p.name for p in run_dir.glob("rl_model_*_steps.zip")) == ["rl_model_256_steps.zip",
+                                                                            "rl_model_512_steps.zip"]
     run = ("evaluate", "--algo", "ppo", "--env", GRID, "-f", str(tmp_path), "-n", "2", "--json")
-    checkpoint = cli(*run, "--load-checkpoint", "1024")
+    checkpoint = cli(*run, "--load-checkpoint", "256")
     assert checkpoint.returncode == 0, checkpoint.stderr
     assert last_json(checkpoint.stdout)["n_episodes"] == 2
     missing = cli(*run, "--load-checkpoint", "999")
     assert missing.returncode == 2 and "no checkpoint after 999 steps" in missing.stderr
-    assert "saved: 1024, 2048" in missing.stderr and "Traceback" not in missing.stderr
-    both = cli(*run, "--load-checkpoint", "1024", "--load-best")
+    assert "saved: 256, 512" in missing.stderr and "Traceback" not in missing.stderr
+    both = cli(*run, "--load-checkpoint", "256", "--load-best")
     assert both.returncode == 2 and "not allowed with argument" in both.stderr
-    export(RunRef("ppo", GRID, tmp_path, checkpoint=1024), n_observations=20)  # not into the final model's export/
-    assert (run_dir / "export_checkpoint_1024" / "policy.onnx").is_file() and not (run_dir / "export").exists()
+    export(RunRef("ppo", GRID, tmp_path, checkpoint=256), n_observations=20)  # not into the final model's export/
+    assert (run_dir / "export_checkpoint_256" / "policy.onnx").is_file() and not (run_dir / "export").exists()
     with pytest.raises(UsageError, match="give one of them"):  # the Python API refuses both as the CLI does
-        RunRef("ppo", GRID, tmp_path, load_best=True, checkpoint=1024)
-    loaded = load_run(RunRef("ppo", GRID, tmp_path, checkpoint=1024))
-    assert loaded.model_path.name == "rl_model_1024_steps.zip"
+        RunRef("ppo", GRID, tmp_path, load_best=True, checkpoint=256)
+    loaded = load_run(RunRef("ppo", GRID, tmp_path, checkpoint=256))
+    assert loaded.model_path.name == "rl_model_256_steps.zip"
     assert loaded.stats_path is None  # GridWorld's entry does not normalize: no statistics to load
     weights = [p.detach() for p in loaded.model.policy.parameters()]
-    saved = PPO.load(run_dir / "rl_model_1024_steps.zip", device="cpu").policy.parameters()
+    saved = PPO.load(run_dir / "rl_model_256_steps.zip", device="cpu").policy.parameters()
     final = PPO.load(run_dir / f"{RUN}.zip", device="cpu").policy.parameters()
     assert all(torch.equal(w, s.detach()) for w, s in zip(weights, saved, strict=True))
     assert not all(torch.equal(w, f.detach()) for w, f in zip(weights, final, strict=True))

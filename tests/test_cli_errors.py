@@ -6,10 +6,11 @@ The matrix runs each CLI's ``main`` in this process through :func:`sbagents.cli_
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from cli_helpers import check_error, cli, run_main
+from cli_helpers import check_error, cli_subprocess, run_main
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, export, train
 
@@ -185,6 +186,7 @@ def test_bad_input_to_every_other_cli(logs: Path, tmp_path: Path, capsys: pytest
     assert not list(tmp_path.rglob("*.db")), "a refused tune left a study behind"
 
 
+@pytest.mark.slow  # eight new interpreters (each CLI's ``__main__`` block is what this checks)
 def test_real_entry_points_print_one_line(logs: Path, tmp_path: Path) -> None:
     """One malformed call per CLI through ``python -m``: the interpreter path is traceback-free as well."""
     calls = {
@@ -197,7 +199,9 @@ def test_real_entry_points_print_one_line(logs: Path, tmp_path: Path) -> None:
         "tune": (["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(tmp_path), "-n", "0"], "-n/--n-timesteps"),
         "play": (["--algo", "ppo", "--env", "GridWorld-v0", "-f", str(logs)], "not a turn-based game"),
     }
-    for module, (args, expected) in calls.items():
-        result = cli(module, *args, cwd=tmp_path)
-        check_error(result.returncode, result.stderr, expected)
+    # subprocesses (what a real ``python -m`` prints is the point), two at a time: they wait mostly on imports
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = pool.map(lambda call: cli_subprocess(call[0], *call[1][0], cwd=tmp_path), calls.items())
+        for result, (_, expected) in zip(results, calls.values(), strict=True):
+            check_error(result.returncode, result.stderr, expected)
     assert not list(tmp_path.glob("*/*")), "a refused command left files behind"

@@ -58,6 +58,8 @@ def _model(algo: type[BaseAlgorithm], env: Any) -> BaseAlgorithm:
     kwargs: dict[str, Any] = {"policy_kwargs": dict(SMALL), "seed": 0, "device": "cpu"}
     if algo in (SAC, TD3, DDPG, DQN):
         kwargs["buffer_size"] = 1000
+    if algo is PPO:  # short rollouts: learn(200) is then ~40 gradient steps, not a 2,048-step rollout's 320
+        kwargs.update(n_steps=64, batch_size=64)
     return algo("MlpPolicy", env, **kwargs)
 
 

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 import pytest
-from cli_helpers import check_error, cli
+from cli_helpers import check_error, cli_subprocess
 
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, TrainSpec, train
 
@@ -32,11 +32,12 @@ def test_train_and_evaluate_name_the_missing_dependency(tmp_path: Path, without_
     train(TrainSpec("ppo", LUNAR, 64, {"n_envs": 1, "n_steps": 64, "batch_size": 64}), OutputOptions(logs),
           EvalOptions(eval_freq=0, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
     before = sorted(logs.rglob("*"))
-    done = cli("evaluate", "--algo", "ppo", "--env", LUNAR, "-f", str(logs), "-n", "1")
+    # subprocesses: the missing dependency is simulated on their PYTHONPATH (this process has imported Box2D)
+    done = cli_subprocess("evaluate", "--algo", "ppo", "--env", LUNAR, "-f", str(logs), "-n", "1")
     check_error(done.returncode, done.stderr, EXPECTED)
     assert 'pip install "gymnasium[box2d]"' in done.stderr
     fresh = tmp_path / "fresh"
-    done = cli("train", "--algo", "ppo", "--env", LUNAR, "-n", "64", "-f", str(fresh))
+    done = cli_subprocess("train", "--algo", "ppo", "--env", LUNAR, "-n", "64", "-f", str(fresh))
     check_error(done.returncode, done.stderr, EXPECTED)
     assert not fresh.exists(), "a run dir was left behind"
     assert sorted(logs.rglob("*")) == before

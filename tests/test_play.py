@@ -6,6 +6,7 @@ own picture); the CLI is driven through stdin with tiny runs trained in-process.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import signal
@@ -52,9 +53,14 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def play(logs: Path, env: str, stdin: str, *args: str) -> subprocess.CompletedProcess[str]:
-    """``python -m sbagents.play`` on the run of ``env`` with ``stdin`` as the human's entries."""
-    return subprocess.run([sys.executable, "-m", "sbagents.play", "--algo", "ppo_mask", "--env", env, "-f", str(logs),
-                           *args], input=stdin, capture_output=True, text=True, cwd=REPO, timeout=300)
+    """``python -m sbagents.play`` (in this process) on the run of ``env`` with ``stdin`` as the human's entries
+    (piped, not a terminal: play echoes them)."""
+    saved = sys.stdin
+    sys.stdin = io.StringIO(stdin)
+    try:
+        return cli("play", "--algo", "ppo_mask", "--env", env, "-f", str(logs), *args, cwd=REPO)
+    finally:
+        sys.stdin = saved
 
 
 def position(make_env: Callable[[], Any], moves: Sequence[int], seed: int = 0) -> tuple[Any, str, np.ndarray]:
@@ -250,6 +256,7 @@ def test_play_holdem_hand(logs: Path) -> None:
 
 def test_play_ctrl_c_at_the_prompt(logs: Path) -> None:
     """Ctrl-C while the human thinks: the tally so far, one line on stderr, exit 130, no traceback."""
+    # a subprocess: a real SIGINT while input() waits on a pipe is the point
     command = [sys.executable, "-m", "sbagents.play", "--algo", "ppo_mask", "--env", TTT, "-f", str(logs)]
     proc = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))

@@ -1,7 +1,7 @@
 """Pong through the CLI: the zoo's ``atari`` entry, identical wrapping in evaluation, full-game scores, video.
 
-One short DQN run (2,000 steps, a 5,000-transition buffer) is shared by the tests of this module; long
-training belongs in ``benchmarks/speed/pong_throughput.py``.
+One short DQN run (1,000 steps, learning from step 900, a 5,000-transition buffer: plumbing, not learning) is
+shared by the tests of this module; long training belongs in ``benchmarks/speed/pong_throughput.py``.
 """
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ def pong_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "-f",
         str(logs),
         "-n",
-        "2000",
+        "1000",
         "--seed",
         "0",
         "-params",
         "buffer_size:5000",
-        "learning_starts:1000",
+        "learning_starts:900",
         "--eval-freq",
         "-1",
         "--final-eval-episodes",
@@ -62,9 +62,9 @@ def test_train_uses_the_atari_recipe(pong_run: Path) -> None:
     assert config["frame_stack"] == 4 and config["policy"] == "CnnPolicy"
     assert config["optimize_memory_usage"] is True
     assert config["replay_buffer_kwargs"] == {"handle_timeout_termination": False}
-    assert config["buffer_size"] == 5000 and config["learning_starts"] == 1000  # -params overrides
+    assert config["buffer_size"] == 5000 and config["learning_starts"] == 900  # -params overrides
     s = summary(run_dir)
-    assert s["n_timesteps"] == 2000 and s["eval"]["n_episodes"] == 1
+    assert s["n_timesteps"] == 1000 and s["eval"]["n_episodes"] == 1
 
 
 def test_evaluation_wraps_identically_and_scores_full_games(pong_run: Path) -> None:

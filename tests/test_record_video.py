@@ -150,7 +150,7 @@ def test_smart_home_sidecar_is_unnormalized(tmp_path: Path) -> None:
 
 def test_treasure_hunt_team_video(tmp_path: Path) -> None:
     small = {"n_envs": 2, "n_steps": 256, "batch_size": 512}
-    train(TrainSpec("ppo", "treasure_hunt_v0", 1536, small), OutputOptions(tmp_path),
+    train(TrainSpec("ppo", "treasure_hunt_v0", 512, small), OutputOptions(tmp_path),  # one rollout: plumbing
           EvalOptions(eval_freq=-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
     path = record_video(RunRef("ppo", "treasure_hunt_v0", tmp_path), n_steps=12, output_dir=tmp_path / "v")
     frames = iio.imread(path)

@@ -205,6 +205,7 @@ def test_invalid_arguments() -> None:
         SmartHomeEnv(render_mode="video")
 
 
+@pytest.mark.slow  # a learning check: 4,000 DDPG steps
 def test_ddpg_learns_comfort() -> None:
     """The book's algorithm (DDPG, 64-64, VecNormalize obs) masters the task on a small seeded budget.
 

@@ -13,7 +13,8 @@ ENV = "sbagents/SmartHome-v0"
 
 
 def test_train_evaluate_export_serve(tmp_path: Path) -> None:
-    result = cli("train", "--algo", "ddpg", "--env", ENV, "-n", "1500", "-f", str(tmp_path), "--seed", "0",
+    # plumbing, not learning: 600 steps (100 of them updates after the entry's 500 learning_starts)
+    result = cli("train", "--algo", "ddpg", "--env", ENV, "-n", "600", "-f", str(tmp_path), "--seed", "0",
                  "--verbose", "0", "--final-eval-episodes", "2")
     assert result.returncode == 0, result.stderr
     run_dir = tmp_path / "ddpg" / "sbagents_SmartHome-v0_1"
@@ -35,6 +36,7 @@ def test_train_evaluate_export_serve(tmp_path: Path) -> None:
     assert meta["obs_names"][:2] == ["Temperature", "Light_Level"]
 
     obs = {"Temperature": 22.0, "Light_Level": 55.0, "Time": 3, "Preferred_Temp": 24.0, "Preferred_Light": 70.0}
+    # a subprocess: the server reads its own stdin until EOF (servers stay in subprocesses)
     served = subprocess.run([sys.executable, "-m", "sbagents.serve", "--model", str(out / "policy.onnx")],
                             input=json.dumps(obs) + "\n[1, 2]\n", capture_output=True, text=True, timeout=60)
     assert served.returncode == 0, served.stderr

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import optuna
+import pytest
 from cli_helpers import cli, popen, summary
 
 STUDY_DB = "ppo/sbagents_GridWorld-v0_tune.db"
@@ -27,10 +28,12 @@ def finished_trials(db: Path) -> int:
     return int(count)
 
 
+@pytest.mark.slow  # a study of three trials (and a new interpreter)
 def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:
-    args = ("--algo", "ppo", "--env", "GridWorld-v0", "--n-trials", "3", "-n", "30000", "-f", str(tmp_path),
+    # plumbing, not learning: trials of 8,192 steps (a few seconds each, long enough to kill the third mid-way)
+    args = ("--algo", "ppo", "--env", "GridWorld-v0", "--n-trials", "3", "-n", "8192", "-f", str(tmp_path),
             "--pruner", "none", "--n-evaluations", "3")
-    proc = popen("tune", *args)
+    proc = popen("tune", *args)  # a subprocess: it is killed (SIGKILL) mid-study
     db = tmp_path / STUDY_DB
     deadline = time.time() + 300
     while finished_trials(db) < 2:
@@ -58,9 +61,9 @@ def test_killed_study_resumes_and_best_entry_trains(tmp_path: Path) -> None:
     assert (tmp_path / "ppo" / "sbagents_GridWorld-v0_tune_history.png").stat().st_size > 0
 
     trained = cli("train", "--algo", "ppo", "--env", "GridWorld-v0", "-conf", str(best), "-f", str(tmp_path / "logs"),
-                  "--seed", "0", "--verbose", "0", "-n", "4096")
+                  "--seed", "0", "--verbose", "0", "-n", "2048")
     assert trained.returncode == 0, trained.stderr
-    assert summary(tmp_path / "logs" / "ppo" / "sbagents_GridWorld-v0_1")["n_timesteps"] >= 4096
+    assert summary(tmp_path / "logs" / "ppo" / "sbagents_GridWorld-v0_1")["n_timesteps"] >= 2048
 
 
 def test_bad_tune_input_is_one_line(tmp_path: Path) -> None:

@@ -62,11 +62,16 @@ class EnvRef:
 
     def make_fn(self) -> str | Callable[..., gym.Env]:
         """The ``env_id`` argument for SB3's ``make_vec_env`` of a Gymnasium env: the id itself, or (when
-        :attr:`modules` is not empty) a picklable callable that imports them first, so subprocess workers find the
-        env. (A game's seat env is :func:`sbagents.games.selfplay.make_selfplay_env`.)"""
-        if not self.modules:
-            return self.env_id
-        return functools.partial(make_registered, self.env_id, self.modules)
+        :attr:`modules` is not empty, and for sbagents' own ids) a picklable callable that imports them first, so
+        subprocess workers find the env. (A game's seat env is :func:`sbagents.games.selfplay.make_selfplay_env`.)"""
+        if self.modules:
+            return functools.partial(make_registered, self.env_id, self.modules)
+        if self.env_id.startswith("sbagents/"):
+            # sbagents' own ids are registered by importing sbagents: the plain id finds them in a worker only
+            # where the parent's ``__main__`` imports sbagents (``python -m sbagents.train``; not pytest, a notebook
+            # or ``python -c``), so the worker imports the registration itself
+            return functools.partial(make_registered, self.env_id, ("sbagents.registration",))
+        return self.env_id
 
     def parallel_env_fn(self) -> Callable[..., Any]:
         """A picklable ``(**kwargs) -> ParallelEnv`` of a PettingZoo env (it imports :attr:`modules` first)."""

@@ -10,7 +10,8 @@ from typing import Any
 
 import pytest
 
-from benchmarks.learning import constrained_kuka, seed_tables
+import benchmarks.stats
+from benchmarks.learning import constrained_kuka
 from benchmarks.report import save_results
 from benchmarks.stats import seed_stats
 
@@ -18,7 +19,7 @@ from benchmarks.stats import seed_stats
 @pytest.fixture(autouse=True)
 def _short_bootstrap(monkeypatch: pytest.MonkeyPatch) -> None:
     """200 bootstrap resamples instead of 20,000 (2 s per metric): these tests check the file logic and the rows."""
-    monkeypatch.setattr(seed_tables, "seed_stats", partial(seed_stats, reps=200))
+    monkeypatch.setattr(benchmarks.stats, "seed_stats", partial(seed_stats, reps=200))
 
 
 def _run(argv: list[str], results: Path) -> str:

@@ -27,11 +27,11 @@ RESULTS = ROOT / "benchmarks" / "results"
 def _one_thread_and_a_short_bootstrap(monkeypatch: pytest.MonkeyPatch) -> None:
     """One torch thread; 200 bootstrap resamples instead of 20,000 (2 s per metric): the tiny runs check the
     tables, not the intervals."""
-    from benchmarks.learning import seed_tables
+    import benchmarks.stats
     from benchmarks.stats import seed_stats
 
     torch.set_num_threads(1)
-    monkeypatch.setattr(seed_tables, "seed_stats", partial(seed_stats, reps=200))
+    monkeypatch.setattr(benchmarks.stats, "seed_stats", partial(seed_stats, reps=200))
 
 
 def _cells(section: str) -> list[list[str]]:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import RESULTS_DIR, recorded_argv
 
 SECTION = "constrained-hazard"
@@ -146,7 +146,7 @@ def markdown(result: dict[str, Any]) -> str:
     for method, stats in result["stats"].items():
         stats_rows += [(method, "task return", stats["return"], ".1f"),
                        (method, "mean episode cost", stats["cost"], ".2f")]
-    lines += ["", *stats_table("method", stats_rows)]
+    lines += ["", *grouped_stats_table("method", stats_rows)]
     lines += ["", "![multiplier and EpCost over training](benchmarks/results/constrained_hazard.png)"]
     return "\n".join(lines)
 

@@ -40,7 +40,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.monitor import Monitor
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import RESULTS_DIR, recorded_argv
 from sbagents.constrained import SACLagrangian
 
@@ -249,7 +249,7 @@ def markdown(result: dict[str, Any]) -> str:
                             for method in METHODS if method in result["stats"]
                             for key, (label, fmt) in STATS_METRICS.items()]
     if rows:
-        lines += ["", *stats_table("method", rows)]
+        lines += ["", *grouped_stats_table("method", rows)]
     done = {(r["method"], r["seed"]) for r in result["runs"]}
     missing = [f"{m} ({seed})" for seed in a["seeds"] for m in a["methods"] if (m, seed) not in done]
     if missing:

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 
 SECTION = "federated-homes"
@@ -184,7 +184,7 @@ def markdown(result: dict[str, Any]) -> str:
                          f"{b['mean_energy']:.3f} -> {a['mean_energy']:.3f} | {b['mean_return']:.1f} -> "
                          f"{a['mean_return']:.1f} |")
     rows: list[StatsRow] = [(name, "held-out comfort (%)", stats, ".1f") for name, stats in result["stats"].items()]
-    return "\n".join([*lines, "", *stats_table("training", rows)])
+    return "\n".join([*lines, "", *grouped_stats_table("training", rows)])
 
 
 def add_stats(result: dict[str, Any]) -> dict[str, Any]:

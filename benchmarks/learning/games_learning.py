@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import RESULTS_DIR, load_results, recorded_argv
 
 EVAL_SEED = 10_000
@@ -206,7 +206,7 @@ def game_markdown(name: str, result: dict[str, Any]) -> str:
                      + f" | {illegal} | {row['load']} | {'yes' if met(row) else 'no'} |")
     rows: list[StatsRow] = [(f"vs {o}", label, result["stats"][o], fmt)
                             for o in game.opponents for label, _, fmt in [_stats_metric(name, o)]]
-    lines += ["", *stats_table("opponent", rows)]
+    lines += ["", *grouped_stats_table("opponent", rows)]
     if result.get("elo_plot"):
         lines += ["", f"Ratings of seed 0's snapshots during training: `{result['elo_plot']}` (`elo.csv` beside it)."]
     return "\n".join(lines)
@@ -241,7 +241,7 @@ def tutorial_markdown(result: dict[str, Any]) -> str:
     stats_rows: list[StatsRow] = [(f"{GAMES[name].title}: {who}", f"{label} vs {o}", stats, fmt)
                                   for name, by_who in result["stats"].items() for who, by_opponent in by_who.items()
                                   for o, stats in by_opponent.items() for label, _, fmt in [_stats_metric(name, o)]]
-    return "\n".join([*lines, *stats_table("recipe", stats_rows)]).rstrip()
+    return "\n".join([*lines, *grouped_stats_table("recipe", stats_rows)]).rstrip()
 
 
 def _stats_metric(name: str, opponent: str) -> tuple[str, str, str]:

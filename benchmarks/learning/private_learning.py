@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import recorded_argv
 
 SECTION = "private-smarthome"
@@ -74,7 +74,7 @@ def markdown(result: dict[str, Any]) -> str:
     for epsilon, stats in result["stats"].items():
         rows += [(f"epsilon {epsilon}", "comfort share (%)", stats["comfort_pct"], ".1f"),
                  (f"epsilon {epsilon}", "mean return", stats["mean_return"], ".1f")]
-    return "\n".join([*lines, "", *stats_table("epsilon (target)", rows)])
+    return "\n".join([*lines, "", *grouped_stats_table("epsilon (target)", rows)])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -24,7 +24,7 @@ from statistics import mean
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.learning.seed_tables import StatsRow, stats_of, stats_table
+from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
 from benchmarks.report import recorded_argv
 
 ENV = "sbagents/SmartHome-v0"
@@ -155,7 +155,7 @@ def markdown(result: dict[str, Any]) -> str:
                      f"{r['critic_success']:.2f} | {returns} | {'met' if meets_bar(r) else 'not met'} |")
     rows: list[StatsRow] = [(name, f"{label} success", result["stats"][name][key], ".2f")
                             for name in result["variants"] for key, label in SUCCESS.items()]
-    lines += ["", *stats_table("variant", rows), "", NOTES]
+    lines += ["", *grouped_stats_table("variant", rows), "", NOTES]
     return "\n".join(lines)
 
 

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from benchmarks.suites import edge_export
 
 
+@pytest.mark.slow  # trains and exports through the CLI: ~9 s
 def test_export_benchmark_tiny_run_renders_the_cli_report() -> None:
     results = edge_export.run(["--n-timesteps", "300", "--n-observations", "50"])
     assert results["command"] == "python -m benchmarks run export --n-timesteps 300 --n-observations 50"

@@ -117,7 +117,8 @@ def _cli_in_process(module: str, *args: str) -> subprocess.CompletedProcess[str]
     return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
 
 
-@pytest.mark.parametrize("task", sorted(pettingzoo_learning.TASKS))
+@pytest.mark.parametrize("task", [pytest.param(t, marks=pytest.mark.slow) if t == "pursuit" else t
+                                  for t in sorted(pettingzoo_learning.TASKS)])  # pursuit: 500-step episodes
 def test_pettingzoo_tiny(task: str, tmp_path: Path, quick_bootstrap: None, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every task on 64 steps of a shrunk config and 1-2 episodes, the CLI commands run in-process (the same argv
     through ``sbagents.train.main`` / ``sbagents.evaluate.main``; an interpreter start costs ~10 s on 2 busy cores)."""

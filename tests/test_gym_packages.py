@@ -39,6 +39,7 @@ def user_cli(module: str, *args: str, cwd: Path) -> subprocess.CompletedProcess[
     )
 
 
+@pytest.mark.slow  # a training and two evaluate subprocesses: ~7 s
 def test_user_env_trains_with_default_config_and_evaluates(tmp_path: Path) -> None:
     result = user_cli(
         "train",

@@ -27,6 +27,7 @@ def without_box2d(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
                                                                     os.environ.get("PYTHONPATH")])))
 
 
+@pytest.mark.slow  # two fresh interpreters: ~6 s
 def test_train_and_evaluate_name_the_missing_dependency(tmp_path: Path, without_box2d: None) -> None:
     logs = tmp_path / "logs"
     train(TrainSpec("ppo", LUNAR, 64, {"n_envs": 1, "n_steps": 64, "batch_size": 64}), OutputOptions(logs),

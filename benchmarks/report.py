@@ -137,3 +137,18 @@ def publish(text: str, results: Any, output: str | None, json_path: str | None, 
         write_section(output, text, name)
     if json_path:
         save_results(results, json_path)
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: float | None = None) -> None:
+    """Save a matplotlib figure to ``path`` through a temporary file renamed into place, then close it."""
+    import matplotlib.pyplot as plt
+
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.stem}.tmp{target.suffix}")
+    try:
+        fig.savefig(tmp, dpi=dpi)
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+        plt.close(fig)

@@ -106,3 +106,12 @@ def test_gpu_sampler_reads_nvidia_smi_stamps(tmp_path: Path, monkeypatch: pytest
     assert summary["before"] is None
     assert summary["span"] is not None and summary["span"]["util_mean"] == 37.0
     assert summary["span"]["memory_max_mib"] == 1024.0 and summary["span"]["samples"] >= 3
+
+
+def test_gpu_curve_plot_is_written_in_place(tmp_path: Path) -> None:
+    """The atari-gpu learning curve is drawn without EnvPool and lands under its name (no temporary file left)."""
+    from benchmarks.speed.atari_gpu_parts import plot_curve
+
+    path = tmp_path / "curve" / "atari_gpu_curve.png"
+    plot_curve([[1000.0, 0.5, -21.0], [2000.0, 1.0, -19.0], [3000.0, 1.5, -18.0]], path, "Pong")
+    assert path.stat().st_size > 0 and sorted(p.name for p in path.parent.iterdir()) == [path.name]

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shlex
 import tempfile
 import time
@@ -34,7 +33,7 @@ import numpy as np
 
 from benchmarks.harness import Benchmark
 from benchmarks.learning.seed_table import StatsRow, grouped_stats_table, stats_of
-from benchmarks.report import RESULTS_DIR, recorded_argv
+from benchmarks.report import RESULTS_DIR, recorded_argv, save_figure
 
 SECTION = "constrained-hazard"
 ENV = "sbagents/HazardGridWorld-v0"
@@ -105,11 +104,7 @@ def plot(runs: list[dict[str, Any]], path: Path, cost_limit: float) -> None:
         ax.legend(fontsize=7)
     fig.suptitle("PPO-Lagrangian and PID-Lagrangian on HazardGridWorld")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=110)
 
 
 def markdown(result: dict[str, Any]) -> str:

@@ -34,7 +34,7 @@ import numpy as np
 from benchmarks.harness import Benchmark
 from benchmarks.learning.seed_table import StatRow, iqm_note, metric_stats, stats_table
 from benchmarks.learning.team_baselines import baseline_summary, spread_assignment_actor
-from benchmarks.report import RESULTS_DIR, load_results, machine_info, recorded_argv
+from benchmarks.report import RESULTS_DIR, load_results, machine_info, recorded_argv, save_figure
 
 
 @dataclass
@@ -294,11 +294,7 @@ def plot(task: Task, result: dict[str, Any], path: Path) -> None:
     ax.set_title(task.title)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path, dpi=110)
 
 
 def build_parser(name: str) -> argparse.ArgumentParser:

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import threading
@@ -13,6 +12,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from benchmarks.report import save_figure
 
 SECTION = "atari-gpu"
 JSON_NAME, PNG_NAME = "atari_gpu.json", "atari_gpu_curve.png"
@@ -146,10 +147,7 @@ def plot_curve(points: list[list[float]], path: Path, title: str) -> None:
     ax.set(xlabel="timesteps", ylabel="game score", ylim=(-21.5, 21.5), title=title)
     ax.legend(loc="lower right")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    save_figure(fig, path)
 
 
 def _fmt_gpu(window: dict[str, float] | None) -> str:

@@ -12,7 +12,7 @@ run also saves module checkpoints every N env steps, and the last one saved with
 
     python -m benchmarks run rllib-treasure_hunt_v0 --seeds 0 1 2
     python -m benchmarks run rllib-simple_spread_v3 --seeds 0 1 2 --n-eval 300 --eval-seed 10000
-    python -m benchmarks run --output '' --results /tmp/r.json rllib-treasure_hunt_v0 --seeds 0 -n 40000
+    python -m benchmarks run --output '' --results SCRATCH.json rllib-treasure_hunt_v0 --seeds 0 -n 40000
 
 Ray is imported only by the run (so ``list`` and ``render`` work without it). SIGTERM acts like Ctrl-C: the run
 keeps its checkpoint, no further seed starts and nothing is saved.

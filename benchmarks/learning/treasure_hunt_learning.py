@@ -11,7 +11,7 @@ on the batched env); ``--via direct`` builds the experiment from the zoo config 
 :func:`sbagents.batched.make_batched_vec_env` itself; ``auto`` (default) picks ``train`` when available.
 
     python -m benchmarks run treasure-hunt-learning --seeds 0 1 2
-    python -m benchmarks run --output '' --results /tmp/th.json treasure-hunt-learning --seeds 0 \\
+    python -m benchmarks run --output '' --results SCRATCH.json treasure-hunt-learning --seeds 0 \\
         --params '{"n_envs": 16}'
 """
 

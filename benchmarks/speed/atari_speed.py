@@ -15,7 +15,7 @@ bottleneck::
 
     python -m benchmarks run atari-speed                                 # 2 cores: 8 envs, ~10-12 min
     python -m benchmarks run atari-speed --n-envs 16 --device cuda --rounds 1 --ppo-rollouts 4 --dqn-steps 4000
-    python -m benchmarks run --output '' --results /tmp/a.json atari-speed --quick   # smoke run
+    python -m benchmarks run --output '' --results SCRATCH.json atari-speed --quick   # smoke run
 
 Results: ``benchmarks/results/atari_speed.json``; section ``atari-speed`` of ``BENCHMARKS.md``.
 

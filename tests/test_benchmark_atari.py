@@ -49,7 +49,7 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     assert OTHER_SECTION in text
     section = section_text(text, atari_speed.SECTION)
     assert "`python -m benchmarks run atari-speed --n-envs 2 --rounds 1" in section and str(tmp_path) not in section
-    assert section == atari_speed.markdown(results)
+    assert section == f"\n{atari_speed.markdown(results)}\n"  # the body between the markers' lines
     assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
 
 

@@ -44,7 +44,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR
+from benchmarks.report import RESULTS_DIR, atomic_write_bytes
 from benchmarks.speed.atari_gpu_parts import (
     JSON_NAME,
     PNG_NAME,
@@ -109,12 +109,6 @@ class Progress(BaseCallback):
         return True
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 class Results:
     """The JSON results, rewritten into ``out/atari_gpu.json`` after each phase."""
 
@@ -124,7 +118,7 @@ class Results:
 
     def save(self) -> None:
         """Write the file (temporary name, then renamed)."""
-        _atomic_write(self.path, (json.dumps(self.data, indent=1) + "\n").encode())
+        atomic_write_bytes(self.path, (json.dumps(self.data, indent=1) + "\n").encode())
 
 
 def _phase(results: Results, name: str, fn: Callable[[], Any]) -> Any:
@@ -352,7 +346,7 @@ def run_cli(argv: Sequence[str]) -> dict[str, Any]:
     data = run(Path(args.out), args.budget_s, args.device, args.seed, args.tiny, list(argv))
     png = Path(args.out) / PNG_NAME
     if png.exists() and png.resolve() != (RESULTS_DIR / PNG_NAME).resolve():
-        _atomic_write(RESULTS_DIR / PNG_NAME, png.read_bytes())
+        atomic_write_bytes(RESULTS_DIR / PNG_NAME, png.read_bytes())
     return data
 
 

@@ -3,7 +3,7 @@
 A benchmark measures into a JSON-able ``results`` object, saves it with :func:`save_results` (written to a
 temporary name and renamed into place) and renders its Markdown section from that object alone, so
 ``python -m benchmarks render NAME`` can rebuild the section without measuring again. Sections live between
-``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` in ``BENCHMARKS.md``; :func:`write_section` replaces one
+``<!-- NAME:start -->`` and ``<!-- NAME:end -->`` in ``BENCHMARKS.md``; :func:`replace_section` replaces one
 and leaves the rest of the file as it is.
 """
 
@@ -79,14 +79,6 @@ def replace_section(old: str, text: str, name: str) -> str:
     return old.rstrip("\n") + "\n\n" + block + "\n"
 
 
-def write_section(path: str | os.PathLike[str], text: str, name: str) -> None:
-    """Replace section ``name`` of the Markdown file ``path`` by ``text`` (created/appended when missing)."""
-    target = Path(path)
-    old = target.read_text() if target.exists() else "# Benchmarks\n"
-    new = replace_section(old, text, name)
-    if new != old:
-        atomic_write_text(target, new)
-
 
 def save_results(results: Any, path: str | os.PathLike[str]) -> None:
     """Write ``results`` as indented JSON (one trailing newline), atomically."""
@@ -104,20 +96,24 @@ def recorded_argv(argv: list[str]) -> list[str]:
     return [a for i, a in enumerate(argv) if not {a, argv[i - 1] if i else ""} & {"--json", "--output"}]
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``), else the platform's processor or machine string."""
+    fallback = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            return next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), fallback)
+    except OSError:
+        return fallback
+
+
 def machine_info() -> dict[str, Any]:
     """CPU model, core count, library versions and the date of the run."""
     import numpy as np
     import stable_baselines3
     import torch
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
-    except OSError:
-        pass
     return {
-        "cpu": cpu,
+        "cpu": cpu_model(),
         "cores": os.cpu_count(),
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -133,16 +129,6 @@ def load_average() -> list[float]:
         return [round(x, 2) for x in os.getloadavg()]
     except OSError:
         return [0.0, 0.0, 0.0]
-
-
-def publish(text: str, results: Any, output: str | None, json_path: str | None, name: str) -> None:
-    """Print a section's ``text``, write it into ``output`` (section ``name``) and the raw ``results`` as JSON into
-    ``json_path``; an empty or None path skips that file."""
-    print(text)
-    if output:
-        write_section(output, text, name)
-    if json_path:
-        save_results(results, json_path)
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: float | None = None) -> None:

@@ -44,7 +44,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR, atomic_write_bytes
+from benchmarks.report import RESULTS_DIR, atomic_write_bytes, cpu_model
 from benchmarks.speed.atari_gpu_parts import (
     JSON_NAME,
     PNG_NAME,
@@ -56,7 +56,7 @@ from benchmarks.speed.atari_gpu_parts import (
     markdown,
     plot_curve,
 )
-from benchmarks.speed.atari_speed import ENV_ID, cpu_name, env_rate, ppo_params, train_clock
+from benchmarks.speed.atari_speed import ENV_ID, env_rate, ppo_params, train_clock
 
 #: The larger-batch run must be this much faster than the entry's 16 envs to be used for learning.
 TRICK_MIN_GAIN = 1.3
@@ -264,7 +264,7 @@ def machine(device: str) -> dict[str, Any]:
             versions[name] = version(name)
         except Exception:  # noqa: BLE001 - not installed
             versions[name] = None
-    return {"cpu": cpu_name(), "cores": os.cpu_count(), "gpu": gpu, "device": device,
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu, "device": device,
             "python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__, **versions,
             "date": time.strftime("%Y-%m-%d %H:%M"), "load_before": round(os.getloadavg()[0], 2)}
 

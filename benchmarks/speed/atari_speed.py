@@ -39,7 +39,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import recorded_argv
+from benchmarks.report import cpu_model, recorded_argv
 
 ENV_ID = "PongNoFrameskip-v4"
 KINDS: tuple[str, ...] = ("dummy", "subproc", "envpool")
@@ -215,16 +215,6 @@ def measure(kinds: Sequence[str], n_envs: int, rounds: int, env_steps: int, ppo_
     return samples
 
 
-def cpu_name() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), else the platform's processor string."""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")),
-                        platform.processor())
-    except OSError:
-        return platform.processor() or platform.machine()
-
-
 def summarize(samples: dict[str, dict[str, list[float]]]) -> dict[str, dict[str, Any]]:
     """Median per kind and the median of the per-round ratios against ``dummy`` (when measured)."""
     out: dict[str, dict[str, Any]] = {}
@@ -290,7 +280,7 @@ def machine(device: str) -> dict[str, Any]:
     dev = device
     if device.startswith("cuda") and torch.cuda.is_available():
         dev = f"{device} ({torch.cuda.get_device_name(0)})"
-    return {"cpu": cpu_name(), "cores": os.cpu_count(), "device": dev, "torch": torch.__version__,
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "device": dev, "torch": torch.__version__,
             "python": platform.python_version(), "envpool": envpool_version, "date": time.strftime("%Y-%m-%d %H:%M")}
 
 

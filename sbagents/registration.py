@@ -39,6 +39,11 @@ PETTINGZOO_ENVS: dict[str, str] = {"treasure_hunt_v0": "sbagents.envs.treasure_h
 #: like :data:`GYM_ENVS`, so that resolving env names never imports the packages that implement them.
 ARRAY_IMPLEMENTATIONS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_env:array_parallel_env"}
 
+#: PettingZoo env modules whose own env sbagents wraps in an observer that adds episode metrics (declared
+#: ``info_metrics``) -> the ``module:function`` that wraps an env of the module (the array implementation above
+#: declares the same metrics itself): simple spread's collisions and landmarks covered.
+METRIC_OBSERVERS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_metrics:spread_metrics_env"}
+
 #: The built-in training extensions (:mod:`sbagents.extensions`), in hook order, as ``module:class`` paths like
 #: :data:`GYM_ENVS`: :func:`sbagents.extensions.registered_extensions` imports them the first time extensions are
 #: consulted, so that nothing below the pipeline imports the feature packages.

@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 import sbagents.batched
 from sbagents.batched import BatchedSimpleSpreadVecEnv, batched_env_id, make_batched_vec_env, unbatchable_kwargs
+from sbagents.batched.spread_metrics import SPREAD_METRICS, spread_metrics_env
 from sbagents.cli_common import run
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import build_experiment
@@ -75,8 +76,9 @@ def _compare(batched: VecEnv, ref: VecEnv, n_agents: int, n_steps: int, seed: in
                 assert ib["TimeLimit.truncated"] is ir["TimeLimit.truncated"] is True
             if "episode" in ir:
                 eb, er = ib["episode"], ir["episode"]
-                assert eb.keys() == er.keys() == {"r", "l", "t"}
+                assert eb.keys() == er.keys() == {"r", "l", "t", *SPREAD_METRICS}
                 assert eb["l"] == er["l"] and abs(eb["r"] - er["r"]) <= TOL
+                assert {key: eb[key] for key in SPREAD_METRICS} == {key: er[key] for key in SPREAD_METRICS}
                 counts["episodes"] += 1
             rest_b = {key: v for key, v in ib.items() if key not in ("terminal_observation", "episode")}
             assert rest_b == {key: v for key, v in ir.items() if key not in ("terminal_observation", "episode")}
@@ -236,7 +238,8 @@ def test_parallel_env_equals_mpe2_step_for_step(kwargs: dict[str, Any]) -> None:
 
     from sbagents.batched.spread_env import SimpleSpreadParallelEnv
 
-    ref, fast = simple_spread_v3.parallel_env(**kwargs), SimpleSpreadParallelEnv(**kwargs)
+    # mpe2's env as sbagents builds it: under the observer that adds the team metrics at the last step
+    ref, fast = spread_metrics_env(simple_spread_v3.parallel_env(**kwargs)), SimpleSpreadParallelEnv(**kwargs)
     rng = np.random.default_rng(0)
     resets: list[tuple[int | None, int]] = [(3, 60), (None, 40), (None, 5), (11, 30), (None, 30)]  # (seed, steps)
     for seed, steps in resets:  # a reset after a full episode, unseeded resets continuing, a reset mid-episode

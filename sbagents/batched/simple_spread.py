@@ -8,10 +8,12 @@ critic): :func:`sbagents.multiagent.groups.team_vec_envs` over ``n_envs`` copies
 ``k // N``. Same ``float32`` observations ``[self vel, self pos, landmark rel pos, other agents' rel pos,
 communication (always zero: the agents are silent)]``, ``float32`` rewards, dones, infos (``{}`` every step; at the
 episode end, step ``max_cycles``, ``terminal_observation`` and ``TimeLimit.truncated=True`` in every slot and the team
-``episode = {"r", "l", "t"}`` in each copy's first slot; simple spread declares no ``info_metrics`` and its agents
-never leave, so no ``sbagents_acted`` flag), auto-reset, seeding (copy ``i`` is reset with ``seed + i``), ``reset()``
-(pending seeds used once, options ignored as mpe2 ignores them), and the team monitor file
-``<monitor_dir>/0.monitor.csv`` (one row per team episode, the header's ``env_id`` read from the env's metadata).
+``episode = {"r", "l", "t", <metrics>}`` in each copy's first slot, the declared team metrics
+:data:`~sbagents.batched.spread_metrics.SPREAD_METRICS` (collisions, landmarks covered) in every slot of the last
+step; its agents never leave, so no ``sbagents_acted`` flag), auto-reset, seeding (copy ``i`` is reset with
+``seed + i``), ``reset()`` (pending seeds used once, options ignored as mpe2 ignores them), and the team monitor file
+``<monitor_dir>/0.monitor.csv`` (one row per team episode with the metrics' columns, the header's ``env_id`` read
+from the env's metadata).
 
 How: the world state of all copies lives in arrays (agent positions and velocities ``(n_envs, N, 2)``, landmark
 positions ``(n_envs, N, 2)``, float64 as in mpe2) and every step does mpe2's arithmetic with numpy ufuncs in mpe2's
@@ -43,6 +45,14 @@ from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvObs, VecEnvStepReturn
 
 from sbagents.batched.base import BatchedTeamVecEnv, check_batchable, unreproduced_kwargs
+from sbagents.batched.spread_metrics import (
+    SPREAD_METRICS,
+    episode_metrics,
+    landmark_distances,
+    pair_distances,
+    spread_metrics_env,
+    step_counts,
+)
 
 #: The ``--env`` name (and the id :func:`sbagents.batched.make_batched_vec_env` takes).
 SIMPLE_SPREAD_ID = "mpe2.simple_spread_v3"
@@ -92,7 +102,9 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
 
         kwargs = dict(env_kwargs or {})
         check_batchable(n_envs, unsupported_kwargs(kwargs), SIMPLE_SPREAD_ID, SIMPLE_SPREAD_SUPPORT)
-        env = simple_spread_v3.parallel_env(**kwargs)  # the template; validates the kwargs as the reference does
+        # the template (mpe2's env as sbagents builds it: with the metrics observer); validates the kwargs as the
+        # reference does
+        env: Any = spread_metrics_env(simple_spread_v3.parallel_env(**kwargs))
         env.reset(seed=0)  # a reset env, so that state() and friends work on it
         raw = env.unwrapped
         world = raw.world
@@ -119,10 +131,14 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         self._delta = np.zeros((n, n_a, n_a, 2), dtype=np.float64)  # see _geometry
         self._dist = np.zeros((n, n_a, n_a), dtype=np.float64)
         self._returns = np.zeros((n, n_a), dtype=np.float64)  # per-agent episode returns, as the reference sums
+        self._collisions = np.zeros(n, dtype=np.int64)  # colliding pairs, summed over the episode's steps
+        self._covered = np.zeros(n, dtype=np.int64)  # landmarks covered after the last step
+        self._covered_sum = np.zeros(n, dtype=np.int64)  # landmarks covered, summed over the episode's steps
         self._length = 0  # steps of the current episode: the same in every copy (they start and end together)
         self._rngs: list[np.random.Generator | None] = [None] * n
         super().__init__(n * n_a, n_a, env, obs_space, env.action_space(self.possible_agents[0]), monitor_path,
-                         str(env.metadata.get("name", "team")))  # the reference's monitor header, read as it reads it
+                         str(env.metadata.get("name", "team")),  # the reference's monitor header, read as it reads it
+                         tuple(SPREAD_METRICS))
         self._n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------------ world constants
@@ -160,6 +176,9 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         self._lm[:] = starts[:, self.n_agents :]
         self._vel[:] = 0.0
         self._returns[:] = 0.0
+        self._collisions[:] = 0
+        self._covered[:] = 0
+        self._covered_sum[:] = 0
         self._length = 0
         self._geometry()
 
@@ -192,9 +211,7 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         """Agent-pair offsets ``p_i - p_j`` ``(n_envs, N, N, 2)`` and distances ``(n_envs, N, N)`` of the current
         positions (mpe2's ``sqrt(sum(square(delta)))``): the collision forces of the next step and the collision
         penalties of this one use them."""
-        pos = self._pos
-        self._delta = delta = pos[:, :, None, :] - pos[:, None, :, :]
-        self._dist = np.sqrt(np.square(delta[..., 0]) + np.square(delta[..., 1]))
+        self._delta, self._dist = pair_distances(self._pos)
 
     def _forces(self) -> np.ndarray:
         """Action plus collision forces ``(n_envs, N, 2)``, summed in the order of mpe2's pair loop."""
@@ -234,15 +251,17 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         return self._observe().reshape(k, self._dim), rewards, np.ones(n * n_a, dtype=bool), infos
 
     def _rewards(self) -> np.ndarray:
-        """This step's rewards ``(n_envs, N)`` float64 (mpe2's ``global_reward``, ``reward`` and their blend)."""
-        pos = self._pos
-        to_lm = pos[:, :, None, :] - self._lm[:, None, :, :]  # (n, agent, landmark, 2)
-        closest = np.sqrt(np.square(to_lm[..., 0]) + np.square(to_lm[..., 1])).min(axis=1)  # (n, landmark)
+        """This step's rewards ``(n_envs, N)`` float64 (mpe2's ``global_reward``, ``reward`` and their blend); counts
+        the step's team metrics too."""
+        closest = landmark_distances(self._pos, self._lm)  # (n, landmark)
         total = np.zeros(self.n_envs)
         for m in range(self.n_landmarks):  # mpe2: rew = 0; rew -= min(dists) per landmark, in order
             total = total - closest[:, m]
         hits = self._dist < self._hit_min  # mpe2's is_collision, never with itself
         local = -hits.sum(axis=1).astype(np.float64)  # -1.0 per other agent in collision: exact integers
+        pairs, self._covered = step_counts(hits, closest)
+        self._collisions += pairs
+        self._covered_sum += self._covered
         lr = self.local_ratio
         return total[:, None] * (1 - lr) + local * lr  # type: ignore[no-any-return]
 
@@ -251,14 +270,17 @@ class BatchedSimpleSpreadVecEnv(BatchedTeamVecEnv):
         every copy (they all end together, at ``max_cycles``)."""
         n_a = self.n_agents
         rows = list(terminal.reshape(self.num_envs, self._dim))
-        infos: list[dict[str, Any]] = [{"terminal_observation": row, "TimeLimit.truncated": True} for row in rows]
+        length = self._length
+        stats = [episode_metrics(c, v, s, length) for c, v, s in zip(  # noqa: B905 - arrays of n_envs
+            self._collisions.tolist(), self._covered.tolist(), self._covered_sum.tolist())]
+        infos: list[dict[str, Any]] = [{**stats[k // n_a], "terminal_observation": row, "TimeLimit.truncated": True}
+                                       for k, row in enumerate(rows)]
         team = np.zeros(self.n_envs)
         for j in range(n_a):  # the reference: sum(per-agent returns) in agent order, from 0
             team = team + self._returns[:, j]
         seconds = self._monitor_seconds()
-        length = self._length
         for i, r in enumerate(team.tolist()):
-            ep = {"r": round(r, 6), "l": length, "t": seconds}
+            ep = {"r": round(r, 6), "l": length, "t": seconds, **stats[i]}
             infos[i * n_a]["episode"] = ep
             if self._writer is not None:
                 self._writer.write_row(ep)

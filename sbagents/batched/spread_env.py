@@ -1,11 +1,14 @@
 """``mpe2.simple_spread_v3``'s parallel env on the batched arrays: :class:`SimpleSpreadParallelEnv`, one copy of
 :class:`~sbagents.batched.simple_spread.BatchedSimpleSpreadVecEnv` behind PettingZoo's ``ParallelEnv`` API.
 
-Step for step equal to ``mpe2.simple_spread_v3.parallel_env(**env_kwargs)`` (batchable kwargs, no rendering):
-observations, float64 rewards, terminations (never), truncations at ``max_cycles`` (then ``agents`` is empty), empty
-infos, ``state()`` and seeding (``reset(seed=s)`` seeds the generator as mpe2 does; ``reset()`` continues it). It
-skips mpe2's AEC round trip and per-agent Python loops, which makes every path that steps PettingZoo env copies
-(``per_group``, ``agent_id``, ``critic: centralized``, RLlib's env runners) several times faster on this env.
+Step for step equal to ``mpe2.simple_spread_v3.parallel_env(**env_kwargs)`` as sbagents builds it (batchable
+kwargs, no rendering; mpe2's env under :class:`~sbagents.batched.spread_metrics.SpreadMetricsWrapper`):
+observations, float64 rewards, terminations (never), truncations at ``max_cycles`` (then ``agents`` is empty), infos
+(empty, but for the team metrics :data:`~sbagents.batched.spread_metrics.SPREAD_METRICS` at the last step, declared
+in ``metadata["info_metrics"]``), ``state()`` and seeding (``reset(seed=s)`` seeds the generator as mpe2 does;
+``reset()`` continues it). It skips mpe2's AEC round trip and per-agent Python loops, which makes every path that
+steps PettingZoo env copies (``per_group``, ``agent_id``, ``critic: centralized``, RLlib's env runners) several
+times faster on this env.
 :func:`sbagents.core.env_names.make_parallel_env` uses it wherever the kwargs allow (:func:`array_parallel_env`,
 listed in :data:`sbagents.registration.ARRAY_IMPLEMENTATIONS`).
 """
@@ -19,6 +22,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from sbagents.batched.simple_spread import BatchedSimpleSpreadVecEnv, unsupported_kwargs
+from sbagents.batched.spread_metrics import SPREAD_METRICS
 
 
 class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -35,7 +39,7 @@ class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
         self.observation_spaces = {a: template.observation_space(a) for a in self.possible_agents}
         self.action_spaces = {a: template.action_space(a) for a in self.possible_agents}
         self.state_space: spaces.Space[Any] = template.state_space
-        self.metadata = template.metadata
+        self.metadata = {**template.metadata, "info_metrics": dict(SPREAD_METRICS)}
         self.render_mode = None
         self.max_cycles = self._vec.max_cycles
         self._started = False
@@ -70,14 +74,15 @@ class SimpleSpreadParallelEnv(ParallelEnv):  # type: ignore[misc]
         obs = np.asarray(vec_obs)  # (N, obs_dim): one copy's agents
         rewards = self._vec.last_rewards[0]
         done = bool(dones[0])
+        step_infos: dict[str, dict[str, Any]] = {a: {} for a in self.possible_agents}
         if done:  # the VecEnv reset itself: report the episode's last observations, keep the drawn start
             obs = np.stack([info["terminal_observation"] for info in infos])
             self._terminal, self._next_start_drawn = obs, True
             self.agents = []
+            step_infos = {a: {key: infos[j][key] for key in SPREAD_METRICS} for j, a in enumerate(self.possible_agents)}
         return ({a: obs[j] for j, a in enumerate(self.possible_agents)},
                 {a: float(rewards[j]) for j, a in enumerate(self.possible_agents)},
-                dict.fromkeys(self.possible_agents, False), dict.fromkeys(self.possible_agents, done),
-                {a: {} for a in self.possible_agents})
+                dict.fromkeys(self.possible_agents, False), dict.fromkeys(self.possible_agents, done), step_infos)
 
     def state(self) -> np.ndarray:
         """Every agent's observation, concatenated (mpe2's ``state()``), ``(N * obs_dim,)`` float32."""

@@ -23,7 +23,7 @@ import gymnasium as gym
 
 from sbagents.core.env_kinds import GAME, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.errors import UsageError
-from sbagents.registration import ARRAY_IMPLEMENTATIONS, PETTINGZOO_ENVS
+from sbagents.registration import ARRAY_IMPLEMENTATIONS, METRIC_OBSERVERS, PETTINGZOO_ENVS
 
 
 @dataclass(frozen=True)
@@ -113,16 +113,20 @@ def make_parallel_env(source: str, modules: tuple[str, ...] = (), **kwargs: Any)
 
     An env module of :data:`~sbagents.registration.ARRAY_IMPLEMENTATIONS` is built by its array implementation
     where the kwargs allow (``mpe2.simple_spread_v3`` with discrete actions and no rendering is
-    :class:`sbagents.batched.spread_env.SimpleSpreadParallelEnv`: step for step the same env, several times faster).
+    :class:`sbagents.batched.spread_env.SimpleSpreadParallelEnv`: step for step the same env, several times faster);
+    otherwise an env module of :data:`~sbagents.registration.METRIC_OBSERVERS` gets its metrics observer.
     """
     import_packages(modules)
     module, _, attr = source.partition(":")
-    array = ARRAY_IMPLEMENTATIONS.get(module) if attr in ("", "parallel_env") else None
+    own = attr in ("", "parallel_env")
+    array = ARRAY_IMPLEMENTATIONS.get(module) if own else None
     if array is not None:
         env = pettingzoo_factory(array)(**kwargs)
         if env is not None:
             return env
-    return pettingzoo_factory(source)(**kwargs)
+    env = pettingzoo_factory(source)(**kwargs)
+    observer = METRIC_OBSERVERS.get(module) if own else None
+    return pettingzoo_factory(observer)(env) if observer is not None else env
 
 
 def _register_atari() -> None:

@@ -70,10 +70,11 @@ TASKS: dict[str, Task] = {
                         "T = -22.5; it takes 20M env steps = 60M agent steps there). collisions: colliding agent "
                         "pairs per step, summed over the episode; covered: landmarks whose nearest agent is within "
                         "0.1 at the last step. The checkpoint columns: the last checkpoint saved within 300 s of "
-                        "`model.learn`, evaluated the same way. "
+                        "`model.learn`, evaluated the same way. With `--jobs 2` two seeds train at once, one core "
+                        "each (torch one thread, numpy env); the load column counts other work on the machine too. "
                         "The curves are the runs' periodic evaluations (a few episodes of each run's own eval env, "
-                        "the same ones every time), so a curve's level depends on its episodes; the table's 300 "
-                        "episodes are the same for every row."),
+                        "the same ones every time), so a curve's level depends on its episodes; the table's "
+                        "evaluation episodes are the same for every row and for the baselines."),
     "spread-ctde": Task("mpe2 simple_spread, centralized critic", "mpe2.simple_spread_v3",
                         train_args=("-params", "critic:centralized", "agent_id:true"), eval_episodes=300,
                         note="The saved runs predate the current simple_spread entry: they used the previous one "

@@ -97,22 +97,26 @@ def test_section_matches_saved_results() -> None:
             assert all(run["ours"][side] > run["random"][side] for side in run["ours"]), (env, run)
 
 
-def test_default_entry_trains_an_unseen_env(tmp_path: Path) -> None:
-    """``--env mpe2.simple_crypto_v3`` (no entry; three agents, two observation sizes) gets the ``pettingzoo``
-    entry: one shared policy over padded observations with an agent type."""
-    from sbagents.train import main
-
-    main(["--algo", "ppo", "--env", "mpe2.simple_crypto_v3", "-n", "64", "-f", str(tmp_path), "--seed", "0",
-          "-params", "n_envs:2", "n_steps:16", "batch_size:32", "n_epochs:1", "--eval-freq", "-1",
-          "--final-eval-episodes", "2", "--verbose", "0"])
-    run_dir = tmp_path / "ppo" / "simple_crypto_v3_1"
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["eval"]["n_episodes"] == 2
-    assert set(summary["eval"]["metrics"]["per_agent_return"]) == {"eve_0", "bob_0", "alice_0"}
+@pytest.mark.parametrize(("env", "policies", "agents"), [
+    ("simple_crypto_v3", None, {"eve_0", "bob_0", "alice_0"}),
+    ("simple_adversary_v3", "per_group", {"adversary_0", "agent_0", "agent_1"}),
+])
+def test_default_entry_trains_an_unseen_env(env: str, policies: str | None, agents: set[str], tmp_path: Path) -> None:
+    """An mpe2 env with no entry gets the ``pettingzoo`` entry: one shared policy over padded observations with an
+    agent type (``simple_crypto``: three agents, two observation sizes), or one model per group on request."""
     from benchmarks.learning.pettingzoo_defaults import entry_settings
     from sbagents.core.zoo_config import load_yaml
+    from sbagents.train import main
 
-    config = load_yaml(run_dir / "simple_crypto_v3" / "config.yml")
+    extra = [f"policies:{policies}"] if policies else []
+    main(["--algo", "ppo", "--env", f"mpe2.{env}", "-n", "64", "-f", str(tmp_path), "--seed", "0",
+          "-params", "n_envs:2", "n_steps:16", "batch_size:32", "n_epochs:1", *extra, "--eval-freq", "-1",
+          "--final-eval-episodes", "2", "--verbose", "0"])
+    run_dir = tmp_path / "ppo" / f"{env}_1"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["eval"]["n_episodes"] == 2
+    assert set(summary["eval"]["metrics"]["per_agent_return"]) == agents
+    config = load_yaml(run_dir / env / "config.yml")
     entry = entry_settings()
-    assert config["policies"] == entry["policies"] == "shared"
+    assert config["policies"] == (policies or entry["policies"]) and entry["policies"] == "shared"
     assert config["gamma"] == entry["gamma"] and config["policy_kwargs"] == entry["policy_kwargs"]

@@ -184,9 +184,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def recorded_command(argv: Sequence[str]) -> str:
+    """The command as the section records it: machine paths (``--search-logs``, ``--search-from``) as placeholders."""
+    placeholders = {"--search-logs": "DIR", "--search-from": "RESULTS.json"}
+    args = [placeholders.get(argv[i - 1] if i else "", a) for i, a in enumerate(argv)]
+    return " ".join(["python -m benchmarks run pettingzoo-defaults", *map(shlex.quote, recorded_argv(args))])
+
+
 def run(argv: Sequence[str]) -> dict[str, Any]:
-    """Search (unless ``--keep-search``), then the entry on every env and seed; the results."""
+    """Search (unless ``--keep-search`` or ``--search-from``), then the entry on every env and seed; the results."""
     args = build_parser().parse_args(list(argv))
+    command = recorded_command(argv)
     saved = load_results(RESULTS_DIR / RESULTS) if (args.keep_search or args.add) else {}
     with tempfile.TemporaryDirectory() as tmp:
         if args.keep_search or args.search_from:
@@ -195,6 +203,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
             logs = Path(args.search_logs) if args.search_logs else Path(tmp) / "search"
             found = search(args.envs, {k: CANDIDATES[k] for k in args.candidates}, args.search_budget,
                            args.search_seed, args.search_episodes, logs)
+            found["command"] = command
         final: dict[str, Any] = {}
         for env in [] if args.search_only else args.envs:
             runs = []
@@ -213,9 +222,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
                               key=lambda r: r["seed"])
             final[env] = {"runs": runs, "baselines": baselines(env, args.eval_episodes)}
     return {"envs": args.envs, "entry": entry_settings(), "eval_episodes": args.eval_episodes,
-            "eval_seed": EVAL_SEED, "search": found, "final": final, "machine": machine_info(),
-            "command": " ".join(["python -m benchmarks run pettingzoo-defaults",
-                                 *map(shlex.quote, recorded_argv(list(argv)))])}
+            "eval_seed": EVAL_SEED, "search": found, "final": final, "machine": machine_info(), "command": command}
 
 
 def _fmt(value: float) -> str:
@@ -264,8 +271,9 @@ def render(result: Mapping[str, Any]) -> str:
     if not result["final"]:
         lines += ["", "(No final runs: a `--search-only` run.)"]
     lines += ["", f"**The search that chose the entry** ({found['budget']:,} agent steps per run, seed "
-              f"{found['seed']}, {found['episodes']} evaluation episodes): normalized score per env = mean over "
-              "sides of (ours − random) / (scripted − random) (0: random's level, 1: the script's); the entry is "
+              f"{found['seed']}, {found['episodes']} evaluation episodes; `{found.get('command', '')}`): "
+              "normalized score per env = mean over sides of (ours − random) / (scripted − random) (0: random's "
+              "level, 1: the script's); the entry is "
               f"the best mean: **{found['best']}**.", "",
               "| candidate | -params | " + " | ".join(e.rpartition(".")[2] for e in result["envs"]) + " | mean |",
               "|---|---|" + "---:|" * (len(result["envs"]) + 1)]

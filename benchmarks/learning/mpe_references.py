@@ -151,10 +151,12 @@ def side_returns(env: str, summary: Mapping[str, Any]) -> dict[str, float]:
     return {side: float(sum(per_agent[a] for a in members)) for side, members in SIDES[env].items()}
 
 
-def side_summary(env: str, players: Mapping[str, str], episodes: int, seed: int) -> dict[str, Any]:
-    """:func:`team_summary` of ``episodes`` episodes (first reset seeded ``seed``) with no model: every agent random
-    or scripted (``players``); plus ``sides`` (:func:`side_returns`)."""
-    venv = team_vec_envs(ParallelEnvFactory(env, (), {}, []), 1, TeamOptions("shared"))["shared"]
+def side_summary(env: str, players: Mapping[str, str], episodes: int, seed: int, copies: int = 8
+                 ) -> dict[str, Any]:
+    """:func:`team_summary` of ``episodes`` episodes on ``copies`` env copies (copy ``i``'s first reset seeded
+    ``seed + i``) with no model: every agent random or scripted (``players``); plus ``sides``
+    (:func:`side_returns`)."""
+    venv = team_vec_envs(ParallelEnvFactory(env, (), {}, []), copies, TeamOptions("shared"))["shared"]
     try:
         actor = mixed_actor(env, venv, slot_agents(venv, "shared"), players, seed=seed)
         summary = team_summary(run_team_episodes({"shared": venv}, {"shared": actor}, episodes, seed))

@@ -6,14 +6,16 @@ Scores are per *side* (:data:`~benchmarks.learning.mpe_references.SIDES`: the te
 ``simple_reference``; the adversary and the good agents of the mixed envs), a side's return being the sum of its
 agents' returns. The trained run is one shared policy that plays every agent (padded observations with an agent-type
 feature). For each side: **ours** is that side's return with the trained model on both sides (``python -m
-sbagents.evaluate -n EPISODES --seed 10000 --json``); **random** and **scripted** replace that side's agents by
-uniform random actions or by the scripted controller, against the trained model's other side, on the same
-episodes. A side learned *above random* when ours > random (the same opponents).
+sbagents.evaluate -n EPISODES --seed 10000 --json``, one env copy); **random** and **scripted** replace that side's
+agents by uniform random actions or by the scripted controller, against the trained model's other side (in process,
+``EPISODES`` episodes on 8 env copies seeded 10000 + i). A side learned *above random* when ours > random (the same
+opponents).
 
 Search (``--search-budget`` agent steps per run, seed ``--search-seed``, ``--search-episodes`` episodes): each
 candidate of :data:`CANDIDATES` (``-params`` overrides of the entry) trains on each env; its score on an env is the
 mean over sides of the normalized score ``(ours - random) / (scripted - random)``; the entry is the candidate with
-the best mean over envs. Then the entry itself trains at its own budget on every ``--seeds`` seed::
+the best mean over envs (in the search, ours is played in process on the random and scripted sides' episodes). Then
+the entry itself trains at its own budget (or ``-n``) on every ``--seeds`` seed::
 
     python -m benchmarks run pettingzoo-defaults --seeds 0 1 2
     python -m benchmarks run pettingzoo-defaults --keep-search --seeds 3 --add   # another seed, search kept
@@ -40,15 +42,15 @@ from benchmarks.report import RESULTS_DIR, load_average, load_results, machine_i
 
 #: The envs (mpe2's, no entry of their own in ``zoo_configs/ppo.yml``).
 ENVS: tuple[str, ...] = tuple(SIDES)
-#: Search candidates: name -> ``-params`` overrides of the ``pettingzoo`` entry as it was before the search
-#: (``n_envs 8, n_steps 128, batch_size 512, n_epochs 10, learning_rate 3e-4, gamma 0.99, gae_lambda 0.95,
-#: ent_coef 0.01, net_arch [64, 64]``; ``current``: none).
+#: Search candidates: name -> ``-params`` overrides of the ``pettingzoo`` entry (each names the settings it changes
+#: from the entry before the search, ``n_envs 8, n_steps 128, batch_size 512, n_epochs 10, learning_rate 3e-4,
+#: gamma 0.99, gae_lambda 0.95, ent_coef 0.01, net_arch [64, 64]``, so the search does not depend on the entry it
+#: chose; ``current``: that entry; ``bigbatch``: the entry since the search).
+PREVIOUS: tuple[str, ...] = ("n_envs:8", "batch_size:512", "learning_rate:3.0e-4")
 CANDIDATES: dict[str, tuple[str, ...]] = {
-    "current": (),
-    "bigbatch": ("n_envs:16", "n_steps:128", "batch_size:2048", "n_epochs:10", "learning_rate:7.0e-4"),
-    "normalized": ("normalize:{norm_obs: true, norm_reward: true}",),
-    "wide": ("n_envs:16", "n_steps:64", "batch_size:1024", "n_epochs:10", "learning_rate:1.0e-3", "gamma:0.95",
-             "policy_kwargs:{net_arch: [128, 128]}"),
+    "current": PREVIOUS,
+    "bigbatch": ("n_envs:16", "batch_size:2048", "learning_rate:7.0e-4"),
+    "normalized": (*PREVIOUS, "normalize:{norm_obs: true, norm_reward: true}"),
 }
 #: The evaluation episodes' first seed.
 EVAL_SEED = 10_000
@@ -77,16 +79,18 @@ def train(env: str, seed: int, budget: int | None, params: Sequence[str], logs: 
 
 
 def evaluate_sides(env: str, logs: Path, exp_id: int, episodes: int, seed: int = EVAL_SEED,
-                   copies: int = COPIES) -> dict[str, Any]:
-    """Per side: ours (``sbagents.evaluate --json``: one env copy), and that side played randomly / by the script
-    against the trained model's other sides (in process, on the evaluation's team VecEnv with ``copies`` copies,
-    copy ``i`` seeded ``seed + i``); plus the team return."""
+                   copies: int = COPIES, cli_ours: bool = True) -> dict[str, Any]:
+    """Per side: ours, and that side played randomly / by the script against the trained model's other sides (in
+    process, on the evaluation's team VecEnv with ``copies`` copies, copy ``i`` seeded ``seed + i``); plus the team
+    return.
+
+    :param cli_ours: ours from ``python -m sbagents.evaluate --json`` (one env copy); else in process on the same
+        episodes as the random and scripted sides (the search: no interpreter start per run).
+    """
     from sbagents.core.run_dir import RunRef, load_run
     from sbagents.env_factory import make_team_vecs, normalize_for_eval
     from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
 
-    ours = json.loads(cli("evaluate", "--algo", "ppo", "--env", env, "-f", str(logs), "--exp-id", str(exp_id),
-                          "-n", str(episodes), "--seed", str(seed), "--json").stdout.splitlines()[-1])
     loaded = load_run(RunRef("ppo", env, logs, exp_id=exp_id))
     if set(loaded.models) != {"shared"}:
         raise ValueError(f"{env}: expected one shared model, got groups {sorted(loaded.models)}")
@@ -94,10 +98,16 @@ def evaluate_sides(env: str, logs: Path, exp_id: int, episodes: int, seed: int =
     venv = normalize_for_eval(venv, loaded.experiment, loaded.stats_paths.get("shared"), loaded.trust)
     agents = slot_agents(venv, "shared")
     model_act = model_actor(loaded.models["shared"], loaded.experiment.deterministic_eval)
-    out: dict[str, Any] = {"team_return": round(float(ours["mean_return"]), 2),
-                           "ours": {k: round(v, 2) for k, v in side_returns(env, ours).items()},
-                           "random": {}, "scripted": {}}
     try:
+        if cli_ours:
+            ours = json.loads(cli("evaluate", "--algo", "ppo", "--env", env, "-f", str(logs), "--exp-id",
+                                  str(exp_id), "-n", str(episodes), "--seed", str(seed), "--json"
+                                  ).stdout.splitlines()[-1])
+        else:
+            ours = team_summary(run_team_episodes({"shared": venv}, {"shared": model_act}, episodes, seed))
+        out: dict[str, Any] = {"team_return": round(float(ours["mean_return"]), 2),
+                               "ours": {k: round(v, 2) for k, v in side_returns(env, ours).items()},
+                               "random": {}, "scripted": {}}
         for side, members in SIDES[env].items():
             for play in ("random", "scripted"):
                 players = {a: (play if a in members else "model") for a in agents}
@@ -132,7 +142,7 @@ def search(envs: Sequence[str], candidates: Mapping[str, Sequence[str]], budget:
             else:
                 summary = train(env, seed, budget, params, where)
             row = {"train_s": round(float(summary["train_seconds"]), 1), "n_timesteps": summary["n_timesteps"],
-                   **evaluate_sides(env, where, summary["exp_id"], episodes)}
+                   **evaluate_sides(env, where, summary["exp_id"], episodes, cli_ours=False)}
             row["score"] = normalized_score(row)
             rows[name][env] = row
             print(json.dumps({"candidate": name, "env": env, **row}), flush=True)
@@ -197,9 +207,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     command = recorded_command(argv)
     saved = load_results(RESULTS_DIR / RESULTS) if (args.keep_search or args.add) else {}
     with tempfile.TemporaryDirectory() as tmp:
-        if args.keep_search or args.search_from:
-            found = (load_results(Path(args.search_from)) if args.search_from else saved)["search"]
-        else:
+        found: dict[str, Any] | None = None
+        if not (args.keep_search or args.search_from):
             logs = Path(args.search_logs) if args.search_logs else Path(tmp) / "search"
             found = search(args.envs, {k: CANDIDATES[k] for k in args.candidates}, args.search_budget,
                            args.search_seed, args.search_episodes, logs)
@@ -221,6 +230,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
                 runs = sorted([r for r in saved["final"][env]["runs"] if r["seed"] not in args.seeds] + runs,
                               key=lambda r: r["seed"])
             final[env] = {"runs": runs, "baselines": baselines(env, args.eval_episodes)}
+    if found is None:  # read at the end: a --search-only run may still be writing it when this one starts
+        found = (load_results(Path(args.search_from)) if args.search_from else saved)["search"]
     return {"envs": args.envs, "entry": entry_settings(), "eval_episodes": args.eval_episodes,
             "eval_seed": EVAL_SEED, "search": found, "final": final, "machine": machine_info(), "command": command}
 
@@ -237,6 +248,9 @@ def render(result: Mapping[str, Any]) -> str:
     """The section of BENCHMARKS.md, from the results alone."""
     entry = ", ".join(f"{k} {v}" for k, v in result["entry"].items() if k not in ("policy",))
     episodes = result["eval_episodes"]
+    steps = sorted({r["n_timesteps"] for block in result["final"].values() for r in block["runs"]})
+    budget = (f" Budget: {', '.join(f'{n:,}' for n in steps)} agent steps per run (the entry's `n_timesteps` is "
+              f"{result['entry']['n_timesteps']:,}; `-n` sets the benchmark's)." if steps else "")
     lines = ["## The `pettingzoo` default entry on unseen mpe2 envs", "",
              "The `pettingzoo` default PPO entry (what an env with no entry of its own gets: "
              f"{entry}) trained through `python -m sbagents.train --algo ppo --env ENV` on mpe2 envs that have no "
@@ -244,8 +258,9 @@ def render(result: Mapping[str, Any]) -> str:
              f"{result['eval_seed']} --json`). Per side (a side's return: the sum of its agents' returns): **ours** "
              "= the trained shared policy on every agent; **random** / **scripted** = that side played by uniform "
              "random actions / by the scripted controller of `benchmarks/learning/mpe_references.py`, against the "
-             "trained policy's other side, on the same episodes. *Above random*: ours > random on every seed. "
-             f"Command: `{result['command']}`.", "",
+             "trained policy's other side (8 env copies seeded 10000 + i; ours: the CLI's one copy seeded 10000). "
+             "*Above random*: ours > random on every seed; random vs random and scripted vs scripted: no model. "
+             f"Command: `{result['command']}`.{budget}", "",
              "| env | side | random (vs ours) | ours (mean ± sd over seeds) | scripted (vs ours) | above random | "
              "random vs random | scripted vs scripted | train s |", "|---|---|---:|---:|---:|:---:|---:|---:|---:|"]
     for env in [e for e in result["envs"] if e in result["final"]]:

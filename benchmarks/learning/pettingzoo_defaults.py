@@ -260,9 +260,11 @@ def render(result: Mapping[str, Any]) -> str:
              "random actions / by the scripted controller of `benchmarks/learning/mpe_references.py`, against the "
              "trained policy's other side (8 env copies seeded 10000 + i; ours: the CLI's one copy seeded 10000). "
              "*Above random*: ours > random on every seed; random vs random and scripted vs scripted: no model. "
-             f"Command: `{result['command']}`.{budget}", "",
-             "| env | side | random (vs ours) | ours (mean ± sd over seeds) | scripted (vs ours) | above random | "
-             "random vs random | scripted vs scripted | train s |", "|---|---|---:|---:|---:|:---:|---:|---:|---:|"]
+             f"Command: `{result['command']}`.{budget}"]
+    if result["final"]:
+        lines += ["", "| env | side | random (vs ours) | ours (mean ± sd over seeds) | scripted (vs ours) | "
+                  "above random | random vs random | scripted vs scripted | train s |",
+                  "|---|---|---:|---:|---:|:---:|---:|---:|---:|"]
     for env in [e for e in result["envs"] if e in result["final"]]:
         block = result["final"][env]
         runs = block["runs"]
@@ -275,7 +277,8 @@ def render(result: Mapping[str, Any]) -> str:
                          f"{above}/{len(runs)} | {_fmt(block['baselines']['random']['sides'][side])} | "
                          f"{_fmt(block['baselines']['scripted']['sides'][side])} | "
                          f"{np.mean([r['train_s'] for r in runs]):.0f} |")
-    lines += ["", "Per seed (side: random / ours / scripted; timesteps; training seconds; load average):", ""]
+    if result["final"]:
+        lines += ["", "Per seed (side: random / ours / scripted; timesteps; training seconds; load average):", ""]
     for env in [e for e in result["envs"] if e in result["final"]]:
         for r in result["final"][env]["runs"]:
             sides = "; ".join(f"{s}: {_fmt(r['random'][s])} / {_fmt(r['ours'][s])} / {_fmt(r['scripted'][s])}"
@@ -284,9 +287,10 @@ def render(result: Mapping[str, Any]) -> str:
                          f"load {r['load']}")
     found = result["search"]
     if not result["final"]:
-        lines += ["", "(No final runs: a `--search-only` run.)"]
-    lines += ["", f"**The search that chose the entry** ({found['budget']:,} agent steps per run, seed "
-              f"{found['seed']}, {found['episodes']} evaluation episodes; `{found.get('command', '')}`): "
+        lines += ["", "No final runs yet (a `--search-only` run): the entry at its budget on `--seeds` is still to be "
+                  "measured (`--search-from` / `--keep-search`)."]
+    lines += ["", f"**The search that chose the entry** ({found['budget']:,} agent steps per run, 1 seed "
+              f"({found['seed']}), {found['episodes']} evaluation episodes; `{found.get('command', '')}`): "
               "normalized score per env = mean over sides of (ours − random) / (scripted − random) (0: random's "
               "level, 1: the script's); the entry is "
               f"the best mean: **{found['best']}**.", "",
@@ -296,8 +300,16 @@ def render(result: Mapping[str, Any]) -> str:
         params = " ".join(found["candidates"][name]) or "(the entry before the search)"
         cells = " | ".join(_fmt(by_env[e]["score"]) if e in by_env else "-" for e in result["envs"])
         lines.append(f"| {name} | `{params}` | {cells} | {found['mean_score'][name]:.2f} |")
+    lines += ["", "Search rows (side: random / ours / scripted, against the candidate's trained other side; training "
+              "seconds):", ""]
+    for name, by_env in found["rows"].items():
+        for env, row in by_env.items():
+            sides = "; ".join(f"{s}: {_fmt(row['random'][s])} / {_fmt(row['ours'][s])} / {_fmt(row['scripted'][s])}"
+                              for s in row["ours"])
+            lines.append(f"- {name}, {env}: {sides}; {row['train_s']:.0f} s")
     machine = result["machine"]
-    lines += ["", f"Machine: {machine.get('cpu', '?')}, shared with other work while it ran (load averages above)."]
+    lines += ["", f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
+              "while it ran (load average 4-7 on 2 cores)."]
     return "\n".join(lines)
 
 

@@ -55,7 +55,8 @@ def test_spread_episodes_are_the_team_vecenv_episodes_with_the_same_seeds() -> N
     """The venv script's episode loop and sbagents' team VecEnv (as our runs are evaluated) play the same episodes:
     the scripted controller gets the same team return in each."""
     actor = spread_assignment_actor(3)
-    mine = bv.spread_episodes(actor, 3, 10_000)
+    mine = bv.spread_episodes(lambda obs: actor(obs.reshape(-1, obs.shape[-1])).reshape(len(obs), 3), 3, 10_000,
+                              batch=2)  # a batch of 2, then 1
     factory = ParallelEnvFactory("mpe2.simple_spread_v3", (), {}, [])
     venvs = team_vec_envs(factory, 1, TeamOptions("shared"))
     try:
@@ -64,7 +65,7 @@ def test_spread_episodes_are_the_team_vecenv_episodes_with_the_same_seeds() -> N
         next(iter(venvs.values())).close()
     np.testing.assert_allclose(mine, theirs, rtol=1e-6)
     assert len(set(mine)) == 3  # three different episodes
-    still = bv.spread_episodes(lambda obs: np.zeros(len(obs), dtype=np.int64), 2, 10_000)
+    still = bv.spread_episodes(lambda obs: np.zeros(obs.shape[:2], dtype=np.int64), 2, 10_000)
     assert np.mean(mine) > np.mean(still)  # the controller covers landmarks better than standing still
 
 
@@ -121,7 +122,7 @@ def test_render_from_a_results_dict() -> None:
     assert "| BenchMARL MAPPO | 0 | 5 min | 360,000 | 290 | -40.00 |" in text
     assert "| BenchMARL MAPPO | 0 | time cap | 1,200,000 | 900 | -28.00 |" in text
     assert "| ours PPO (shipped entry) | 0 | 1M agent steps | 1,000,800 | 101 | -33.00 | -141.0 | -33.20 |" in text
-    assert "stopped at --max-seconds 900 s" in text and "1 seed" in text
+    assert "stopped at its time cap (--max-seconds 900)" in text and "1 seed" in text
     assert "| critic input |" in text and "target_kl: 0.02" in text and "0.95 / 0.95" in text
 
 

@@ -126,9 +126,13 @@ def run_benchmarl(python: Path, algo: str, seed: int, work: Path, args: argparse
             subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, check=True)
     train = json.loads(train_json.read_text())
     policies = [str(out / f"policy_{k['label']}.pt") for k in train["kept"]]
-    evals = last_json(subprocess.run([str(python), str(VENV_SCRIPT), "eval", "--algo", algo, "--policies",
-                                      *policies, "-n", str(args.n_eval), "--seed", str(args.eval_seed)],
-                                     capture_output=True, text=True, check=True).stdout)
+    cache = out / f"evals_n{args.n_eval}_seed{args.eval_seed}.json"
+    evals = json.loads(cache.read_text()) if args.reuse and cache.exists() else {}
+    if not all(Path(p).name in evals for p in policies):
+        evals = last_json(subprocess.run([str(python), str(VENV_SCRIPT), "eval", "--algo", algo, "--policies",
+                                          *policies, "-n", str(args.n_eval), "--seed", str(args.eval_seed)],
+                                         capture_output=True, text=True, check=True).stdout)
+        cache.write_text(json.dumps(evals))
     budgets = {f"frames{frame_budget(b, args.frames_per_batch or FRAMES_PER_BATCH)}": f"agent_steps{b}"
                for b in args.agent_budgets}
     for kept in train["kept"]:
@@ -156,22 +160,30 @@ def cli(module: str, *args: str, timeout: float | None = None) -> subprocess.Com
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
 
 
-def ours_train(seed: int, folder: Path, n_timesteps: int | None, save_freq: int, max_seconds: float
-               ) -> dict[str, Any]:
+def ours_train(seed: int, folder: Path, n_timesteps: int | None, save_freq: int, max_seconds: float,
+               reuse: bool = False) -> dict[str, Any]:
     """One run of the shipped entry; its run dir, summary and per-checkpoint training seconds.
 
     A checkpoint's seconds: ``train_seconds`` minus the time between it and the final model's save (as
     ``pettingzoo_learning``); for a run stopped at ``max_seconds`` without a summary, seconds since the command
-    started (import and env build included).
+    started (import and env build included). ``reuse``: a run this function finished in ``folder`` before is taken
+    as it is.
     """
     from sbagents.core.run_dir import saved_checkpoints
 
-    n = ["-n", str(n_timesteps)] if n_timesteps else []
-    load_start = load_average()
-    start = time.time()
-    cli("train", "--algo", "ppo", "--env", ENV, "--seed", str(seed), "-f", str(folder), *n, "--save-freq",
-        str(save_freq), "--eval-freq", "0", "--final-eval-episodes", "0", "--verbose", "0",
-        timeout=max_seconds)
+    record = folder / "bench_run.json"
+    if reuse and record.exists():
+        done = json.loads(record.read_text())
+        start, load_start, load_end = done["start"], done["load_start"], done["load_end"]
+    else:
+        n = ["-n", str(n_timesteps)] if n_timesteps else []
+        load_start = load_average()
+        start = time.time()
+        cli("train", "--algo", "ppo", "--env", ENV, "--seed", str(seed), "-f", str(folder), *n, "--save-freq",
+            str(save_freq), "--eval-freq", "0", "--final-eval-episodes", "0", "--verbose", "0",
+            timeout=max_seconds)
+        load_end = load_average()
+        record.write_text(json.dumps({"start": start, "load_start": load_start, "load_end": load_end}))
     run_dir = sorted((folder / "ppo").iterdir(), key=lambda p: p.stat().st_mtime)[-1]
     summary_path = run_dir / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
@@ -182,7 +194,7 @@ def ours_train(seed: int, folder: Path, n_timesteps: int | None, save_freq: int,
     else:
         times = {s: p.stat().st_mtime - start for s, p in saved_checkpoints(run_dir).items()}
     return {"run_dir": run_dir, "summary": summary, "final": final.exists(), "checkpoints": times,
-            "load_start": load_start, "load_end": load_average()}
+            "load_start": load_start, "load_end": load_end}
 
 
 def ours_exact_episodes(log_folder: Path, exp_id: int, checkpoint: int | None, n: int, seed: int) -> dict[str, Any]:
@@ -257,11 +269,13 @@ def run_ours(seed: int, work: Path, args: argparse.Namespace) -> dict[str, Any]:
     """Our side for one seed: the entry's own budget, then a run fitted to the longest wall-time budget."""
     longest = max(args.second_budgets)
     short_budgets = [s for s in args.second_budgets if s < longest]
-    first = ours_train(seed, work / f"ours_seed{seed}_entry", args.ours_n, args.save_freq, longest + 60)
+    first = ours_train(seed, work / f"ours_seed{seed}_entry", args.ours_n, args.save_freq, longest + 60,
+                       args.reuse)
     runs = [(first, pick_checkpoints(first, args.agent_budgets, short_budgets or args.second_budgets))]
     n_long = fitted_budget(first, longest, args.save_freq)
     if n_long is not None and short_budgets:
-        long = ours_train(seed, work / f"ours_seed{seed}_fitted", n_long, args.save_freq, longest + 60)
+        long = ours_train(seed, work / f"ours_seed{seed}_fitted", n_long, args.save_freq, longest + 60,
+                          args.reuse)
         runs.append((long, pick_checkpoints(long, [], [longest])))
     elif short_budgets:
         runs[0] = (first, pick_checkpoints(first, args.agent_budgets, args.second_budgets))
@@ -269,12 +283,19 @@ def run_ours(seed: int, work: Path, args: argparse.Namespace) -> dict[str, Any]:
     for run, kept in runs:
         folder = run["run_dir"].parent.parent
         exp_id = int(run["run_dir"].name.rsplit("_", 1)[1])
+        cache_path = folder / f"bench_evals_n{args.n_eval}_seed{args.eval_seed}.json"
+        cache = json.loads(cache_path.read_text()) if args.reuse and cache_path.exists() else {}
         for k in kept:
-            exact = ours_exact_episodes(folder, exp_id, k["checkpoint"], args.n_eval, args.eval_seed)
-            k["team_return"] = round(exact["mean_return"], 3)
-            k["std_return"] = round(exact["std_return"], 3)
-            k["cli_team_return"] = round(ours_cli_eval(folder, exp_id, k["checkpoint"], args.n_eval,
-                                                       args.eval_seed), 3)
+            key = str(k["checkpoint"])
+            if key not in cache:
+                exact = ours_exact_episodes(folder, exp_id, k["checkpoint"], args.n_eval, args.eval_seed)
+                cache[key] = {"team_return": round(exact["mean_return"], 3),
+                              "std_return": round(exact["std_return"], 3)}
+            if args.cli_eval and "cli_team_return" not in cache[key]:
+                cache[key]["cli_team_return"] = round(ours_cli_eval(folder, exp_id, k["checkpoint"], args.n_eval,
+                                                                    args.eval_seed), 3)
+            cache_path.write_text(json.dumps(cache))
+            k.update(cache[key])
         s = run["summary"]
         out.append({"n_timesteps": s.get("n_timesteps"), "train_s": s.get("train_seconds"), "fps": s.get("fps"),
                     "interrupted": not run["final"], "load_start": run["load_start"], "load_end": run["load_end"],
@@ -332,7 +353,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--venv", type=Path, default=REPO / ".venv-benchmarl", help="BenchMARL's venv (created if absent)")
     p.add_argument("--work-dir", type=Path, default=REPO / "logs" / "benchmarl-spread",
                    help="runs and kept policies of both libraries")
-    p.add_argument("--reuse", action="store_true", help="reuse BenchMARL runs of --work-dir that have a train.json")
+    p.add_argument("--reuse", action="store_true",
+                   help="reuse finished runs and evaluations of --work-dir (BenchMARL: train.json; ours: "
+                        "bench_run.json)")
     p.add_argument("--agent-budgets", type=int, nargs="+", default=[1_000_000, 4_000_000])
     p.add_argument("--second-budgets", type=float, nargs="+", default=[300.0, 600.0])
     p.add_argument("--max-seconds", type=float, default=1080.0,
@@ -342,6 +365,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--save-freq", type=int, default=100_000, help="our checkpoints, every N agent steps")
     p.add_argument("--n-eval", type=int, default=1000)
     p.add_argument("--eval-seed", type=int, default=10_000)
+    p.add_argument("--no-cli-eval", dest="cli_eval", action="store_false",
+                   help="skip the `sbagents.evaluate` column of our runs")
     p.add_argument("--no-ours", action="store_true", help="BenchMARL only")
     p.add_argument("--no-benchmarl", action="store_true", help="our side only")
     return p
@@ -421,7 +446,8 @@ def table_rows(result: dict[str, Any]) -> list[list[str]]:
             for k in r["kept"]:
                 rows.append(["ours PPO (shipped entry)", str(seed_row["seed"]), _budget_label(k["label"]),
                              f"{k['agent_steps']:,}", f"{k['train_s']:.0f}", f"{k['team_return']:.2f}",
-                             f"{team_to_mappo(k['team_return']):.1f}", f"{k['cli_team_return']:.2f}", "-",
+                             f"{team_to_mappo(k['team_return']):.1f}",
+                             f"{k['cli_team_return']:.2f}" if "cli_team_return" in k else "-", "-",
                              _rate(k["agent_steps"], k["train_s"]), load])
     return rows
 
@@ -454,8 +480,9 @@ def render(result: dict[str, Any]) -> str:
     for r in capped:
         t = r["total"]
         reached = [_budget_label(k.get("budget", k["label"])) for k in r["kept"] if k["label"] != "capped"]
-        lines += ["", f"BenchMARL {r['algo'].upper()} seed {r['seed']} was stopped at --max-seconds "
-                  f"{result['max_seconds']:g} s after {t['agent_steps']:,} agent steps ({t['frames']:,} frames) "
+        lines += ["", f"BenchMARL {r['algo'].upper()} seed {r['seed']} was stopped at its time cap (--max-seconds "
+                  f"{r.get('max_seconds', result['max_seconds']):g}) after {t['agent_steps']:,} agent steps "
+                  f"({t['frames']:,} frames) "
                   f"in {t['train_s']:.0f} s; budgets reached: {', '.join(reached) or 'none'}; the others are missing "
                   "from the table."]
     for seed_row in result["ours"]:

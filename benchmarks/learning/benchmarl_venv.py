@@ -59,30 +59,34 @@ def experiment_overrides(save_folder: str, frames_per_batch: int | None = None) 
     return out
 
 
-def spread_episodes(act: Callable[[np.ndarray], np.ndarray], n_episodes: int, seed: int) -> list[float]:
+def spread_episodes(act: Callable[[np.ndarray], np.ndarray], n_episodes: int, seed: int,
+                    batch: int = 100) -> list[float]:
     """Team returns of ``n_episodes`` mpe2 simple_spread episodes (:data:`SPREAD_KWARGS`), episode ``k`` reset with
-    seed ``seed + k``.
+    seed ``seed + k``; ``batch`` episodes run side by side so that the policy is called once per step for all.
 
-    :param act: observations of the 3 agents, shape (3, obs_dim), in ``possible_agents`` order -> their discrete
-        actions, shape (3,).
+    :param act: observations of ``B`` teams, shape (B, 3, obs_dim), agents in ``possible_agents`` order -> their
+        discrete actions, shape (B, 3).
     :return: per episode, the sum over the agents of their 25-step returns.
     """
     from mpe2 import simple_spread_v3
 
-    env = simple_spread_v3.parallel_env(**SPREAD_KWARGS)
-    agents = list(env.possible_agents)
-    returns = []
+    envs = [simple_spread_v3.parallel_env(**SPREAD_KWARGS) for _ in range(max(1, min(batch, n_episodes)))]
+    agents = list(envs[0].possible_agents)
+    returns: list[float] = []
     try:
-        for k in range(n_episodes):
-            obs, _ = env.reset(seed=seed + k)
-            total = 0.0
-            while env.agents:
-                actions = np.asarray(act(np.stack([obs[a] for a in agents])))
-                obs, rewards, _, _, _ = env.step({a: int(actions[i]) for i, a in enumerate(agents)})
-                total += float(sum(rewards.values()))
-            returns.append(total)
+        for first in range(0, n_episodes, len(envs)):
+            group = envs[:min(len(envs), n_episodes - first)]
+            obs = [env.reset(seed=seed + first + i)[0] for i, env in enumerate(group)]
+            totals = np.zeros(len(group))
+            while group[0].agents:  # simple_spread episodes all last max_cycles steps
+                actions = np.asarray(act(np.stack([[o[a] for a in agents] for o in obs])))
+                for i, env in enumerate(group):
+                    obs[i], rewards, _, _, _ = env.step({a: int(actions[i, j]) for j, a in enumerate(agents)})
+                    totals[i] += float(sum(rewards.values()))
+            returns.extend(totals.tolist())
     finally:
-        env.close()
+        for env in envs:
+            env.close()
     return returns
 
 
@@ -245,6 +249,7 @@ def train(argv: Sequence[str]) -> dict[str, Any]:
     kept = callback.save()
     config = experiment.config
     result = {"algo": args.algo, "seed": args.seed, "kept": kept, "total": callback.total,
+              "max_seconds": args.max_seconds, "frame_budgets": args.frame_budgets,
               "load_start": [round(x, 2) for x in load_start], "load_end": [round(x, 2) for x in os.getloadavg()],
               "settings": {"frames_per_batch": config.on_policy_collected_frames_per_batch,
                            "n_envs": config.on_policy_n_envs_per_worker,
@@ -276,10 +281,11 @@ def evaluate(argv: Sequence[str]) -> dict[str, Any]:
         (group,) = experiment.group_map  # simple_spread: one group of 3 agents
 
         def act(obs: np.ndarray) -> np.ndarray:
-            td = TensorDict({group: TensorDict({"observation": torch.as_tensor(obs, dtype=torch.float32)[None]},
-                                               batch_size=[1, N_AGENTS])}, batch_size=[1])
+            n = len(obs)
+            td = TensorDict({group: TensorDict({"observation": torch.as_tensor(obs, dtype=torch.float32)},
+                                               batch_size=[n, N_AGENTS])}, batch_size=[n])
             with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-                return policy(td)[group, "action"][0].numpy()
+                return policy(td)[group, "action"].numpy()
 
         results = {}
         for path in args.policies:

@@ -145,11 +145,17 @@ def run_benchmarl(python: Path, algo: str, seed: int, work: Path, args: argparse
 # --- our side -------------------------------------------------------------------------------------------------
 
 
+def _default_sigint() -> None:
+    """In the child: SIGINT raises KeyboardInterrupt again (a benchmark started in the background, e.g. with
+    ``nohup ... &``, passes on an ignored SIGINT, and Python then never installs its handler)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def cli(module: str, *args: str, timeout: float | None = None) -> subprocess.CompletedProcess[str]:
     """``python -m sbagents.<module> args`` (checked); past ``timeout`` seconds it gets SIGINT (Ctrl-C: the run
     saves what it has and stops)."""
     proc = subprocess.Popen([sys.executable, "-m", f"sbagents.{module}", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     try:
         stdout, stderr = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

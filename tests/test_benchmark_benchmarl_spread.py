@@ -123,6 +123,7 @@ def test_render_from_a_results_dict() -> None:
     assert "| BenchMARL MAPPO | 0 | time cap | 1,200,000 | 900 | -28.00 |" in text
     assert "| ours PPO (shipped entry) | 0 | 1M agent steps | 1,000,800 | 101 | -33.00 | -141.0 | -33.20 |" in text
     assert "stopped at its time cap (--max-seconds 900)" in text and "1 seed" in text
+    assert "Shared machine." not in text and "Shared machine." in bs.render({**result, "note": "Shared machine."})
     assert "| critic input |" in text and "target_kl: 0.02" in text and "0.95 / 0.95" in text
 
 

@@ -204,8 +204,10 @@ def ours_train(seed: int, folder: Path, n_timesteps: int | None, save_freq: int,
 
 
 def ours_exact_episodes(log_folder: Path, exp_id: int, checkpoint: int | None, n: int, seed: int) -> dict[str, Any]:
-    """A run's greedy team on the benchmark's episodes (episode ``k`` reset with seed ``seed + k``), through sbagents'
-    own loading and team VecEnv (mpe2's parallel env, wrapped as in training, frozen normalisation)."""
+    """A run's greedy team on the benchmark's episodes (episode ``k`` reset with seed ``seed + k``): a model of raw
+    observations (shared policy, no agent id, wrapper or normalisation) plays them in the venv script's batched loop,
+    any other through sbagents' own team VecEnv (mpe2's parallel env, wrapped as in training, frozen normalisation),
+    one episode at a time."""
     import numpy as np
 
     from sbagents.core.run_dir import RunRef, load_run
@@ -214,6 +216,21 @@ def ours_exact_episodes(log_folder: Path, exp_id: int, checkpoint: int | None, n
 
     run = load_run(RunRef("ppo", ENV, log_folder, exp_id=exp_id, checkpoint=checkpoint))
     exp = run.experiment
+    team = exp.team
+    if (not exp.normalize and not exp.env_wrapper and not exp.vec_env_wrapper and not exp.frame_stack
+            and team is not None and team.policies == "shared" and not team.agent_id and len(run.models) == 1):
+        # the policy sees mpe2's own observations: play 100 episodes side by side, one predict per step
+        from benchmarks.learning.benchmarl_venv import spread_episodes
+
+        (model,) = run.models.values()
+
+        def act(obs: np.ndarray) -> np.ndarray:
+            actions, _ = model.predict(obs.reshape(-1, obs.shape[-1]), deterministic=True)
+            return np.asarray(actions).reshape(obs.shape[:2])
+
+        returns = spread_episodes(act, n, seed)
+        return {"mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)), "n_episodes": n,
+                "path": "mpe2 loop"}
     venvs = make_team_vecs(exp, run.env, 1, None, vec_env="dummy")
     venvs = {g: normalize_for_eval(v, exp, run.stats_paths.get(g)) for g, v in venvs.items()}
     try:
@@ -222,7 +239,8 @@ def ours_exact_episodes(log_folder: Path, exp_id: int, checkpoint: int | None, n
     finally:
         for venv in venvs.values():
             venv.close()
-    return {"mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)), "n_episodes": n}
+    return {"mean_return": float(np.mean(returns)), "std_return": float(np.std(returns)), "n_episodes": n,
+            "path": "team VecEnv"}
 
 
 def ours_cli_eval(log_folder: Path, exp_id: int, checkpoint: int | None, n: int, seed: int) -> float:
@@ -373,6 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-seed", type=int, default=10_000)
     p.add_argument("--no-cli-eval", dest="cli_eval", action="store_false",
                    help="skip the `sbagents.evaluate` column of our runs")
+    p.add_argument("--note", default="", help="a sentence for the section (e.g. what else ran on the machine)")
     p.add_argument("--no-ours", action="store_true", help="BenchMARL only")
     p.add_argument("--no-benchmarl", action="store_true", help="our side only")
     return p
@@ -390,7 +409,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
                               "max_seconds": args.max_seconds, "machine": machine_info(),
                               "command": " ".join(["python -m benchmarks run benchmarl-spread",
                                                    *map(shlex.quote, recorded_argv(list(argv)))]),
-                              "benchmarl_settings": BENCHMARL_SETTINGS, "benchmarl": [], "ours": []}
+                              "benchmarl_settings": BENCHMARL_SETTINGS, "benchmarl": [], "ours": [], "note": args.note}
     if not args.no_benchmarl:
         python = ensure_venv(args.venv)
         result["benchmarl_versions"] = venv_versions(python)
@@ -496,6 +515,8 @@ def render(result: dict[str, Any]) -> str:
             lines += ["", f"Ours seed {seed_row['seed']}: a run of {r['n_timesteps']:,} agent steps in "
                       f"{r['train_s']:.0f} s ({r['fps']:,.0f} agent steps/s overall)"
                       + (", stopped at the time cap" if r["interrupted"] else "") + "."]
+    if result.get("note"):
+        lines += ["", result["note"]]
     lines += ["", *grouped_stats_table("library / algorithm", [
         (group, f"T, {budget}", stats, ".2f") for group, budget, stats in result["stats"]])]
     lines += ["", "Settings that differ (ours: the shipped entry as run; BenchMARL: its default configs):", "",

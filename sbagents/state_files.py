@@ -69,14 +69,15 @@ def _read_npz(path: Path, what: str) -> tuple[dict[str, np.ndarray], dict[str, A
 def save_vecnormalize(venv: Any, path: str | Path) -> Path:
     """Write the statistics and settings of a ``VecNormalize`` to ``path`` (``.npz``, atomically)."""
     arrays: dict[str, Any] = {}
-    rms = venv.obs_rms if isinstance(venv.obs_rms, dict) else {"": venv.obs_rms}
+    obs_rms = getattr(venv, "obs_rms", None)  # SB3 keeps none with norm_obs false (rewards scaled only)
+    rms = {} if obs_rms is None else obs_rms if isinstance(obs_rms, dict) else {"": obs_rms}
     for key, stats in rms.items():
         arrays |= {f"obs_rms/{key}/mean": stats.mean, f"obs_rms/{key}/var": stats.var,
                    f"obs_rms/{key}/count": np.asarray(stats.count, np.float64)}
     arrays |= {"ret_rms/mean": venv.ret_rms.mean, "ret_rms/var": venv.ret_rms.var,
                "ret_rms/count": np.asarray(venv.ret_rms.count, np.float64)}
     settings = {k: getattr(venv, k) for k in _VECNORMALIZE_KEYS}
-    settings |= {"format": FORMAT, "dict_obs": isinstance(venv.obs_rms, dict)}
+    settings |= {"format": FORMAT, "dict_obs": isinstance(obs_rms, dict)}
     arrays[_SETTINGS] = np.asarray(json.dumps(settings))
     return write_npz(path, **arrays)
 
@@ -99,10 +100,12 @@ def load_vecnormalize(path: str | Path, venv: Any, trust: bool = False) -> Any:
         kwargs = {k: settings[k] for k in _VECNORMALIZE_KEYS}
         norm = VecNormalize(venv, **kwargs)
         keys = sorted({name.split("/")[1] for name in arrays if name.startswith("obs_rms/")})
-        loaded = {key: _rms(arrays, f"obs_rms/{key}", RunningMeanStd) for key in keys}
-        obs_rms = loaded if settings.get("dict_obs") else loaded[""]
-        _check_same_shapes(norm.obs_rms, obs_rms)
-        norm.obs_rms, norm.ret_rms = obs_rms, _rms(arrays, "ret_rms", RunningMeanStd)
+        if keys or norm.norm_obs:  # norm_obs false: SB3 keeps no observation statistics, nor does the file
+            loaded = {key: _rms(arrays, f"obs_rms/{key}", RunningMeanStd) for key in keys}
+            obs_rms = loaded if settings.get("dict_obs") else loaded[""]
+            _check_same_shapes(norm.obs_rms, obs_rms)
+            norm.obs_rms = obs_rms
+        norm.ret_rms = _rms(arrays, "ret_rms", RunningMeanStd)
     except (KeyError, TypeError, ValueError, AssertionError) as exc:
         raise UsageError(f"{path} does not fit this env's observations ({type(exc).__name__}: {exc})") from None
     return norm

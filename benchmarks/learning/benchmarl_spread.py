@@ -297,7 +297,7 @@ def run_ours(seed: int, work: Path, args: argparse.Namespace) -> dict[str, Any]:
                        args.reuse)
     runs = [(first, pick_checkpoints(first, args.agent_budgets, short_budgets or args.second_budgets))]
     n_long = fitted_budget(first, longest, args.save_freq)
-    if n_long is not None and short_budgets:
+    if n_long is not None and short_budgets and args.fitted:
         long = ours_train(seed, work / f"ours_seed{seed}_fitted", n_long, args.save_freq, longest + 60,
                           args.reuse)
         runs.append((long, pick_checkpoints(long, [], [longest])))
@@ -393,6 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the `sbagents.evaluate` column of our runs")
     p.add_argument("--note", default="", help="a sentence for the section (e.g. what else ran on the machine)")
     p.add_argument("--no-ours", action="store_true", help="BenchMARL only")
+    p.add_argument("--no-fitted", dest="fitted", action="store_false",
+                   help="no second run of ours fitted to the longest wall-time budget: the entry's run serves every "
+                        "budget (its last checkpoint within each, or its final model when it ends sooner)")
     p.add_argument("--no-benchmarl", action="store_true", help="our side only")
     return p
 

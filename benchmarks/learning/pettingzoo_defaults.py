@@ -31,6 +31,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -191,6 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--search-only", action="store_true",
                         help="the search alone (no final runs): choose the entry, then run with --search-from")
     parser.add_argument("--add", action="store_true", help="add these seeds' runs to the saved results' runs")
+    parser.add_argument("--jobs", type=int, default=1, help="final runs trained at once (one core each)")
     return parser
 
 
@@ -214,21 +216,27 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
                            args.search_seed, args.search_episodes, logs)
             found["command"] = command
         final: dict[str, Any] = {}
+        pairs = [] if args.search_only else [(env, seed) for env in args.envs for seed in args.seeds]
+
+        def one(pair: tuple[str, int]) -> dict[str, Any]:
+            env, seed = pair
+            logs = Path(tmp) / "final" / env / str(seed)
+            start = time.time()
+            summary = train(env, seed, args.n_timesteps, (), logs)
+            row = {"seed": seed, "n_timesteps": summary["n_timesteps"],
+                   "train_s": round(float(summary["train_seconds"]), 1), "load": load_average(),
+                   **evaluate_sides(env, logs, summary["exp_id"], args.eval_episodes),
+                   "wall_s": round(time.time() - start, 1)}
+            print(json.dumps({"env": env, **row}), flush=True)
+            return row
+
+        with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+            rows = list(pool.map(one, pairs))
         for env in [] if args.search_only else args.envs:
-            runs = []
-            for seed in args.seeds:
-                logs = Path(tmp) / "final" / env / str(seed)
-                start = time.time()
-                summary = train(env, seed, args.n_timesteps, (), logs)
-                row = {"seed": seed, "n_timesteps": summary["n_timesteps"],
-                       "train_s": round(float(summary["train_seconds"]), 1), "load": load_average(),
-                       **evaluate_sides(env, logs, summary["exp_id"], args.eval_episodes),
-                       "wall_s": round(time.time() - start, 1)}
-                print(json.dumps({"env": env, **row}), flush=True)
-                runs.append(row)
+            runs = [row for (e, _), row in zip(pairs, rows, strict=True) if e == env]
             if args.add:
-                runs = sorted([r for r in saved["final"][env]["runs"] if r["seed"] not in args.seeds] + runs,
-                              key=lambda r: r["seed"])
+                kept = (saved.get("final") or {}).get(env, {}).get("runs", [])  # none yet: nothing to keep
+                runs = sorted([r for r in kept if r["seed"] not in args.seeds] + runs, key=lambda r: r["seed"])
             final[env] = {"runs": runs, "baselines": baselines(env, args.eval_episodes)}
     if found is None:  # read at the end: a --search-only run may still be writing it when this one starts
         found = (load_results(Path(args.search_from)) if args.search_from else saved)["search"]

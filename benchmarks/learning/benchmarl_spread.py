@@ -546,7 +546,10 @@ def ours_settings(entry: dict[str, Any]) -> dict[str, str]:
     critic = {"local": "the agent's own observation", "centralized": "centralized (all agents' observations)"}
     agent_steps = n_envs * n_steps * N_AGENTS if n_envs else None
     return {
-        "network": f"MLP {pk.get('net_arch', '64-64 (SB3 default)')}, {pk.get('activation_fn', 'tanh')}",
+        "network": (f"{str(pk['features_extractor_class']).rsplit(':', 1)[-1].rsplit('.', 1)[-1]} "
+                    f"{pk.get('features_extractor_kwargs', {})}, then " if pk.get("features_extractor_class") else "")
+                   + f"MLP {pk.get('net_arch', '64-64 (SB3 default)')}, {pk.get('activation_fn', 'tanh')}, "
+                   "features shared by actor and critic",
         "parameter sharing": f"policies: {team.get('policies', hp.get('policies', '-'))}"
                              + (", agent id appended" if team.get("agent_id") else ""),
         "critic input": critic.get(str(team.get("critic", "local")), str(team.get("critic"))),

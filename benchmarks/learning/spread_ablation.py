@@ -88,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-episodes", type=int, default=1000)
     parser.add_argument("--jobs", type=int, default=1, help="variants trained at once (one core each)")
     parser.add_argument("--add", action="store_true", help="keep the saved rows of the variants not run now")
+    parser.add_argument("--note", default="", help="a paragraph for the section (what the rows say, how they ran)")
     return parser
 
 
@@ -109,7 +110,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     order = list(_BY_NAME)
     rows.sort(key=lambda r: order.index(r["variant"]) if r["variant"] in order else len(order))
     return {"env": ENV, "seed": args.seed, "n_timesteps": args.n_timesteps, "eval_episodes": args.eval_episodes,
-            "rows": rows, "machine": machine_info(),
+            "rows": rows, "machine": machine_info(), **({"note": args.note} if args.note else {}),
             "command": " ".join(["python -m benchmarks run spread-ablation",
                                  *map(shlex.quote, recorded_argv(list(argv)))])}
 
@@ -134,6 +135,8 @@ def render(result: dict[str, Any]) -> str:
         lines.append(f"| {r['variant']} | {change} | {r['mean_return']:.2f} | {delta} | "
                      f"{2 * r['mean_return'] - 75:.1f} | {r['collisions']:.2f} | {r['landmarks_covered']:.2f} | "
                      f"{r['train_s']:.0f} | {r['n_timesteps'] / r['train_s']:,.0f} | {r['load']} |")
+    if result.get("note"):
+        lines += ["", result["note"]]
     lines += machine_line(result.get("machine"))
     return "\n".join(lines)
 

@@ -29,7 +29,8 @@ def test_reward_only_statistics_round_trip(tmp_path: Path) -> None:
 def test_a_reward_scaled_team_run_trains_evaluates_and_exports(tmp_path: Path) -> None:
     common = ["--algo", "ppo", "--env", "mpe2.simple_spread_v3", "-f", str(tmp_path)]
     train = cli("train", *common, "-n", "500", "--eval-freq", "0", "--final-eval-episodes", "0", "-params",
-                "n_envs:2", "n_steps:25", "batch_size:50", "n_epochs:1", "normalize:{norm_obs: false, norm_reward: true}")
+                "n_envs:2", "n_steps:25", "batch_size:50", "n_epochs:1",
+                "normalize:{norm_obs: false, norm_reward: true}")
     assert train.returncode == 0, train.stderr
     assert (next((tmp_path / "ppo").iterdir()) / "vecnormalize.npz").exists()
     evaluated = cli("evaluate", *common, "-n", "2", "--json")

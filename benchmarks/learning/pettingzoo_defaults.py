@@ -300,8 +300,8 @@ def render(result: Mapping[str, Any]) -> str:
     lines += ["", f"**The search that chose the entry** ({found['budget']:,} agent steps per run, 1 seed "
               f"({found['seed']}), {found['episodes']} evaluation episodes; `{found.get('command', '')}`): "
               "normalized score per env = mean over sides of (ours − random) / (scripted − random) (0: random's "
-              "level, 1: the script's); the entry is "
-              f"the best mean: **{found['best']}**.", "",
+              f"level, 1: the script's); best mean: **{found['best']}**."
+              + (f" The entry is **{found['chosen']}**: {found['chosen_why']}" if found.get("chosen") else ""), "",
               "| candidate | -params | " + " | ".join(e.rpartition(".")[2] for e in result["envs"]) + " | mean |",
               "|---|---|" + "---:|" * (len(result["envs"]) + 1)]
     for name, by_env in found["rows"].items():

@@ -24,6 +24,7 @@ from typing import Any
 from benchmarks.harness import Benchmark
 from benchmarks.learning.learning import machine_line
 from benchmarks.learning.pettingzoo_learning import Task, run_one
+from benchmarks.learning.seed_table import iqm_note
 from benchmarks.report import RESULTS_DIR, load_results, machine_info, recorded_argv
 
 ENV = "mpe2.simple_spread_v3"
@@ -135,6 +136,7 @@ def render(result: dict[str, Any]) -> str:
         lines.append(f"| {r['variant']} | {change} | {r['mean_return']:.2f} | {delta} | "
                      f"{2 * r['mean_return'] - 75:.1f} | {r['collisions']:.2f} | {r['landmarks_covered']:.2f} | "
                      f"{r['train_s']:.0f} | {r['n_timesteps'] / r['train_s']:,.0f} | {r['load']} |")
+    lines += ["", iqm_note(1)]
     if result.get("note"):
         lines += ["", result["note"]]
     lines += machine_line(result.get("machine"))

@@ -28,13 +28,13 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 
-def _slice(value: Sequence[int], name: str, dim: int) -> tuple[int, int]:
+def _slice(value: Sequence[int], name: str, dim: int, owner: str = "PairwiseDistanceFeatures") -> tuple[int, int]:
     """``(start, stop)`` of a block of ``(x, y)`` pairs inside an observation of ``dim`` values."""
     if len(value) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-        raise ValueError(f"PairwiseDistanceFeatures: {name} must be [start, stop] (two integers), got {value!r}")
+        raise ValueError(f"{owner}: {name} must be [start, stop] (two integers), got {value!r}")
     start, stop = int(value[0]), int(value[1])
     if not 0 <= start < stop <= dim or (stop - start) % 2:
-        raise ValueError(f"PairwiseDistanceFeatures: {name} [{start}, {stop}] must be a non-empty, even-length "
+        raise ValueError(f"{owner}: {name} [{start}, {stop}] must be a non-empty, even-length "
                          f"range inside the observation's {dim} values (x, y pairs)")
     return start, stop
 
@@ -103,10 +103,10 @@ class EntityAttentionFeatures(BaseFeaturesExtractor):
         if not (isinstance(hidden, int) and isinstance(heads, int) and hidden >= 1 and heads >= 1):
             raise ValueError(f"EntityAttentionFeatures: hidden and heads must be integers >= 1, got {hidden}, {heads}")
         dim = int(observation_space.shape[0])
-        self.targets = _slice(targets, "targets", dim)
-        self.agents = _slice(agents, "agents", dim)
-        start, stop = int(own[0]), int(own[1])
-        if len(own) != 2 or not 0 <= start < stop <= dim:
+        self.targets = _slice(targets, "targets", dim, "EntityAttentionFeatures")
+        self.agents = _slice(agents, "agents", dim, "EntityAttentionFeatures")
+        start, stop = (int(own[0]), int(own[1])) if len(own) == 2 else (0, 0)
+        if not 0 <= start < stop <= dim:
             raise ValueError(f"EntityAttentionFeatures: own must be [start, stop] inside the observation's {dim} "
                              f"values, got {list(own)!r}")
         self.own = (start, stop)

@@ -83,7 +83,8 @@ def test_attention_features_ignore_the_order_of_targets_and_of_other_agents() ->
 
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"own": [3, 30]}, "own must be"), ({"own": [3]}, "own must be"), ({"hidden": 0}, "hidden and heads"), ({"heads": 1.5}, "hidden and heads"),
+    [({"own": [3, 30]}, "own must be"), ({"own": [3]}, "own must be"), ({"hidden": 0}, "hidden and heads"),
+     ({"heads": 1.5}, "hidden and heads"),
      ({"agents": [10, 15]}, "EntityAttentionFeatures: agents .* even-length")],
 )
 def test_attention_features_refuse_bad_settings(kwargs: dict[str, object], message: str) -> None:

@@ -5,17 +5,14 @@ results, and the ``pettingzoo`` default entry trains through the CLI on an mpe2 
 
 from __future__ import annotations
 
-import contextlib
-import importlib
-import io
 import json
-import subprocess
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
 from cli_helpers import section_text
+from test_benchmarks_learning import _cli_in_process
 
 from benchmarks.harness import registry
 
@@ -47,14 +44,6 @@ def test_mixed_actor_refuses_unknown_players() -> None:
 
     with pytest.raises(ValueError, match="model, random or scripted"):
         side_summary("mpe2.simple_push_v3", {"adversary_0": "greedy", "agent_0": "random"}, 1, 0)
-
-
-def _cli_in_process(module: str, *args: str) -> subprocess.CompletedProcess[str]:
-    """``pettingzoo_defaults.cli`` without a new interpreter: the module's ``main`` with its output captured."""
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        importlib.import_module(f"sbagents.{module}").main(list(args))
-    return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
 
 
 def test_tiny_run_renders(monkeypatch: pytest.MonkeyPatch) -> None:

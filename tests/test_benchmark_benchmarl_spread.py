@@ -13,8 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.learning import benchmarl_side as side
 from benchmarks.learning import benchmarl_spread as bs
 from benchmarks.learning import benchmarl_venv as bv
+from benchmarks.learning import spread_ours as ours
 from benchmarks.learning.seed_table import stats_of
 from benchmarks.learning.team_baselines import spread_assignment_actor
 from sbagents.core.team_options import TeamOptions
@@ -24,24 +26,24 @@ from sbagents.multiagent.team_eval import run_team_episodes
 
 
 def test_frame_budget_is_the_first_batch_past_the_agent_steps() -> None:
-    assert bs.frame_budget(1_000_000) == 336_000  # 333,334 env steps -> 56 batches of 6,000
-    assert bs.frame_budget(4_000_000) == 1_338_000
-    assert bs.frame_budget(900, 300) == 300
+    assert side.frame_budget(1_000_000) == 336_000  # 333,334 env steps -> 56 batches of 6,000
+    assert side.frame_budget(4_000_000) == 1_338_000
+    assert side.frame_budget(900, 300) == 300
     with pytest.raises(ValueError, match="positive"):
-        bs.frame_budget(0)
+        side.frame_budget(0)
 
 
 def test_mappo_scale() -> None:
-    assert bs.team_to_mappo(-22.5) == -120.0
+    assert side.team_to_mappo(-22.5) == -120.0
 
 
 def test_train_args_carry_frame_and_second_budgets(tmp_path: Path) -> None:
-    args = bs.benchmarl_train_args("ippo", 3, tmp_path, [1_000_000], [300.0, 600.0], 900.0)
+    args = side.benchmarl_train_args("ippo", 3, tmp_path, [1_000_000], [300.0, 600.0], 900.0)
     assert args[:5] == ["train", "--algo", "ippo", "--seed", "3"]
     assert args[args.index("--frame-budgets") + 1] == "336000"
     assert args[args.index("--second-budgets") + 1:args.index("--max-seconds")] == ["300", "600"]
     assert "--frames-per-batch" not in args
-    assert bs.benchmarl_train_args("mappo", 0, tmp_path, [900], [1.0], 5.0, 300)[-2:] == ["--frames-per-batch", "300"]
+    assert side.benchmarl_train_args("mappo", 0, tmp_path, [900], [1.0], 5.0, 300)[-2:] == ["--frames-per-batch", "300"]
 
 
 def test_overrides_pick_discrete_actions_and_no_periodic_evaluation() -> None:
@@ -76,14 +78,14 @@ def _ours_run(final: bool) -> dict[str, Any]:
 
 def test_pick_checkpoints_and_fitted_budget() -> None:
     run = _ours_run(True)
-    kept = {k["label"]: k for k in bs.pick_checkpoints(run, [1_000_000, 4_000_000], [300.0])}
+    kept = {k["label"]: k for k in ours.pick_checkpoints(run, [1_000_000, 4_000_000], [300.0])}
     assert kept["agent_steps1000000"]["checkpoint"] == 1_000_000
     assert kept["agent_steps4000000"]["checkpoint"] is None  # the final model
     assert kept["seconds300"]["checkpoint"] == 1_002_400 and kept["seconds300"]["train_s"] == 300.0
-    assert bs.pick_checkpoints(_ours_run(True), [], [600.0])[0]["checkpoint"] is None  # the whole run fit
-    assert "agent_steps4000000" not in {k["label"] for k in bs.pick_checkpoints(_ours_run(False), [4_000_000], [])}
-    assert bs.fitted_budget(run, 600.0, 100_000) == 5_800_000
-    assert bs.fitted_budget(run, 300.0, 100_000) is None
+    assert ours.pick_checkpoints(_ours_run(True), [], [600.0])[0]["checkpoint"] is None  # the whole run fit
+    assert "agent_steps4000000" not in {k["label"] for k in ours.pick_checkpoints(_ours_run(False), [4_000_000], [])}
+    assert ours.fitted_budget(run, 600.0, 100_000) == 5_800_000
+    assert ours.fitted_budget(run, 300.0, 100_000) is None
 
 
 def _results() -> dict[str, Any]:
@@ -98,10 +100,10 @@ def _results() -> dict[str, Any]:
                                  "kept": [{"label": "agent_steps1000000", "agent_steps": 1_000_800, "train_s": 101.0,
                                            "checkpoint": 1_000_800, "team_return": -33.0, "std_return": 6.0,
                                            "cli_team_return": -33.2}]}]}
-    result = {"env": bs.ENV, "agent_budgets": [1_000_000, 4_000_000], "second_budgets": [300.0, 600.0],
+    result = {"env": side.ENV, "agent_budgets": [1_000_000, 4_000_000], "second_budgets": [300.0, 600.0],
               "n_eval": 1000, "eval_seed": 10_000, "seeds": [0], "max_seconds": 900.0,
               "machine": {"cpu": "CPU", "cores": 2, "torch": "2.13.0", "stable_baselines3": "2.8"},
-              "command": "python -m benchmarks run benchmarl-spread", "benchmarl_settings": bs.BENCHMARL_SETTINGS,
+              "command": "python -m benchmarks run benchmarl-spread", "benchmarl_settings": side.BENCHMARL_SETTINGS,
               "benchmarl_versions": {"benchmarl": "1.5.2"},
               "benchmarl": [{"algo": "mappo", "seed": 0, "kept": kept, "load_start": [3.0], "load_end": [3.1],
                              "total": {"frames": 400_000, "agent_steps": 1_200_000, "train_s": 900.0,
@@ -127,22 +129,22 @@ def test_render_from_a_results_dict() -> None:
     assert "| critic input |" in text and "target_kl: 0.02" in text and "0.95 / 0.95" in text
 
 
-VENV = bs.REPO / ".venv-benchmarl"
+VENV = side.REPO / ".venv-benchmarl"
 
 
-@pytest.mark.skipif(not bs.venv_python(VENV).exists(), reason="BenchMARL's venv (.venv-benchmarl) is absent")
+@pytest.mark.skipif(not side.venv_python(VENV).exists(), reason="BenchMARL's venv (.venv-benchmarl) is absent")
 def test_benchmarl_venv_trains_keeps_and_evaluates(tmp_path: Path) -> None:
     """The venv script on a tiny budget: two 300-frame batches, then the kept policies on 3 episodes."""
-    python = str(bs.venv_python(VENV))
-    args = bs.benchmarl_train_args("mappo", 0, tmp_path, [900, 1800], [1e-3], 120.0, 300)
-    subprocess.run([python, str(bs.VENV_SCRIPT), *args], check=True, capture_output=True, text=True)
+    python = str(side.venv_python(VENV))
+    args = side.benchmarl_train_args("mappo", 0, tmp_path, [900, 1800], [1e-3], 120.0, 300)
+    subprocess.run([python, str(side.VENV_SCRIPT), *args], check=True, capture_output=True, text=True)
     train = json.loads((tmp_path / "train.json").read_text())
     assert [k["label"] for k in train["kept"]] == ["frames300", "frames600"]
     assert train["kept"][1]["agent_steps"] == 1800 and train["settings"]["continuous_actions"] is False
-    out = subprocess.run([python, str(bs.VENV_SCRIPT), "eval", "--algo", "mappo", "--policies",
+    out = subprocess.run([python, str(side.VENV_SCRIPT), "eval", "--algo", "mappo", "--policies",
                           str(tmp_path / "policy_frames600.pt"), "-n", "3"], check=True, capture_output=True,
                          text=True).stdout
-    evals = bs.last_json(out)
+    evals = side.last_json(out)
     assert evals["policy_frames600.pt"]["n_episodes"] == 3 and evals["policy_frames600.pt"]["mean_return"] < 0
 
 

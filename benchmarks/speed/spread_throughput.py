@@ -136,7 +136,7 @@ def median_rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str,
 
 def build_parser() -> argparse.ArgumentParser:
     """The benchmark's options."""
-    from benchmarks.learning.benchmarl_spread import REPO
+    from benchmarks.learning.benchmarl_side import REPO
 
     p = argparse.ArgumentParser(prog="python -m benchmarks run spread-throughput",
                                 description=(__doc__ or "").splitlines()[0])
@@ -152,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(argv: Sequence[str]) -> dict[str, Any]:
     """Measure; the results."""
-    from benchmarks.learning.benchmarl_spread import venv_python
+    from benchmarks.learning.benchmarl_side import venv_python
 
     args = build_parser().parse_args(list(argv))
     if min(args.rounds, args.env_steps, args.loop_steps, args.ppo_steps, args.cli_steps, args.benchmarl_frames) <= 0:

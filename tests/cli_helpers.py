@@ -66,6 +66,18 @@ def cli(module: str, *args: str, cwd: Path | None = None, timeout: float = 600) 
     return subprocess.CompletedProcess([prog, *args], code, out.getvalue(), err.getvalue())
 
 
+def checked_cli(module: str, *args: str, **_: Any) -> subprocess.CompletedProcess[str]:
+    """A stand-in (through ``monkeypatch``) for a benchmark's own ``cli``, which runs ``python -m sbagents.<module>``
+    in a subprocess and raises on failure: the module's ``main(argv)`` in this process, stdout captured, a nonzero
+    exit fails the test. Unlike :func:`cli` it installs no signal handler and keeps the working folder, so the
+    benchmarks that run several commands at once in threads (``--jobs``) can use it."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = cli_main(module)(list(args))
+    assert not code, (module, args)
+    return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
+
+
 def cli_subprocess(module: str, *args: str, cwd: Path | None = None,
                    timeout: float = 600) -> subprocess.CompletedProcess[str]:
     """Run ``python -m sbagents.<module> args...`` in a new interpreter and capture its output."""

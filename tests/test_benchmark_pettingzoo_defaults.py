@@ -11,8 +11,7 @@ from typing import Any
 
 import pytest
 import torch
-from cli_helpers import section_text
-from test_benchmarks_learning import _cli_in_process
+from cli_helpers import checked_cli, section_text
 
 from benchmarks.harness import registry
 
@@ -50,7 +49,7 @@ def test_tiny_run_renders(monkeypatch: pytest.MonkeyPatch) -> None:
     """Search (one candidate) and final run on one env at a tiny budget; the section shows both tables."""
     from benchmarks.learning import pettingzoo_defaults as bench
 
-    monkeypatch.setattr(bench, "cli", _cli_in_process)
+    monkeypatch.setattr(bench, "cli", checked_cli)
     monkeypatch.setitem(bench.CANDIDATES, "tiny", ("n_envs:2", "n_steps:16", "batch_size:32", "n_epochs:1"))
     argv = ["--seeds", "0", "--envs", "mpe2.simple_push_v3", "-n", "64", "--eval-episodes", "2",
             "--search-budget", "64", "--search-episodes", "2", "--candidates", "tiny"]

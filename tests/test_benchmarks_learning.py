@@ -5,17 +5,14 @@ file is checked for every benchmark by tests/test_benchmarks_harness.py."""
 
 from __future__ import annotations
 
-import contextlib
-import importlib
-import io
 import json
-import subprocess
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
+from cli_helpers import checked_cli
 
 import benchmarks.stats
 from benchmarks.harness import Benchmark, registry
@@ -108,21 +105,13 @@ def test_treasure_hunt_learning_tiny(quick_bootstrap: None) -> None:
     assert "evaluated on 3 episodes" in section and "1 seed" in section and "Target not met" in section
 
 
-def _cli_in_process(module: str, *args: str) -> subprocess.CompletedProcess[str]:
-    """``python -m sbagents.<module> args`` run in this process (no interpreter start: seconds saved per call)."""
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        code = importlib.import_module(f"sbagents.{module}").main(list(args))
-    assert not code, (module, args)
-    return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
-
 
 @pytest.mark.parametrize("task", [pytest.param(t, marks=pytest.mark.slow) if t == "pursuit" else t
                                   for t in sorted(pettingzoo_learning.TASKS)])  # pursuit: 500-step episodes
 def test_pettingzoo_tiny(task: str, tmp_path: Path, quick_bootstrap: None, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every task on 64 steps of a shrunk config and 1-2 episodes, the CLI commands run in-process (the same argv
     through ``sbagents.train.main`` / ``sbagents.evaluate.main``; an interpreter start costs ~10 s on 2 busy cores)."""
-    monkeypatch.setattr(pettingzoo_learning, "cli", _cli_in_process)
+    monkeypatch.setattr(pettingzoo_learning, "cli", checked_cli)
     bench = _bench(f"pettingzoo-{task}")
     png = tmp_path / "curve.png"
     episodes = "1" if task == "pursuit" else "2"  # 500 steps an episode

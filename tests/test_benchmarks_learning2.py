@@ -4,18 +4,14 @@ results back the claims their sections make."""
 
 from __future__ import annotations
 
-import contextlib
-import importlib
-import io
 import json
-import subprocess
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
-from cli_helpers import section_text
+from cli_helpers import checked_cli, section_text
 
 from benchmarks.harness import registry
 
@@ -74,19 +70,12 @@ def test_games_sections_match_their_results(task: str) -> None:
     assert all(vs["illegal_moves"] == 0 for r in rows for vs in r["vs"].values())
 
 
-def _cli_in_process(module: str, *args: str) -> subprocess.CompletedProcess[str]:
-    """``games_learning.cli`` without a new interpreter: the module's ``main`` with its output captured."""
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        importlib.import_module(f"sbagents.{module}").main(list(args))
-    return subprocess.CompletedProcess([module, *args], 0, out.getvalue(), "")
-
 
 def test_games_tictactoe_tiny_run(monkeypatch: pytest.MonkeyPatch) -> None:
     """``--smoke``: train and evaluate play every opponent; the section has a row and an over-seeds row each."""
     from benchmarks.learning import games_learning as games
 
-    monkeypatch.setattr(games, "cli", _cli_in_process)
+    monkeypatch.setattr(games, "cli", checked_cli)
     results, section = _run("games-tictactoe", ["--seeds", "0", "--smoke"])
     assert results["command"] == "python -m benchmarks run games-tictactoe --seeds 0 --smoke"
     assert results["elo_plot"] is None and [r["seed"] for r in results["runs"]] == [0]

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import pytest
+from cli_helpers import checked_cli
 
 from benchmarks.learning import pettingzoo_learning, spread_ablation
-from tests.test_benchmarks_learning import _cli_in_process
 
 
 def test_variants_train_evaluate_and_render(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(pettingzoo_learning, "cli", _cli_in_process)
+    monkeypatch.setattr(pettingzoo_learning, "cli", checked_cli)
     results = spread_ablation.run(["--variants", "pairwise", "shipped", "-n", "64", "--eval-episodes", "2"])
     rows = {r["variant"]: r for r in results["rows"]}
     assert [r["variant"] for r in results["rows"]] == ["shipped", "pairwise"]  # the table's order, not argv's

@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -153,6 +154,17 @@ def test_concurrent_runs_get_distinct_dirs(tmp_path: Path) -> None:
     assert dirs == [f"{RUN}_1", f"{RUN}_2"]
     for d in dirs:
         assert (tmp_path / "ppo" / d / f"{RUN}.zip").exists()
+
+
+
+def test_on_policy_evaluates_at_most_once_per_rollout(tmp_path: Path) -> None:
+    """A budget of 4 rollouts with ``--eval-freq 8``: PPO's policy changes only between rollouts, so it is
+    evaluated once per rollout (64 env steps), not every 8 steps."""
+    result = cli("train", "--algo", "ppo", "-f", str(tmp_path), "--seed", "0", "-n", "256", "--verbose", "0",
+                 "-params", "n_steps:64", "batch_size:64", "n_envs:1", "--eval-freq", "8", "--eval-episodes", "1")
+    assert result.returncode == 0, result.stderr
+    timesteps = np.load(tmp_path / "ppo" / f"{RUN}_1" / "evaluations.npz")["timesteps"]
+    assert list(timesteps) == [64, 128, 192, 256]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

@@ -55,13 +55,13 @@ def _(kind: GameKind, ctx: RunContext, n_eval_envs: int, after_eval: BaseCallbac
     """A turn-based game: matches against the evaluation opponent, snapshots into the self-play pool, Elo."""
     from sbagents.games.training import game_callbacks
 
-    eval_calls = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else 0
+    eval_calls = ctx.eval_calls() if ctx.eval_freq > 0 else 0
     return game_callbacks(ctx.exp, ctx.ref, ctx.run_dir, ctx.seed, ctx.train_env.num_envs, eval_calls,
                           ctx.eval_episodes, after_eval, make_eval_env=make_eval_vec)
 
 
 def _eval_settings(ctx: RunContext, after_eval: BaseCallback) -> dict[str, Any]:
-    return dict(n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.calls(ctx.eval_freq), log_path=str(ctx.run_dir),
+    return dict(n_eval_episodes=ctx.eval_episodes, eval_freq=ctx.eval_calls(), log_path=str(ctx.run_dir),
                 best_model_save_path=str(ctx.run_dir), verbose=0, callback_after_eval=after_eval)
 
 

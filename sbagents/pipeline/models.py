@@ -148,3 +148,10 @@ class RunContext:
     def calls(self, env_steps: int) -> int:
         """An env-step period as callback calls (one call per vec step of ``train_env``), at least 1."""
         return max(env_steps // self.train_env.num_envs, 1)
+
+    def eval_calls(self) -> int:
+        """The evaluation period as callback calls: :meth:`calls` of ``eval_freq``, and at least one rollout
+        (``n_steps`` calls) for an on-policy model, whose policy changes only between rollouts (a small budget would
+        otherwise evaluate the same policy many times per rollout)."""
+        calls = self.calls(self.eval_freq)
+        return max(calls, self.model.n_steps) if isinstance(self.model, OnPolicyAlgorithm) else calls

@@ -134,7 +134,10 @@ def build_groups(
     if eval_freq > 0:
         eval_envs = {g: normalize_for_eval(v, exp) for g, v in
                      make_team_vecs(exp, ref, 1, None, vec_env="dummy").items()}
-        head.append(TeamEvalCallback(eval_envs, evaluation.eval_episodes, max(eval_freq // slots_per_env_step, 1),
+        lead = models[first]
+        rollout = lead.n_steps if isinstance(lead, OnPolicyAlgorithm) else 1
+        head.append(TeamEvalCallback(eval_envs, evaluation.eval_episodes,
+                                     max(eval_freq // slots_per_env_step, rollout),  # at least one rollout
                                      str(run_dir), str(run_dir), exp.deterministic_eval, seed + EVAL_SEED_OFFSET,
                                      models=models,
                                      callback_after_eval=EvalReportCallback(reporter, scale), verbose=0,

@@ -31,7 +31,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("-f", "--log-folder", default="logs", help="root of the run dirs (default: logs)")
     p.add_argument("--seed", type=int, default=-1, help="random seed (-1: draw one, recorded in summary.json)")
     p.add_argument("--eval-freq", type=int, default=None,
-                   help="env steps between evaluations (default: n_timesteps/10, at most 25000; <=0 disables)")
+                   help="env steps between evaluations (default: n_timesteps/10, at most 25000; on-policy "
+                        "algorithms: at least one rollout; <=0 disables)")
     p.add_argument("--eval-episodes", type=int, default=5, help="episodes per periodic evaluation")
     p.add_argument("--n-eval-envs", type=int, default=1, help="envs for periodic evaluation")
     p.add_argument("--final-eval-episodes", type=int, default=10, help="episodes of the final evaluation")

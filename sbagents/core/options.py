@@ -86,7 +86,7 @@ class EvalOptions:
     """How a run is evaluated while and after it trains.
 
     :param eval_freq: env steps between evaluations (``--eval-freq``; None: a tenth of the budget, at most 25,000;
-        <= 0: none).
+        <= 0: none). On-policy runs evaluate at most once per rollout, whatever the period.
     :param eval_episodes: episodes per periodic evaluation (``--eval-episodes``).
     :param n_eval_envs: envs of the periodic evaluation (``--n-eval-envs``).
     :param final_eval_episodes: episodes of the final evaluation in ``summary.json`` (``--final-eval-episodes``;

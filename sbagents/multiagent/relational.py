@@ -1,20 +1,27 @@
 """Relational features for policies of agents that see other entities by relative position:
-:class:`PairwiseDistanceFeatures`.
+:class:`EntityAttentionFeatures` (the shipped ``mpe2.simple_spread_v3`` entry's) and :class:`PairwiseDistanceFeatures`.
 
 In MPE-style observations an agent sees the targets (landmarks) and the other agents as positions relative to its
 own. Which target an agent should take depends on how far *every* agent is from *every* target (a landmark is
-mine when I am the closest to it), and a small MLP learns that function of the raw offsets slowly. This features
-extractor hands the network those distances: it keeps the observation and appends ``|t_i - a_j|`` for every target
-``i`` and every agent ``j`` (the observer itself first, at the origin, then the others in observation order). It
-only reads the observation (no env change, nothing extra to feed at inference), so an exported policy takes the
+mine when I am the closest to it), and a small MLP learns that function of the raw offsets slowly.
+
+- :class:`PairwiseDistanceFeatures` hands the network those distances: it keeps the observation and appends
+  ``|t_i - a_j|`` for every target ``i`` and every agent ``j`` (the observer itself first, at the origin, then the
+  others in observation order).
+- :class:`EntityAttentionFeatures` turns every target into a token (its offset, its distance to me, the nearest and
+  farthest other agent's distance to it) and pools the tokens with attention over targets, so "the target I am
+  closest to" is one learned lookup whatever order the env lists targets in (``spread-ablation`` in
+  ``BENCHMARKS.md``: what it is worth against the MLP and the pairwise distances).
+
+Both only read the observation (no env change, nothing extra to feed at inference), so an exported policy takes the
 same observation as the env gives.
 
-Use it from a zoo entry, e.g. ``mpe2.simple_spread_v3`` with ``N=3`` (observation ``[vel 2, pos 2, landmarks 6,
+Use one from a zoo entry, e.g. ``mpe2.simple_spread_v3`` with ``N=3`` (observation ``[vel 2, pos 2, landmarks 6,
 other agents 4, communication 4]``)::
 
     policy_kwargs:
-      features_extractor_class: sbagents.multiagent.relational:PairwiseDistanceFeatures
-      features_extractor_kwargs: {targets: [4, 10], agents: [10, 14]}
+      features_extractor_class: sbagents.multiagent.relational:EntityAttentionFeatures
+      features_extractor_kwargs: {targets: [4, 10], agents: [10, 14], own: [0, 4], hidden: 32, heads: 2}
 """
 
 from __future__ import annotations

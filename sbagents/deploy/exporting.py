@@ -30,10 +30,10 @@ from sbagents.core.run_dir import LoadedRun, RunRef, load_run
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
     OBS_INPUT,
-    actor_observation_space,
     check_exportable,
     export_onnx,
     quantize_int8,
+    taken_observation_space,
 )
 from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
 from sbagents.env_factory import make_eval_vec
@@ -47,7 +47,8 @@ class ExportReport:
 
     ``parity_*``: max abs action difference vs SB3; ``int8_deviation``: :func:`action_deviation` of the int8 file,
     ``int8_acceptable``: whether it is within :data:`INT8_TOLERANCE` for the action space (``action_kind``:
-    ``box`` or ``discrete``).
+    ``box`` or ``discrete``). ``preprocessing``: the env wrappers and frame stack the policy works inside (it takes
+    their observations, e.g. an Atari run's 84x84 grayscale 4-frame stack), None when it takes the env's own.
     """
 
     onnx_path: Path
@@ -62,6 +63,7 @@ class ExportReport:
     action_kind: str = "box"
     n_parity_observations: int = 0
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
+    preprocessing: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (paths as str)."""
@@ -116,6 +118,7 @@ def export_run(
     int8: bool = False,
     checks: ExportChecks | None = None,
     observations: np.ndarray | None = None,
+    preprocessing: dict[str, Any] | None = None,
 ) -> ExportReport:
     """Export ``model``, quantize it (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
 
@@ -128,6 +131,8 @@ def export_run(
     :param vec_normalize: the statistics the model was trained with, when ``env`` does not carry them.
     :param observations: raw parity observations ``(N, *obs_shape)`` recorded elsewhere (then ``env`` only names
         observations and actions, and may be None); e.g. a team's, where one group's env cannot step alone.
+    :param preprocessing: the env wrappers and frame stack ``env`` applies, which the exported policy does not
+        (recorded in the sidecar and the report: a caller applies them before calling the policy).
     :raises TypeError: the model cannot be exported (:func:`check_exportable`).
     :raises ValueError: ``checks.n_observations < 1``.
     """
@@ -144,7 +149,8 @@ def export_run(
     if vec_normalize is None and isinstance(rec_env, VecNormalize):
         vec_normalize = rec_env
     try:
-        report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks, observations)
+        report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks, observations,
+                              preprocessing=preprocessing or None)
         for path in staging.iterdir():
             os.replace(path, out / path.name)
     except BaseException as exc:
@@ -161,7 +167,8 @@ def export_run(
 
 def _export_into(
     model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv | None,
-    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: np.ndarray | None,
+    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: np.ndarray | None, *,
+    preprocessing: dict[str, Any] | None = None,
 ) -> ExportReport:
     """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
     norm = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
@@ -173,7 +180,9 @@ def _export_into(
         raise TypeError("dict observations are not supported")
     clip_obs = vec_normalize.clip_obs if vec_normalize is not None else 10.0
     epsilon = vec_normalize.epsilon if vec_normalize is not None else 1e-8
-    onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon)
+    env_space = env.observation_space if env is not None else None
+    obs_space = taken_observation_space(model, env_space)  # channels-last images: the env's layout
+    onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon, obs_space)
     if recorded is not None:
         observations = recorded
     else:
@@ -187,7 +196,7 @@ def _export_into(
         onnx_path=out / onnx_path.name, sidecar_path=out / "policy.json",
         parity_fp32=check_parity(model, onnx_path, observations, norm),
         onnx_bytes=onnx_path.stat().st_size, n_parity_observations=len(observations),
-        action_kind="box" if isinstance(model.action_space, spaces.Box) else "discrete",
+        action_kind="box" if isinstance(model.action_space, spaces.Box) else "discrete", preprocessing=preprocessing,
     )
     if int8:
         int8_path = quantize_int8(onnx_path, staging / "policy.int8.onnx")
@@ -199,7 +208,6 @@ def _export_into(
         report.int8_acceptable = report.int8_deviation <= INT8_TOLERANCE[report.action_kind]
     report.latency = latency_table(model, paths, observations[0], checks.latency_n, norm)
 
-    obs_space = actor_observation_space(model)
     n_obs = int(np.prod(obs_space.shape)) if obs_space.shape else 1
     n_act = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
     sidecar = {
@@ -212,6 +220,7 @@ def _export_into(
         "input_name": OBS_INPUT,
         "output_name": ACTION_OUTPUT,
         "obs_normalization_baked_in": obs_rms is not None,
+        **({"preprocessing": preprocessing} if preprocessing else {}),
         "files": {name: p.name for name, p in paths.items()},
         "report": report.to_dict(),
     }
@@ -259,10 +268,11 @@ def export_groups(
     return _export_kind(loaded.env.kind, loaded, target, int8, ExportChecks(n_observations=n_observations))
 
 
-def _check_exportable_run(loaded: LoadedRun) -> None:
-    """Refuse (one line) a run whose wrappers or models export cannot reproduce."""
+def _check_exportable_run(loaded: LoadedRun, wrappers: bool = False) -> None:
+    """Refuse (one line) a run whose wrappers or models export cannot reproduce (``wrappers``: env wrappers and
+    frame stacking are taken: the policy is exported as it works inside them)."""
     exp, ref = loaded.experiment, loaded.env
-    if exp.frame_stack or exp.env_wrapper:
+    if not wrappers and (exp.frame_stack or exp.env_wrapper):
         raise UsageError(f"{ref.env_id} runs use env wrappers or frame stacking, which export cannot bake in")
     for model in loaded.models.values():
         try:
@@ -274,13 +284,29 @@ def _check_exportable_run(loaded: LoadedRun) -> None:
 @functools.singledispatch
 def _export_kind(kind: EnvKind, loaded: LoadedRun, target: Path, int8: bool,
                  checks: ExportChecks) -> dict[str, ExportReport]:
-    """A Gymnasium env's run: its one model, with parity observations from its evaluation env."""
-    _check_exportable_run(loaded)
+    """A Gymnasium env's run: its one model, with parity observations from its evaluation env (built as in training:
+    a run with env wrappers or a frame stack, e.g. Atari's, is exported as the policy works inside them, and the
+    sidecar names them: :func:`preprocessing_of`)."""
+    _check_exportable_run(loaded, wrappers=True)
     venv = make_eval_vec(loaded.experiment, loaded.env, 1, seed=0, stats_path=loaded.stats_path, trust=loaded.trust)
     try:
-        return {"shared": export_run(loaded.model, target, loaded.env.env_id, env=venv, int8=int8, checks=checks)}
+        return {"shared": export_run(loaded.model, target, loaded.env.env_id, env=venv, int8=int8, checks=checks,
+                                     preprocessing=preprocessing_of(loaded))}
     finally:
         venv.close()
+
+
+def preprocessing_of(loaded: LoadedRun) -> dict[str, Any] | None:
+    """The env wrappers (with their kwargs) and the frame stack of a run, which its exported policy sits behind;
+    None when it has neither."""
+    exp = loaded.experiment
+    if not (exp.env_wrapper or exp.frame_stack):
+        return None
+    wrappers = [{"class": f"{cls.__module__}.{cls.__qualname__}",
+                 "kwargs": {str(k): v if isinstance(v, bool | int | float | str) or v is None else str(v)
+                            for k, v in kwargs.items()}}
+                for cls, kwargs in exp.env_wrapper]
+    return {"env_wrapper": wrappers, "frame_stack": int(exp.frame_stack or 0)}
 
 
 @_export_kind.register
@@ -314,6 +340,12 @@ def format_report(report: ExportReport) -> str:
         verdict = "acceptable" if report.int8_acceptable else "NOT acceptable: keep the fp32 policy"
         lines.append(f"int8: {report.int8_path} ({report.int8_bytes:,} bytes), max abs action difference "
                      f"{report.parity_int8:.2e}, {size}: {verdict}")
+    if report.preprocessing:
+        names = [str(w["class"]).rsplit(".", 1)[-1] for w in report.preprocessing["env_wrapper"]]
+        stack = report.preprocessing["frame_stack"]
+        inside = " + ".join([*names, *([f"{stack}-frame stack"] if stack else [])])
+        lines.append(f"the policy works inside {inside}: it takes their observations and gives the actions they "
+                     "take, so apply them before calling it (policy.json: preprocessing)")
     lines.append("latency (single observation): " + ", ".join(
         f"{name} p50 {row['p50_us']:.1f} us / p99 {row['p99_us']:.1f} us" for name, row in report.latency.items()))
     return "\n".join(lines)

@@ -12,11 +12,11 @@ Routes:
 
 Every other answer is an error status with ``{"error": reason}``: 404 (unknown path), 405 (other methods), 408 (a
 body that stopped arriving), 411 (no ``Content-Length``; chunked bodies are not taken), 413 (a body over
-:data:`MAX_BODY` bytes), 415 (a POST that is not ``application/json``: a web page cannot send one without the
-browser asking first, which this server never allows), 421 (a ``Host`` header that is not this server's address:
-see :func:`host_allowed`; a web page that reaches the server by DNS rebinding carries its own host name), and the
-standard library's 400/414/431 for requests it cannot parse. A problem with the request never closes the
-connection without a reply.
+:data:`MAX_BODY` bytes, or over the policy's larger limit), 415 (a POST that is not ``application/json``: a web page
+cannot send one without the browser asking first, which this server never allows), 421 (a ``Host`` header that is
+not this server's address: see :func:`host_allowed`; a web page that reaches the server by DNS rebinding carries its
+own host name), and the standard library's 400/414/431 for requests it cannot parse. A problem with the request
+never closes the connection without a reply.
 
 Connections are kept alive (HTTP/1.1); each client connection has its own thread, closed after
 :data:`CONNECTION_TIMEOUT` seconds without a byte from the client. Decisions are made and logged one at a time.
@@ -36,7 +36,8 @@ from typing import Any
 
 from sbagents.deploy.serving import MAX_REQUEST_BYTES, DecisionLog, Policy, decide, error_reply
 
-#: Largest request body accepted (bytes); an observation is a few hundred.
+#: Largest request body accepted (bytes) for a policy of up to 2,048 observation values; an observation is a few
+#: hundred. A larger policy's limit is its ``Policy.max_request_bytes`` (32 bytes a value).
 MAX_BODY = MAX_REQUEST_BYTES
 #: A body over :data:`MAX_BODY` is read past (up to this many bytes) before the 413, so the client gets the reply
 #: rather than a connection reset; a larger one is answered and the connection closed at once.
@@ -185,9 +186,10 @@ class _Handler(BaseHTTPRequestHandler):
             return None
         length = int(text)
         try:
-            if length > MAX_BODY:
+            limit = self.server.policy.max_request_bytes
+            if length > limit:
                 self._drain(length)
-                self._refuse(413, f"body of {length} bytes; at most {MAX_BODY}", close=True)
+                self._refuse(413, f"body of {length} bytes; at most {limit}", close=True)
                 return None
             body = self.rfile.read(length)  # read before any reply: the connection stays usable
         except TimeoutError:

@@ -37,6 +37,9 @@ class OnnxPolicy(torch.nn.Module):
     :param obs_rms: VecNormalize observation statistics to bake in (None: no normalization).
     :param clip_obs: VecNormalize ``clip_obs``.
     :param epsilon: VecNormalize ``epsilon``.
+    :param channels_last: the graph takes images ``(batch, H, W, C)`` as the env gives them and transposes them to
+        the ``(batch, C, H, W)`` SB3's CNN policies see (SB3's ``VecTransposeImage``); the policy scales them by
+        1/255 itself.
     """
 
     obs_mean: torch.Tensor
@@ -50,9 +53,11 @@ class OnnxPolicy(torch.nn.Module):
         obs_rms: RunningMeanStd | None = None,
         clip_obs: float = 10.0,
         epsilon: float = 1e-8,
+        channels_last: bool = False,
     ) -> None:
         super().__init__()
         self.policy = model.policy
+        self.channels_last = channels_last
         self.action_space = model.action_space
         self.clip_obs = float(clip_obs)
         self.normalize = obs_rms is not None
@@ -68,6 +73,8 @@ class OnnxPolicy(torch.nn.Module):
         self.squash = bool(getattr(self.policy, "squash_output", False))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.channels_last:
+            obs = obs.permute(0, 3, 1, 2)
         if self.normalize:
             obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
         actor_actions = getattr(self.policy, "actor_actions", None)  # a centralized critic: the actor alone
@@ -84,6 +91,17 @@ def actor_observation_space(model: BaseAlgorithm) -> spaces.Space[Any]:
     """What the exported policy takes: the model's observation space, or the actor's own part of it (a centralized
     critic's policy acts on the agent's observation alone)."""
     return getattr(model.policy, "actor_observation_space", model.observation_space)  # type: ignore[no-any-return]
+
+
+def taken_observation_space(model: BaseAlgorithm, env_space: spaces.Space[Any] | None = None) -> spaces.Space[Any]:
+    """The observations an exported policy takes: ``env_space`` (what the env, wrappers included, gives) when it is
+    the channels-last ``(H, W, C)`` form of the model's channels-first image space (SB3 transposed the env's images
+    for its CNN), else :func:`actor_observation_space`."""
+    own = actor_observation_space(model)
+    if (isinstance(env_space, spaces.Box) and isinstance(own, spaces.Box) and len(own.shape) == 3
+            and env_space.shape == (*own.shape[1:], own.shape[0]) and env_space.shape != own.shape):
+        return env_space
+    return own
 
 
 def predict_actions(model: BaseAlgorithm, observations: np.ndarray) -> np.ndarray:
@@ -108,6 +126,7 @@ def export_onnx(
     obs_rms: RunningMeanStd | None = None,
     clip_obs: float = 10.0,
     epsilon: float = 1e-8,
+    obs_space: spaces.Space[Any] | None = None,
 ) -> Path:
     """Write ``model``'s deterministic policy (with normalization and action rescaling baked in) as ONNX.
 
@@ -116,6 +135,8 @@ def export_onnx(
     :param obs_rms: ``VecNormalize.obs_rms`` when the model was trained on normalized observations.
     :param clip_obs: ``VecNormalize.clip_obs``.
     :param epsilon: ``VecNormalize.epsilon``.
+    :param obs_space: the observations the graph takes (default: the model's): a channels-last image space
+        (:func:`taken_observation_space`) puts the transposition SB3 does for CNNs inside the graph.
     :return: the written path. Input ``obs`` ``(batch, *obs_shape)`` float32 (int64 ``(batch,)`` for
         Discrete observations), output ``action`` ``(batch, *act_shape)`` float32 or ``(batch,)`` int64.
     """
@@ -126,9 +147,14 @@ def export_onnx(
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
     device = model.policy.device
-    wrapper = OnnxPolicy(model, obs_rms, clip_obs, epsilon).cpu().eval()  # moves model.policy to CPU
+    own = actor_observation_space(model)
+    taken = obs_space if obs_space is not None else own
+    if taken.shape != own.shape and taken_observation_space(model, taken) is not taken:
+        raise TypeError(f"the policy takes observations of shape {own.shape}, not {taken.shape}")
+    channels_last = taken.shape != own.shape
+    wrapper = OnnxPolicy(model, obs_rms, clip_obs, epsilon, channels_last).cpu().eval()  # moves model.policy to CPU
     model.policy.set_training_mode(False)
-    dummy = _dummy_obs(actor_observation_space(model))
+    dummy = _dummy_obs(taken)
     validate = torch.distributions.Distribution._validate_args
     torch.distributions.Distribution.set_default_validate_args(False)
     try:

@@ -7,7 +7,8 @@ Protocol:
 
 - Input: each line is a JSON list of numbers (``obs_dim`` of them; a single integer for a Discrete
   observation), or a JSON object keyed by exactly the sidecar's ``obs_names``; UTF-8, at most
-  :data:`MAX_REQUEST_BYTES` bytes.
+  :func:`request_limit` bytes (:data:`MAX_REQUEST_BYTES`; 32 bytes a value for a policy of more than 2,048
+  observation values, such as an Atari frame stack).
 - Output: for every line exactly one line: the action as a JSON list of floats (Box) or an int (Discrete), or
   ``{"error": "<reason>"}`` for a line that is not one observation (empty, too long, not UTF-8, bad or too deeply
   nested JSON, wrong length, unknown, missing or repeated keys, non-numbers, NaN/Infinity, numbers out of the
@@ -35,6 +36,9 @@ import numpy as np
 
 #: Longest observation line (stdin) or body (HTTP) accepted, in bytes; an observation is a few hundred.
 MAX_REQUEST_BYTES = 64 * 1024
+#: Bytes a request may spend per observation value when the observation is large (a float written in full, its
+#: ``obs_names`` key, separators): see :func:`request_limit`.
+REQUEST_BYTES_PER_VALUE = 32
 #: Longest sidecar read; the exported ``policy.json`` is a few KiB.
 MAX_SIDECAR_BYTES = 16 * 1024 * 1024
 #: Most digits of a JSON integer: float32 reaches 3.4e38 (39 digits); longer ones are refused before conversion.
@@ -89,6 +93,8 @@ class Policy:
                              f"shape {inp.shape}")
         self.obs_dim = 1 if self.discrete_obs else int(np.prod(shape)) if shape else 1
         self.obs_shape = tuple(int(d) for d in shape)
+        #: longest observation line or body accepted for this policy (:func:`request_limit`)
+        self.max_request_bytes = request_limit(self.obs_dim)
         self.discrete_action = out.type == "tensor(int64)"
         self.act_dim = 1 if self.discrete_action else int(np.prod(out_shape)) if out_shape else 1
         meta_file = Path(meta_path) if meta_path is not None else path.parent / "policy.json"
@@ -134,7 +140,7 @@ class Policy:
         :raises ServeError: anything but one observation (the message says what was wrong and what is accepted);
             nothing else is raised, whatever ``data`` holds.
         """
-        value = _loads(data)
+        value = _loads(data, self.max_request_bytes)
         if isinstance(value, dict):
             keys = set(value)
             unknown = sorted(keys - set(self.obs_names))
@@ -180,11 +186,18 @@ class Policy:
         return values
 
 
-def _loads(data: str | bytes) -> Any:
-    """``data`` as JSON, with the limits a server needs (size, UTF-8, integer length, nesting); :class:`ServeError`
-    for anything else."""
-    if len(data) > MAX_REQUEST_BYTES:
-        raise ServeError(f"observation of more than {MAX_REQUEST_BYTES} bytes; one observation is at most that")
+def request_limit(obs_dim: int) -> int:
+    """The longest observation line or body accepted for a policy of ``obs_dim`` values, in bytes:
+    :data:`MAX_REQUEST_BYTES`, or :data:`REQUEST_BYTES_PER_VALUE` a value when that is more (an Atari stack of 4
+    84x84 frames, 28,224 values: 903,168 bytes)."""
+    return max(MAX_REQUEST_BYTES, REQUEST_BYTES_PER_VALUE * obs_dim)
+
+
+def _loads(data: str | bytes, limit: int = MAX_REQUEST_BYTES) -> Any:
+    """``data`` as JSON, with the limits a server needs (size up to ``limit`` bytes, UTF-8, integer length,
+    nesting); :class:`ServeError` for anything else."""
+    if len(data) > limit:
+        raise ServeError(f"observation of more than {limit} bytes; one observation is at most that")
     if isinstance(data, bytes):
         try:
             data = data.decode("utf-8")
@@ -319,7 +332,8 @@ def decide(policy: Policy, data: str | bytes | None, log: DecisionLog) -> tuple[
     to ``log``.
     """
     if data is None:
-        return False, error_reply(f"line of more than {MAX_REQUEST_BYTES} bytes; one observation is at most that")
+        return False, error_reply(f"line of more than {policy.max_request_bytes} bytes; one observation is at most "
+                                  "that")
     try:
         obs = policy.parse(data)
     except ServeError as exc:
@@ -360,7 +374,7 @@ def serve(
     """
     served = errors = 0
     with DecisionLog(policy, csv_path) as log:
-        for line in read_lines(lines):
+        for line in read_lines(lines, policy.max_request_bytes):
             ok, reply = decide(policy, line, log)
             out.write(reply + "\n")
             out.flush()

@@ -56,6 +56,31 @@ def test_default_output_folder_and_stochastic(grid_logs: Path) -> None:
     assert len(videos) == 1 and videos[0].stat().st_size > 0
 
 
+def test_video_is_renamed_into_place_and_a_failed_write_leaves_nothing(grid_logs: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The mp4 is written to a hidden temporary name and renamed; a write that fails midway (here after half a
+    file) leaves neither a truncated video nor the temporary file, and an older video at that path stays."""
+    from moviepy.video.io.ImageSequenceClip import ImageSequenceClip
+
+    out = tmp_path / "videos"
+    args = ["--algo", "qlearning", "--env", GRID, "-f", str(grid_logs), "-n", "4", "-o", str(out)]
+    assert cli("record_video", *args).returncode == 0
+    (video,) = out.glob("*.mp4")
+    before = video.read_bytes()
+    written: list[str] = []
+
+    def half_then_fail(self: Any, filename: str, *a: Any, **k: Any) -> None:
+        written.append(filename)
+        Path(filename).write_bytes(before[: len(before) // 2])
+        raise OSError("disk went away")
+
+    monkeypatch.setattr(ImageSequenceClip, "write_videofile", half_then_fail)
+    assert cli("record_video", *args).returncode != 0
+    assert Path(written[0]).parent == out and Path(written[0]).name.startswith(".") and written[0] != str(video)
+    assert sorted(p.name for p in out.iterdir()) == sorted([video.name, video.with_suffix(".csv").name])
+    assert video.read_bytes() == before
+
+
 def _rows(path: Path) -> list[dict[str, str]]:
     with open(path, newline="", encoding="utf-8") as fh:
         return list(csv.DictReader(fh))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import io
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
-from sbagents.atomic import write_text
+from sbagents.atomic import raise_disk_error, write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
@@ -53,13 +54,23 @@ class _Recorder(VecVideoRecorder):
             )
 
     def _stop_recording(self) -> None:
-        """Write the mp4 quietly (SB3's recorder lets moviepy print a progress bar and four lines per file)."""
+        """Write the mp4 quietly (SB3's recorder lets moviepy print a progress bar and four lines per file), to a
+        temporary name renamed into place: an interrupted recording never leaves a truncated video."""
         if self.recorded_frames:
             from moviepy.video.io.ImageSequenceClip import ImageSequenceClip
 
+            final = Path(self.video_path)
+            tmp = final.with_name(f".{final.name}.{os.getpid()}.partial.mp4")  # ffmpeg takes the format from it
             clip = ImageSequenceClip(self.recorded_frames, fps=self.frames_per_sec)
-            clip.write_videofile(self.video_path, logger=None)
-            del clip
+            try:
+                clip.write_videofile(str(tmp), logger=None)
+                os.replace(tmp, final)
+            except BaseException as exc:
+                tmp.unlink(missing_ok=True)
+                raise_disk_error(exc, final)
+                raise
+            finally:
+                del clip
         self.recorded_frames = []
         self.recording = False
 

@@ -53,6 +53,22 @@ def test_atari_speed_side_by_side(tmp_path: Path) -> None:
     assert "| env only |" in section and "| PPO training |" in section and "envpool / dummy" in section
 
 
+def test_targets_paragraph_from_per_round_samples() -> None:
+    """Ranges of the per-round ratios and the two targets, met or not, from the samples alone."""
+    samples = {"env": {"dummy": [100.0, 200.0, 100.0], "envpool": [250.0, 380.0, 150.0]},
+               "ppo": {"dummy": [10.0, 10.0, 10.0], "envpool": [10.5, 9.0, 10.2]}}
+    results = {"samples": samples, "summary": atari_speed.summarize(samples), "machine": {"cores": 2}, "n_envs": 8}
+    text = atari_speed.targets_paragraph(results)
+    assert "env only 1.50-2.50x; PPO training 0.90-1.05x" in text
+    assert "at least 2x DummyVecEnv + AtariWrapper: not met (1.90x)" in text  # the median of 2.5, 1.9, 1.5
+    assert "PPO training faster than with DummyVecEnv: met (1.02x)" in text
+    samples["env"]["envpool"] = [250.0, 420.0, 210.0]
+    assert "AtariWrapper: met (2.10x)" in atari_speed.targets_paragraph({**results, "samples": samples,
+                                                                          "summary": atari_speed.summarize(samples)})
+    no_envpool = {**results, "samples": {"env": {"dummy": [1.0], "subproc": [1.0]}}}
+    assert "not measured" in atari_speed.targets_paragraph(no_envpool)
+
+
 def test_atari_speed_env_only_without_envpool() -> None:
     """The plain vec envs alone (no EnvPool needed), env-only figures: the section has their rows and ratio."""
     argv = ["--n-envs", "2", "--rounds", "1", "--env-rounds", "1", "--env-steps", "200", "--ppo-rollouts", "0",

@@ -18,6 +18,7 @@ import select
 import socket
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ from onnx import TensorProto, helper, numpy_helper
 from sbagents.deploy.http_serving import (
     CONNECTION_TIMEOUT,
     MAX_BODY,
+    MAX_CONNECTIONS,
     PolicyHTTPServer,
     expected_hosts,
     host_allowed,
@@ -430,6 +432,37 @@ def test_idle_connections_are_closed(quick_timeout_server: PolicyHTTPServer) -> 
         assert reply.status == 408 and "stopped arriving" in json.loads(reply.read())["error"]
         assert stalled.recv(1) == b""
     _good(http.client.HTTPConnection("127.0.0.1", port, timeout=30))  # and it still serves
+
+
+
+def test_connections_over_the_cap_get_429_and_the_server_goes_on(box_policy: Policy) -> None:
+    """Two idle connections fill a server capped at 2: a third is answered 429 (Retry-After) and closed at once;
+    once one closes, requests are served again."""
+    assert 16 <= MAX_CONNECTIONS <= 256
+    server = PolicyHTTPServer(("127.0.0.1", 0), box_policy, connection_timeout=5.0, max_connections=2)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    try:
+        idle = [socket.create_connection(("127.0.0.1", server.port), timeout=30) for _ in range(2)]
+        deadline = time.monotonic() + 10
+        while server.open_connections < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert server.open_connections == 2
+        extra = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+        extra.request("GET", "/")
+        reply = extra.getresponse()
+        assert reply.status == 429 and reply.getheader("Retry-After") == "1"
+        assert "2 connections are open" in json.loads(reply.read())["error"]
+        idle[0].close()
+        while server.open_connections > 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        _good(http.client.HTTPConnection("127.0.0.1", server.port, timeout=30))
+        assert server.refused == 1 and server.served == 1
+        idle[1].close()
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(timeout=30)
 
 
 # -- corrupt model and sidecar files --------------------------------------------------------------------------------

@@ -15,8 +15,9 @@ body that stopped arriving), 411 (no ``Content-Length``; chunked bodies are not 
 :data:`MAX_BODY` bytes, or over the policy's larger limit), 415 (a POST that is not ``application/json``: a web page
 cannot send one without the browser asking first, which this server never allows), 421 (a ``Host`` header that is
 not this server's address: see :func:`host_allowed`; a web page that reaches the server by DNS rebinding carries its
-own host name), and the standard library's 400/414/431 for requests it cannot parse. A problem with the request
-never closes the connection without a reply.
+own host name), 429 (a connection beyond :data:`MAX_CONNECTIONS` open at once, with ``Retry-After``), and the
+standard library's 400/414/431 for requests it cannot parse. A problem with the request never closes the connection
+without a reply.
 
 Connections are kept alive (HTTP/1.1); each client connection has its own thread, closed after
 :data:`CONNECTION_TIMEOUT` seconds without a byte from the client. Decisions are made and logged one at a time.
@@ -46,6 +47,9 @@ MAX_DRAIN = 1024 * 1024
 CONNECTION_TIMEOUT = 15.0
 #: Connections the kernel queues before the server accepts them (http.server's default is 5).
 REQUEST_QUEUE_SIZE = 128
+#: Connections served at once (a thread each, for at most :data:`CONNECTION_TIMEOUT` s of silence); one more is
+#: answered 429 with ``Retry-After`` and closed, so a flood of connections cannot exhaust the server's threads.
+MAX_CONNECTIONS = 64
 ACT_PATHS = ("/", "/act")
 INFO_PATHS = ("/", "/policy")
 ALLOW_ANY_HOST_FLAG = "--allow-any-host"
@@ -60,6 +64,7 @@ class PolicyHTTPServer(ThreadingHTTPServer):
         :func:`host_allowed`).
     :param connection_timeout: seconds of silence after which a client connection is closed (default
         :attr:`connection_timeout`).
+    :param max_connections: connections served at once (default :data:`MAX_CONNECTIONS`); another is answered 429.
     :raises OSError: the address cannot be bound (``errno.EADDRINUSE`` when the port is in use) or the CSV log
         cannot be opened.
     """
@@ -70,13 +75,17 @@ class PolicyHTTPServer(ThreadingHTTPServer):
     connection_timeout: float = CONNECTION_TIMEOUT
 
     def __init__(self, address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
-                 allow_any_host: bool = False, connection_timeout: float | None = None) -> None:
+                 allow_any_host: bool = False, connection_timeout: float | None = None,
+                 max_connections: int = MAX_CONNECTIONS) -> None:
         if ":" in address[0]:
             self.address_family = socket.AF_INET6
         self.policy = policy
         self.log: DecisionLog | None = None
         self.lock = threading.Lock()
         self.served = self.errors = self.refused = 0
+        self.max_connections = max_connections
+        self.open_connections = 0
+        self._connections_lock = threading.Lock()
         self.host_name = address[0]  # as the user named it: what a Host header must say
         self.allow_any_host = allow_any_host
         if connection_timeout is not None:
@@ -110,6 +119,39 @@ class PolicyHTTPServer(ThreadingHTTPServer):
     def host_ok(self, header: str | None) -> bool:
         """Whether a request with this ``Host`` header is answered."""
         return self.allow_any_host or host_allowed(header, self.host_name, self.port)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        """Serve the connection in a thread of its own, or answer 429 at once when :attr:`max_connections` are
+        open."""
+        with self._connections_lock:
+            full = self.open_connections >= self.max_connections
+            if not full:
+                self.open_connections += 1
+        if not full:
+            try:
+                super().process_request(request, client_address)
+            except BaseException:  # no thread started: the connection is not open
+                with self._connections_lock:
+                    self.open_connections -= 1
+                raise
+            return
+        self.count_refused()
+        body = json.dumps({"error": f"{self.max_connections} connections are open; retry in a second"}).encode()
+        head = (f"HTTP/1.1 429 Too Many Requests\r\nContent-Type: application/json\r\nContent-Length: {len(body)}"
+                "\r\nRetry-After: 1\r\nConnection: close\r\n\r\n").encode()
+        try:
+            request.settimeout(1.0)  # the accept loop never waits on a slow client
+            request.sendall(head + body)
+        except OSError:
+            pass
+        self.shutdown_request(request)
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._connections_lock:
+                self.open_connections -= 1
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         """A client that went away is not worth a line; anything else is one line on stderr (no traceback)."""
@@ -333,7 +375,8 @@ def expected_hosts(bound: str, port: int) -> str:
 
 
 def bind(address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
-         allow_any_host: bool = False, connection_timeout: float | None = None) -> PolicyHTTPServer:
+         allow_any_host: bool = False, connection_timeout: float | None = None,
+         max_connections: int = MAX_CONNECTIONS) -> PolicyHTTPServer:
     """A bound :class:`PolicyHTTPServer` (not yet serving); the keywords are the server's.
 
     :raises ValueError: the port is in use, or the host cannot be bound here (one readable line).
@@ -341,7 +384,7 @@ def bind(address: tuple[str, int], policy: Policy, csv_path: str | Path | None =
     """
     try:
         return PolicyHTTPServer(address, policy, csv_path, allow_any_host=allow_any_host,
-                                connection_timeout=connection_timeout)
+                                connection_timeout=connection_timeout, max_connections=max_connections)
     except OSError as exc:
         if exc.filename is not None:  # the CSV log, not the address
             raise

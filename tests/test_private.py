@@ -66,6 +66,14 @@ def test_noise_calibration_hits_the_target_from_below() -> None:
         noise_for_epsilon(SCHEDULE, 0, 1e-5)
 
 
+def test_noise_when_almost_nothing_is_drawn() -> None:
+    """A budget below one gradient step (no draws: it was a ZeroDivisionError) takes the smallest noise tried; one
+    tiny draw and a huge epsilon still calibrate from below."""
+    assert 0 < noise_for_epsilon(Counter(), 1.0, 1e-5) < 1e-3
+    sigma = noise_for_epsilon(Counter({(1e-4, 1): 1}), 1e4, 1e-5)
+    assert 0.99e4 <= epsilon_of(Counter({(1e-4, 1): 1}), sigma, 1e-5) <= 1e4
+
+
 def test_rates_round_up_on_a_fine_grid() -> None:
     rng = np.random.default_rng(0)
     for q in [*rng.uniform(1e-4, 1, 200), 1.0, 0.5, 0.01]:

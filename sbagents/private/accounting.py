@@ -67,7 +67,8 @@ def epsilon_of(draws: Counter[tuple[float, int]], noise_multiplier: float, delta
 
 def noise_for_epsilon(draws: Counter[tuple[float, int]], epsilon: float, delta: float, tol: float = 0.005) -> float:
     """The smallest noise multiplier (to a relative ``tol`` in epsilon) that keeps ``draws`` within
-    ``(epsilon, delta)``: a bracket, then false position on log(epsilon) against log(sigma).
+    ``(epsilon, delta)``: a bracket, then false position on log(epsilon) against log(sigma). When even the
+    smallest noise tried (~1e-3) keeps ``epsilon`` (no draws at all, or very few), that noise.
 
     :raises ValueError: ``epsilon`` <= 0, or no noise below 1e4 is enough.
     """
@@ -87,6 +88,8 @@ def noise_for_epsilon(draws: Counter[tuple[float, int]], epsilon: float, delta: 
     while g_lo <= 0 and lo > 1e-3:
         hi, g_hi, lo = lo, g_lo, lo / 4
         g_lo = gap(lo)
+    if g_lo <= 0:  # even ~1e-3 noise keeps epsilon (e.g. a budget too small for one gradient step): no bracket
+        return lo
     for _ in range(60):
         if -tol <= g_hi <= 0:
             break

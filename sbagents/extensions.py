@@ -175,7 +175,11 @@ class TrainingExtension(Generic[SpecT]):
 
     def check_unused(self, plan: ExtensionPlan) -> None:
         """Called instead of :meth:`prepare` when the run does not use the extension (e.g. refuse its config key
-        given by ``-params``)."""
+        given by ``-params``). Default: :attr:`overrides_key` given by ``-params`` is refused (it would do nothing;
+        an entry's own overrides wait for a run with the extension's flags)."""
+        if self.overrides_key and self.overrides_key in plan.hyperparams:
+            raise UsageError(f"-params {self.overrides_key} applies only to runs with {self.flags} (here it would "
+                             "change nothing); drop it, or train with those flags")
 
     def adjust_experiment(self, spec: SpecT, exp: Any) -> Any:
         """The experiment to train (default: ``exp`` unchanged)."""

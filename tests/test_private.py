@@ -221,6 +221,8 @@ def test_train_with_a_given_noise_stops_before_the_budget(tmp_path: Path) -> Non
     (["--algo", "ppo", "--dp-epsilon", "8", "-n", "200000"], "--dp-delta 1e-05 must be below 1 / 200,000"),
     (["--algo", "ppo", "--dp-noise", "0.5", "--dp-epsilon", "4", "-n", "4096"],
      "--dp-noise 0.5 spends epsilon"),
+    (["--algo", "ddpg", "-params", "dp_overrides:{batch_size: 64}"],
+     "-params dp_overrides applies only to runs with --dp-* (here it would change nothing)"),
 ])
 def test_bad_dp_input_is_one_line(tmp_path: Path, args: list[str], message: str) -> None:
     done = cli("train", "--env", "SmartHome-v0", "-f", str(tmp_path), *args)

@@ -264,9 +264,35 @@ def markdown(results: dict[str, Any]) -> str:
         cells = [f"{row[k]:,.0f}" if k in row else "-" for k in kinds]
         ratios = [f"{row[f'{k}/dummy']:.2f}x" if f"{k}/dummy" in row else "-" for k in kinds if k != "dummy"]
         lines.append(f"| {names[what]} | " + " | ".join(cells + ratios) + " |")
+    lines += ["", targets_paragraph(results)]
     if results.get("notes"):
         lines += ["", results["notes"]]
     return "\n".join(lines)
+
+
+def round_ratios(samples: dict[str, dict[str, list[float]]], kind: str = "envpool") -> dict[str, list[float]]:
+    """Per measure, the per-round ratios of ``kind`` to ``dummy`` (rounds where both were measured)."""
+    return {what: [v / b for v, b in zip(by_kind[kind], by_kind["dummy"], strict=False)]
+            for what, by_kind in samples.items() if by_kind.get(kind) and by_kind.get("dummy")}
+
+
+def targets_paragraph(results: dict[str, Any]) -> str:
+    """The per-round EnvPool / DummyVecEnv ranges and the two targets on this machine (env only >= 2x, PPO
+    training > 1x), from the results alone."""
+    ratios = round_ratios(results["samples"])
+    if "env" not in ratios:
+        return "EnvPool was not measured (not installed): no ratios."
+    names = {"env": "env only", "ppo_rollout": "PPO rollout collection", "ppo": "PPO training", "dqn": "DQN"}
+    spans = [f"{names[w]} {min(r):.2f}-{max(r):.2f}x" for w, r in ratios.items() if w in names and r]
+    summary = results["summary"]
+    env = summary["env"]["envpool/dummy"]
+    text = (f"Per-round envpool / dummy ratios: {'; '.join(spans)}. Targets on {results['machine']['cores']} cores "
+            f"({results['n_envs']} envs): env-only stepping at least 2x DummyVecEnv + AtariWrapper: "
+            f"{'met' if env >= 2.0 else 'not met'} ({env:.2f}x)")
+    if "ppo" in summary and "envpool/dummy" in summary["ppo"]:
+        ppo = summary["ppo"]["envpool/dummy"]
+        text += f"; PPO training faster than with DummyVecEnv: {'met' if ppo > 1.0 else 'not met'} ({ppo:.2f}x)"
+    return text + "."
 
 
 def machine(device: str) -> dict[str, Any]:

@@ -73,10 +73,10 @@ class OnnxPolicy(torch.nn.Module):
         self.squash = bool(getattr(self.policy, "squash_output", False))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.normalize:  # VecNormalize's statistics are in the env's layout, before SB3's transposition
+            obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
         if self.channels_last:
             obs = obs.permute(0, 3, 1, 2)
-        if self.normalize:
-            obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
         actor_actions = getattr(self.policy, "actor_actions", None)  # a centralized critic: the actor alone
         action = actor_actions(obs) if actor_actions is not None else self.policy._predict(obs, deterministic=True)
         if not self.box:

@@ -61,6 +61,9 @@ def test_tiny_run_renders(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(row["ours"]) == set(row["random"]) == set(row["scripted"]) == {"adversary", "good"}
     section = registry()["pettingzoo-defaults"].render(results)
     assert "| mpe2.simple_push_v3 | good |" in section and "| tiny | `n_envs:2" in section
+    assert results["commands"] == [results["command"]] and f"Command: `{results['command']}`" in section
+    added = registry()["pettingzoo-defaults"].render({**results, "commands": ["first --seeds 0", "then --seeds 1"]})
+    assert "Commands (each added its seeds' runs): `first --seeds 0`; then `then --seeds 1`" in added
 
 
 def test_normalized_score() -> None:

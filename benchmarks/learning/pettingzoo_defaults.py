@@ -240,8 +240,19 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
             final[env] = {"runs": runs, "baselines": baselines(env, args.eval_episodes)}
     if found is None:  # read at the end: a --search-only run may still be writing it when this one starts
         found = (load_results(Path(args.search_from)) if args.search_from else saved)["search"]
+    # --add: the runs of earlier commands stay, and so do those commands
+    earlier = (saved.get("commands") or [saved["command"]]) if args.add and saved.get("command") else []
     return {"envs": args.envs, "entry": entry_settings(), "eval_episodes": args.eval_episodes,
-            "eval_seed": EVAL_SEED, "search": found, "final": final, "machine": machine_info(), "command": command}
+            "eval_seed": EVAL_SEED, "search": found, "final": final, "machine": machine_info(), "command": command,
+            "commands": [*earlier, command]}
+
+
+def _commands(result: dict[str, Any]) -> str:
+    """``Command: `...``` or, for runs added by later commands (``--add``), every command in order."""
+    commands = result.get("commands") or [result["command"]]
+    if len(commands) == 1:
+        return f"Command: `{commands[0]}`"
+    return "Commands (each added its seeds' runs): " + "; then ".join(f"`{c}`" for c in commands)
 
 
 def _fmt(value: float) -> str:
@@ -268,7 +279,7 @@ def render(result: Mapping[str, Any]) -> str:
              "random actions / by the scripted controller of `benchmarks/learning/mpe_references.py`, against the "
              "trained policy's other side (8 env copies seeded 10000 + i; ours: the CLI's one copy seeded 10000). "
              "*Above random*: ours > random on every seed; random vs random and scripted vs scripted: no model. "
-             f"Command: `{result['command']}`.{budget}"]
+             f"{_commands(result)}.{budget}"]
     if result["final"]:
         lines += ["", "| env | side | random (vs ours) | ours (mean ± sd over seeds) | scripted (vs ours) | "
                   "above random | random vs random | scripted vs scripted | train s |",
@@ -317,7 +328,7 @@ def render(result: Mapping[str, Any]) -> str:
             lines.append(f"- {name}, {env}: {sides}; {row['train_s']:.0f} s")
     machine = result["machine"]
     lines += ["", f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
-              "while it ran (load average 4-7 on 2 cores)."]
+              "while it ran (each final run's load average is listed with it; the search ran at load 4-7)."]
     return "\n".join(lines)
 
 

@@ -247,7 +247,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
             "commands": [*earlier, command]}
 
 
-def _commands(result: dict[str, Any]) -> str:
+def _commands(result: Mapping[str, Any]) -> str:
     """``Command: `...``` or, for runs added by later commands (``--add``), every command in order."""
     commands = result.get("commands") or [result["command"]]
     if len(commands) == 1:

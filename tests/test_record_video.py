@@ -56,6 +56,7 @@ def test_default_output_folder_and_stochastic(grid_logs: Path) -> None:
     assert len(videos) == 1 and videos[0].stat().st_size > 0
 
 
+@pytest.mark.filterwarnings("ignore:.*Unable to save last video")  # SB3's recorder, after the failed write
 def test_video_is_renamed_into_place_and_a_failed_write_leaves_nothing(grid_logs: Path, tmp_path: Path,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     """The mp4 is written to a hidden temporary name and renamed; a write that fails midway (here after half a

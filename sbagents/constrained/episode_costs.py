@@ -31,6 +31,8 @@ class EpisodeCostConstraint(_Base):
 
     CONSTRAINTS: ClassVar[dict[str, type[LagrangeMultiplier]]] = MULTIPLIERS
     multiplier: LagrangeMultiplier
+    #: The saved multiplier is rebuilt from its plain description (:data:`sbagents.safe_load.PLAIN_ENTRIES_ATTR`).
+    plain_entries: ClassVar[dict[str, Any]] = {}
 
     def _init_constraint(self, cost_limit: float, constraint: str, multiplier_kwargs: dict[str, Any] | None) -> None:
         """Check ``constraint`` and make its multiplier.
@@ -76,3 +78,23 @@ class EpisodeCostConstraint(_Base):
         self.logger.record("constraint/multiplier", self.multiplier.value)
         if self.ep_cost_buffer:
             self.logger.record("rollout/ep_cost_mean", float(np.mean(self.ep_cost_buffer)))
+
+
+def _saved_multiplier(saved: Any, data: dict[str, Any]) -> LagrangeMultiplier:
+    """A constrained model's multiplier from its zip: built from the model's plain settings (``constraint``,
+    ``cost_limit``, ``multiplier_kwargs``), then given the saved learned state (:meth:`LagrangeMultiplier.restore`).
+
+    :raises ValueError: settings the multiplier rejects.
+    """
+    method = data.get("constraint")
+    if method not in MULTIPLIERS:
+        raise ValueError(f"constraint must be one of {sorted(MULTIPLIERS)}, got {method!r:.40}")
+    kwargs = data.get("multiplier_kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise ValueError("multiplier_kwargs must be a mapping")
+    multiplier = MULTIPLIERS[method](float(data.get("cost_limit", 0.0)), **kwargs)
+    multiplier.restore(saved)
+    return multiplier
+
+
+EpisodeCostConstraint.plain_entries = {"multiplier": _saved_multiplier}

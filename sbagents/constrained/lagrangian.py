@@ -13,7 +13,16 @@ import math
 from collections import deque
 from typing import Any
 
-from sbagents.plain_data import register_plain_class
+
+def _plain_float(value: Any) -> float | None:
+    """A finite number from a JSON value or its text, else None."""
+    if isinstance(value, bool):
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _check_finite(name: str, value: float, minimum: float | None = 0.0) -> float:
@@ -24,7 +33,6 @@ def _check_finite(name: str, value: float, minimum: float | None = 0.0) -> float
     return value
 
 
-@register_plain_class  # a data holder: model zips carry it, loaded without unpickling code
 class LagrangeMultiplier:
     """PPO-Lagrangian's multiplier (Ray et al. 2019): projected gradient ascent on ``lambda``.
 
@@ -56,12 +64,35 @@ class LagrangeMultiplier:
         self._record(ep_cost, timesteps)
         return self.value
 
+    #: The attributes that change as it learns (restored from a saved model's plain description).
+    STATE: tuple[str, ...] = ("value",)
+
+    def restore(self, saved: Any) -> None:
+        """Take the learned state of a saved multiplier from SB3's plain description of it (its attributes as JSON
+        values or text): the numbers of :attr:`STATE` and ``history``; anything malformed is ignored (the model
+        then starts from its configured ``init``).
+        """
+        if not isinstance(saved, dict):
+            return
+        for name in self.STATE:
+            value = _plain_float(saved.get(name))
+            if value is not None:
+                setattr(self, name, value)
+        history = saved.get("history")
+        if isinstance(history, list) and len(history) <= 1_000_000:
+            self.history = [
+                {"timesteps": int(h["timesteps"]), "ep_cost": float(h["ep_cost"]), "multiplier": float(h["multiplier"])}
+                for h in history
+                if isinstance(h, dict) and all(_plain_float(h.get(k)) is not None
+                                               for k in ("timesteps", "ep_cost", "multiplier"))
+            ]
+        self.value = min(self.max_multiplier, max(0.0, self.value))
+
     def _record(self, ep_cost: float, timesteps: int | None) -> None:
         step = len(self.history) + 1 if timesteps is None else int(timesteps)
         self.history.append({"timesteps": step, "ep_cost": ep_cost, "multiplier": self.value})
 
 
-@register_plain_class
 class PIDLagrangeMultiplier(LagrangeMultiplier):
     """PID-Lagrangian multiplier (Stooke, Achiam & Abbeel 2020, Algorithm 2; OmniSafe's ``PIDLagrangian``).
 
@@ -115,6 +146,16 @@ class PIDLagrangeMultiplier(LagrangeMultiplier):
         self.cost_ema = 0.0
         self.cost_emas: deque[float] = deque([0.0], maxlen=self.d_delay)
         self.derivative = 0.0
+
+    STATE = ("value", "integral", "error_ema", "cost_ema", "derivative")
+
+    def restore(self, saved: Any) -> None:
+        super().restore(saved)
+        text = saved.get("cost_emas") if isinstance(saved, dict) else None
+        if isinstance(text, str) and text.startswith("deque([") and len(text) < 1 << 16:
+            values = [_plain_float(v) for v in text[len("deque(["):].split("]")[0].split(",") if v.strip()]
+            if values and all(v is not None for v in values):
+                self.cost_emas = deque((float(v) for v in values if v is not None), maxlen=self.d_delay)
 
     def update(self, ep_cost: float, timesteps: int | None = None) -> float:
         """One PID step from a measured mean episode cost; returns the new multiplier (see the class docstring)."""

@@ -6,7 +6,6 @@ short name from a fixed table; nothing is ``eval``'d.
 
 from __future__ import annotations
 
-import importlib
 import inspect
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,6 +18,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from sbagents.algos import ALGOS
 from sbagents.core.env_kinds import SINGLE_AGENT, EnvKind
 from sbagents.core.env_names import EnvRef
+from sbagents.core.imports import resolve_path
 from sbagents.core.options import TrainSpec
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.core.team_options import TeamOptions
@@ -79,36 +79,19 @@ def _expected_bases(what: str) -> tuple[type, ...]:
     }.get(what, (nn.Module,))  # activation_fn, features_extractor_class
 
 
-def _within(module: str, prefixes: tuple[str, ...]) -> bool:
-    return any(module == p or module.startswith(p + ".") for p in prefixes)
-
-
 def import_object(path: str, what: str = "object", trusted_modules: tuple[str, ...] = ()) -> Any:
-    """Import ``package.module.Name`` or ``package.module:Name`` (or a short name of :data:`KNOWN_CLASSES`).
+    """Resolve ``package.module.Name`` or ``package.module:Name`` (or a short name of :data:`KNOWN_CLASSES`).
 
     Only from the allow-list: a class of the kind ``what`` takes (a wrapper, a callback, a network module, ...) from
     :data:`ALLOWED_IMPORTS`, or anything from ``trusted_modules`` (the modules the user named on the command line).
-    Nothing is imported before the path passes that check, so a config can neither run code on import nor call a
-    function of its choosing.
+    The path is checked before anything is imported, and an allowed package's object is found among the modules that
+    package already loads (:func:`sbagents.core.imports.resolve_path`), so a config can neither run code on import
+    nor call a function of its choosing.
 
     :raises UsageError: one line: a malformed path, a module outside the allow-list, or the wrong kind of object.
     """
     path = KNOWN_CLASSES.get(path, path)
-    module_name, sep, attr = path.partition(":")
-    if not sep:
-        module_name, _, attr = path.rpartition(".")
-    if not module_name or not attr:
-        raise UsageError(f"{what} {path!r} must be an import path like 'package.module.Name'")
-    trusted = _within(module_name, trusted_modules)
-    if not trusted and not _within(module_name, ALLOWED_IMPORTS):
-        raise UsageError(
-            f"{what} {path!r} is outside the import allow-list ({', '.join(ALLOWED_IMPORTS)}): a config may not "
-            f"import code from elsewhere; if {module_name.split('.')[0]!r} is your own package, name it with "
-            "--gym-packages to trust it")
-    try:
-        obj = getattr(importlib.import_module(module_name), attr)
-    except (ImportError, AttributeError) as exc:
-        raise UsageError(f"cannot import {what} {path!r}: {exc}") from None
+    obj, trusted = resolve_path(path, what, ALLOWED_IMPORTS, trusted_modules)
     if not trusted and not (inspect.isclass(obj) and issubclass(obj, _expected_bases(what))):
         kinds = " or ".join(b.__name__ for b in _expected_bases(what))
         raise UsageError(f"{what} {path!r} is not a {kinds} class (a config names classes of that kind from the "

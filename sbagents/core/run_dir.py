@@ -141,11 +141,16 @@ def save_run_config(
 
 
 def load_run_config(run_dir: Path, env_id: str) -> dict[str, Any]:
-    """The hyperparameters saved in a run's ``config.yml``, or :class:`UsageError` if the file is missing."""
+    """The hyperparameters saved in a run's ``config.yml``, or :class:`UsageError` if the file is missing or holds
+    no settings (training always writes them: an empty file is a damaged run, not one without settings)."""
     path = config_path(run_dir, env_id)
     if not path.exists():
         raise UsageError(f"{run_dir} has no {path.relative_to(run_dir)}; is it a sbagents run dir?")
-    return read_settings_file(path)
+    entry = read_settings_file(path)
+    if not entry:
+        raise UsageError(f"{path} holds no settings (training writes the run's hyperparameters there); "
+                         "is it a sbagents run dir?")
+    return entry
 
 
 def read_settings_file(path: Path) -> dict[str, Any]:
@@ -182,8 +187,74 @@ def load_experiment(run_dir: Path, algo: str, env_id: str, kind: EnvKind | None 
     from sbagents.core.env_kinds import SINGLE_AGENT
     from sbagents.core.experiment import resolve
 
-    return resolve(algo, env_id, load_run_config(run_dir, env_id), str(config_path(run_dir, env_id)),
-                   kind or SINGLE_AGENT, trusted_modules)
+    entry = load_run_config(run_dir, env_id)
+    source = str(config_path(run_dir, env_id))
+    exp = resolve(algo, env_id, entry, source, kind or SINGLE_AGENT, trusted_modules)
+    check_no_paths(entry, source)  # after resolve: an import path outside the allow-list is refused first
+    return exp
+
+
+#: Config keys whose arguments are handed to code that builds a finished run's envs (evaluate, export, record).
+WRAPPER_KEYS = ("env_wrapper", "vec_env_wrapper")
+#: Name components of an argument that names a file or folder (``video_folder``, ``filename``, ``log_dir``, ...).
+PATH_WORDS = frozenset({"file", "filename", "filepath", "fname", "folder", "dir", "dirname", "directory", "path",
+                        "video", "save", "prefix", "output", "out", "dest", "destination", "root", "log", "logdir",
+                        "logs", "csv"})
+_FILE_SUFFIX = re.compile(r"\.(csv|json|jsonl|txt|log|mp4|gif|png|jpg|npz|npy|pkl|zip|ya?ml|monitor|h5|pt|onnx)$",
+                          re.IGNORECASE)
+
+
+def names_path(key: str) -> bool:
+    """Whether an argument called ``key`` names a file or folder (a component of :data:`PATH_WORDS`)."""
+    lowered = key.lower()
+    return lowered in PATH_WORDS or any(word in PATH_WORDS for word in re.split(r"[_\-.\s]+", lowered))
+
+
+def looks_like_path(value: str) -> bool:
+    """Whether a string reads as a file-system path: a separator, a leading ``~`` or ``.``, or a data file's
+    suffix (``m.monitor.csv``)."""
+    return ("/" in value or "\\" in value or value.startswith(("~", ".")) or bool(_FILE_SUFFIX.search(value)))
+
+
+def _path_values(value: Any, path_key: bool) -> list[str]:
+    """The strings in ``value`` (a scalar, or lists/mappings of them) that name paths: every non-empty string
+    under a path-named key, and strings that :func:`looks_like_path` anywhere."""
+    if isinstance(value, str):
+        return [value] if (path_key and value.strip()) or looks_like_path(value) else []
+    if isinstance(value, dict):
+        return [v for key, item in value.items() for v in _path_values(item, path_key or names_path(str(key)))]
+    if isinstance(value, list | tuple):
+        return [v for item in value for v in _path_values(item, path_key)]
+    return []
+
+
+def check_no_paths(entry: dict[str, Any], source: str) -> None:
+    """Refuse, in one line, a finished run's config whose wrapper arguments (``env_wrapper``, ``vec_env_wrapper``)
+    or ``monitor_kwargs`` name a file or folder: evaluating, exporting or recording a run writes only into its run
+    dir, and a wrapper given ``video_folder: /elsewhere`` or ``filename: /elsewhere/m`` would write (and truncate)
+    files wherever the config says.
+
+    :param source: the config file, for the message.
+    :raises UsageError: naming the key, the wrapper, the argument and its value.
+    """
+    found: list[tuple[str, str, str]] = []
+    for key in WRAPPER_KEYS:
+        value = entry.get(key)
+        for item in value if isinstance(value, list) else [value] if value else []:
+            if isinstance(item, dict):
+                for wrapper, kwargs in item.items():
+                    for arg, arg_value in (kwargs or {}).items() if isinstance(kwargs, dict) else ():
+                        found += [(f"{key} {wrapper}", str(arg), v) for v in _path_values(arg_value, names_path(
+                            str(arg)))]
+    monitor = entry.get("monitor_kwargs")
+    if isinstance(monitor, dict):
+        for arg, arg_value in monitor.items():
+            found += [("monitor_kwargs", str(arg), v) for v in _path_values(arg_value, names_path(str(arg)))]
+    if found:
+        where, arg, value = found[0]
+        raise UsageError(f"{source}: {where} argument {arg}={value!r:.80} names a file or folder; a run's config may "
+                         "not write outside its run dir when it is evaluated, exported or recorded (remove the "
+                         "argument from the config to use this run)")
 
 
 def check_model_file(path: str | Path) -> Path:
@@ -310,8 +381,9 @@ def with_env_kwargs(exp: Experiment, env_kwargs: dict[str, Any]) -> Experiment:
 
 
 def load_run(ref: RunRef) -> LoadedRun:
-    """Find the run ``ref`` names and load its model(s) and experiment, without running code from its files
-    (:mod:`sbagents.safe_load`; ``ref.trust`` loads them as they are)."""
+    """Find the run ``ref`` names and load its model(s) and experiment, without running code from its files: each
+    model is rebuilt from the run's resolved hyperparameters, its plain data and its weights
+    (:mod:`sbagents.safe_load`; ``ref.trust`` loads them as SB3 does)."""
     from sbagents.algos import ALGOS
     from sbagents.safe_load import load_model
 
@@ -330,7 +402,8 @@ def load_run(ref: RunRef) -> LoadedRun:
         cls = extension.load_class(ref.algo, args) or cls
 
     def load(path: Path) -> Any:
-        return load_model(cls, path, device="cpu", trust=ref.trust, trusted_modules=trusted)
+        return load_model(cls, path, device="cpu", trust=ref.trust, trusted_modules=trusted,
+                          hyperparams={"policy": exp.policy, **exp.algo_kwargs})
 
     groups = run_groups(run_dir, env.env_id)
     if groups is not None and len(groups) > 1:

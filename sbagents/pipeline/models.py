@@ -21,7 +21,7 @@ from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
 from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
-from sbagents.safe_load import load_model
+from sbagents.safe_load import load_model, record_spaces
 
 
 def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Space]:
@@ -73,24 +73,26 @@ def make_model(
     extra: dict[str, Any] = {}
     for active in extensions:
         cls, extra = active.extension.model_class(active.spec, exp.algo, cls, extra)
-    if resume is not None:
-        common: dict[str, Any] = dict(env=env, device=device, trust=resume.trust, tensorboard_log=tensorboard_log,
-                                      verbose=verbose)
-        for active in extensions:
-            model = active.extension.load_model(active.spec, cls, resume.path, **common, **extra)
-            if model is not None:
-                return model
-        return load_model(cls, resume.path, **common, **extra)
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
     policy: Any = exp.policy
     if exp.team is not None:
         policy = _team_model_kwargs(exp, kwargs, isinstance(env.observation_space, spaces.Dict))
+    if resume is not None:
+        common: dict[str, Any] = dict(env=env, device=device, trust=resume.trust, tensorboard_log=tensorboard_log,
+                                      verbose=verbose, hyperparams={**kwargs, "policy": policy})
+        for active in extensions:
+            model = active.extension.load_model(active.spec, cls, resume.path, **common, **extra)
+            if model is not None:
+                return model
+        return load_model(cls, resume.path, **common, **extra)
     try:
-        return cls(policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **kwargs)
+        model = cls(policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **kwargs)
     except (TypeError, ValueError, AssertionError, KeyError) as exc:
         raise UsageError(f"invalid hyperparameters for {exp.algo} on {exp.env_id}: {exc}") from None
+    record_spaces(model)  # saved with it: loading rebuilds the spaces from plain data
+    return model
 
 
 def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:

@@ -41,13 +41,15 @@ from pathlib import Path
 from typing import Any
 
 from sbagents.core.imports import resolve_path
-from sbagents.core.spaces_record import RECORD_KEY, check_record, describe, same_space, spaces_record
 from sbagents.errors import UsageError
 from sbagents.plain_data import TRUST_FLAG, UntrustedContentError
 from sbagents.plain_data import short_message as _short
 
 __all__ = ["PLAIN_ENTRIES_ATTR", "TRUST_FLAG", "UntrustedContentError", "load_model", "load_pickle_file",
            "read_model_data", "read_weights", "record_spaces"]
+
+# gymnasium, numpy and torch are imported where they are needed: ``sbagents.serve`` imports this module's
+# neighbours and must stay free of them.
 
 #: A class attribute of an algorithm: ``{entry: builder(description, data) -> value}`` for ``:serialized:`` entries
 #: the class rebuilds from their plain description (the JSON fields SB3 writes beside each payload).
@@ -254,6 +256,8 @@ def _described_space(item: Any) -> Any:
 
 def _model_spaces(data: dict[str, Any], env: Any, path: Path) -> tuple[Any, Any]:
     """The model's spaces: the env's, checked against the file's record (or description); else the record's."""
+    from sbagents.core.spaces_record import RECORD_KEY, check_record, describe, same_space
+
     recorded = check_record(data[RECORD_KEY], str(path)) if RECORD_KEY in data else None
     if env is not None:
         found = (env.observation_space, env.action_space)
@@ -281,6 +285,8 @@ def _model_spaces(data: dict[str, Any], env: Any, path: Path) -> tuple[Any, Any]
 
 def record_spaces(model: Any) -> None:
     """Give ``model`` the plain record of its spaces, which SB3 then saves in the zip's ``data`` JSON."""
+    from sbagents.core.spaces_record import RECORD_KEY, spaces_record
+
     record = spaces_record(model.observation_space, model.action_space)
     if record is not None:
         setattr(model, RECORD_KEY, record)

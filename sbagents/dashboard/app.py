@@ -4,21 +4,25 @@ Pages (HTML shells filled by ``static/dashboard.js``): ``/`` runs, ``/run/<folde
 ``/decisions/<folder>/<run>`` its transparency logs, ``/trust/<folder>/<run>`` safety, attacks and fairness,
 ``/compare?run=<id>&run=<id>`` several runs' curves. JSON under ``/api/``; files under ``/file/<folder>/<path>``.
 Every path goes through :class:`~sbagents.dashboard.folders.ServedFolders` (404 outside the folders), every file a
-run's readers open through :class:`~sbagents.dashboard.folders.RunFiles`. A malformed file gives a note in the JSON,
-a bad query value a 400 (:mod:`sbagents.dashboard.queryargs`); no route answers 5xx for either.
+run's readers open through :class:`~sbagents.dashboard.folders.RunFiles`; every file is opened once
+(:func:`~sbagents.dashboard.folders.open_regular`) and read or streamed from that open file. A run dir's files cannot
+run script in the dashboard's origin: only passive types (:data:`INLINE_TYPES`) are inline, the rest (html, svg,
+js, ...) are attachments, all with a sandbox CSP (:data:`FILE_CSP`) and ``nosniff``. A malformed file gives a note
+in the JSON, a bad query value a 400 (:mod:`sbagents.dashboard.queryargs`); no route answers 5xx for either.
 """
 
 from __future__ import annotations
 
 import hmac
 import math
-from typing import Any
+import os
+from typing import Any, BinaryIO
 
 from flask import Flask, Response, abort, jsonify, render_template, request, send_file
 
 from sbagents.dashboard import readers
 from sbagents.dashboard.episode_costs import episode_costs
-from sbagents.dashboard.folders import RunFiles, ServedFolders
+from sbagents.dashboard.folders import RunFiles, ServedFolders, open_regular
 from sbagents.dashboard.logindex import LogIndex, Page
 from sbagents.dashboard.logregistry import index_in_background, open_log
 from sbagents.dashboard.queryargs import int_arg, optional_int, row_filter
@@ -29,6 +33,19 @@ TOKEN_COOKIE = "sbagents_dashboard_token"
 #: Most rows one decisions request returns.
 MAX_PAGE_ROWS = 1000
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]", "::1")
+#: Content-Security-Policy of the pages: scripts only from the dashboard itself.
+PAGE_CSP = ("default-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; "
+            "media-src 'self'; connect-src 'self'; object-src 'none'; frame-ancestors 'none'")
+#: Content-Security-Policy of every file of a run dir: a sandbox (an opaque origin, no script), nothing loaded but
+#: the file itself (an image or a video opened on its own).
+FILE_CSP = "sandbox; default-src 'none'; img-src 'self'; media-src 'self'; frame-ancestors 'none'"
+#: Files of a run dir served inline, with this type: passive formats a browser shows without running anything.
+#: Every other file (html, svg, js, xml, ...) is an attachment of type ``application/octet-stream``.
+INLINE_TYPES = {
+    ".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".gif": "image/gif", ".webp": "image/webp",
+    ".mp4": "video/mp4", ".webm": "video/webm", ".csv": "text/csv", ".json": "application/json",
+    ".txt": "text/plain", ".log": "text/plain", ".yml": "text/plain", ".yaml": "text/plain",
+}
 
 
 def create_app(folders: ServedFolders, token: str | None = None, check_host: bool = True) -> Flask:
@@ -62,10 +79,7 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         response.headers["X-Content-Type-Options"] = "nosniff"
         response.headers["X-Frame-Options"] = "DENY"
         response.headers["Referrer-Policy"] = "no-referrer"
-        response.headers["Content-Security-Policy"] = (
-            "default-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; "
-            "media-src 'self'; connect-src 'self'; object-src 'none'; frame-ancestors 'none'"
-        )
+        response.headers.setdefault("Content-Security-Policy", PAGE_CSP)  # a file has its own (FILE_CSP)
         if token is not None and request.args.get("token") == token:
             response.set_cookie(TOKEN_COOKIE, token, httponly=True, samesite="Strict")
         return response
@@ -155,7 +169,7 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         if path is None:
             abort(404)
         try:
-            index = open_log(path)
+            index = open_log(path, resolved=True)  # real: not resolved again
         except OSError:  # gone, or no longer a regular file
             abort(404)
         index_in_background(index)
@@ -203,12 +217,13 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
     @app.get("/file/<int:root>/<path:rel>")
     def file(root: int, rel: str) -> Response:
         path = folders.resolve(root, rel)
-        if path is None or not path.is_file():
+        if path is None:
             abort(404)
-        try:
-            return send_file(path, conditional=True, as_attachment=request.args.get("download") == "1")
-        except OSError:  # unreadable, or gone since the check
+        try:  # opened once, without following a symlink swapped in since the check; then only the open file is read
+            fh = open_regular(path)
+        except OSError:  # a folder, FIFO or device; unreadable, gone or swapped since the check
             abort(404)
+        return _send_open_file(fh, path.name, as_attachment=request.args.get("download") == "1")
 
     @app.get("/favicon.ico")
     def favicon() -> Response:
@@ -219,6 +234,29 @@ def create_app(folders: ServedFolders, token: str | None = None, check_host: boo
         return Response(_plotly_js(), mimetype="text/javascript", headers={"Cache-Control": "max-age=86400"})
 
     return app
+
+
+def _send_open_file(fh: BinaryIO, name: str, as_attachment: bool) -> Response:
+    """The open regular file ``fh`` (named ``name``) as a response that cannot run script in the dashboard's origin:
+    only the passive types of :data:`INLINE_TYPES` inline, everything else an ``application/octet-stream``
+    attachment; :data:`FILE_CSP` and ``nosniff`` on both. Range and conditional requests are answered from the open
+    file (its ``fstat``), which the response closes."""
+    try:
+        st = os.fstat(fh.fileno())
+        mimetype = INLINE_TYPES.get(os.path.splitext(name)[1].lower())
+        response = send_file(
+            fh, mimetype=mimetype or "application/octet-stream", as_attachment=as_attachment or mimetype is None,
+            download_name=name, conditional=False, etag=f"{st.st_ino:x}-{st.st_mtime_ns:x}-{st.st_size:x}",
+            last_modified=st.st_mtime,
+        )
+        response.content_length = st.st_size
+        response.make_conditional(request.environ, accept_ranges=True, complete_length=st.st_size)
+    except BaseException:  # RequestedRangeNotSatisfiable (416) included: the response would not close it
+        fh.close()
+        raise
+    response.headers["Content-Security-Policy"] = FILE_CSP
+    response.headers["X-Content-Type-Options"] = "nosniff"
+    return response
 
 
 _PLOTLY: list[str] = []

@@ -4,8 +4,11 @@ and :class:`RunFiles` (the files of one run dir, for every reader).
 A file is reachable when its real path (symlinks resolved) lies under the real path of one served folder.
 Absolute paths, ``..`` components, NUL bytes and symlinks that lead out of the folder resolve to ``None``
 (the app answers 404, a reader treats the file as missing), whatever the folder contains. Files are opened
-through :func:`open_regular`: only regular files (a FIFO would block the request, a device would never end),
-without following a symlink swapped in after the check, and read with a byte limit (:meth:`RunFiles.read_bytes`).
+through :func:`open_regular`, once: component by component from ``/`` without following any symlink (a real path
+has none, so a symlink swapped in after the check, at the file's name or at any folder above it, makes the open
+fail instead of leading out), without blocking, and only when the opened file is a regular file (a FIFO would block
+the request, a device would never end); everything after that reads the open file, never the path again, with a
+byte limit (:meth:`RunFiles.read_bytes`).
 """
 
 from __future__ import annotations
@@ -21,17 +24,59 @@ from sbagents.errors import UsageError
 
 #: ``os.open`` flags of every file the dashboard reads: no blocking on a FIFO, no symlink as the last component.
 _OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+#: ``os.open`` flags of each folder on the way to a file: a folder, not a symlink (``O_PATH``: no read permission
+#: needed, as for a path lookup).
+_DIR_FLAGS = (getattr(os, "O_PATH", os.O_RDONLY) | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0)
+              | getattr(os, "O_CLOEXEC", 0))
+#: macOS: ``open`` itself refuses a symlink anywhere in the path.
+_NOFOLLOW_ANY = getattr(os, "O_NOFOLLOW_ANY", 0)
+#: Whether folders can be walked with ``dir_fd`` (POSIX).
+_WALK = os.open in os.supports_dir_fd and hasattr(os, "O_DIRECTORY") and hasattr(os, "O_NOFOLLOW")
+
+
+def _open_no_symlinks(path: str) -> int:
+    """A file descriptor of the absolute ``path`` opened with :data:`_OPEN_FLAGS`, reached without following any
+    symlink: each folder is opened from the one before (``O_DIRECTORY | O_NOFOLLOW``), the file last."""
+    if _NOFOLLOW_ANY:
+        return os.open(path, _OPEN_FLAGS | _NOFOLLOW_ANY)
+    if not _WALK:  # no dir_fd (Windows): only the last component is checked
+        return os.open(path, _OPEN_FLAGS)
+    parts = Path(path).parts
+    if len(parts) < 2:
+        raise IsADirectoryError(f"{path} is not a file")
+    dir_fd = os.open(parts[0], _DIR_FLAGS)
+    try:
+        for part in parts[1:-1]:
+            fd = os.open(part, _DIR_FLAGS, dir_fd=dir_fd)
+            os.close(dir_fd)
+            dir_fd = fd
+        return os.open(parts[-1], _OPEN_FLAGS, dir_fd=dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 def open_regular(path: Path) -> BinaryIO:
-    """``path`` opened for binary reading if it is a regular file.
+    """``path`` opened once for binary reading if it is a regular file, reached without following any symlink.
 
-    :raises OSError: it is missing, not a regular file (FIFO, device, folder) or a symlink.
+    ``path`` is a real path (:meth:`ServedFolders.resolve` gives one): a symlink on the way to it (at its name or at
+    any folder above) was swapped in after the path was checked, and the open fails rather than follow it. Where
+    ``/proc/self/fd`` exists, the opened file's path must still be ``path`` (a folder above it was not moved away
+    meanwhile). The open does not block (``O_NONBLOCK``), so a FIFO swapped in is refused, not waited on. Read the
+    returned file, never ``path`` again.
+
+    :raises OSError: it is missing, not a regular file (FIFO, device, socket, folder), or reached through a symlink.
     """
-    fd = os.open(path, _OPEN_FLAGS)
+    text = os.path.abspath(path)
+    fd = _open_no_symlinks(text)
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(f"{path.name} is not a regular file")
+        try:
+            opened = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:  # no /proc (macOS): the open itself refused symlinks
+            opened = text
+        if opened != text:
+            raise OSError(f"{path.name} is no longer at {text}")
         return os.fdopen(fd, "rb")
     except BaseException:
         os.close(fd)
@@ -123,7 +168,7 @@ class RunFiles:
         """The real path of ``name`` if it is a regular file under the served folder, else None."""
         path = self.resolve(name)
         try:
-            return path if path is not None and stat.S_ISREG(os.stat(path).st_mode) else None
+            return path if path is not None and stat.S_ISREG(os.lstat(path).st_mode) else None
         except OSError:
             return None
 
@@ -133,10 +178,10 @@ class RunFiles:
         return path if path is not None and path.is_dir() else None
 
     def stat(self, name: str) -> os.stat_result | None:
-        """``os.stat`` of the regular file ``name`` (None when :meth:`file` is None)."""
+        """``os.lstat`` of the regular file ``name`` (None when :meth:`file` is None)."""
         path = self.file(name)
         try:
-            return os.stat(path) if path is not None else None
+            return os.lstat(path) if path is not None else None
         except OSError:
             return None
 

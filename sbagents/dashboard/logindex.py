@@ -80,20 +80,24 @@ class LogIndex:
 
     :param path: the log (``.gz``: gzip, else plain CSV). It is only read.
     :param block_rows: rows per index block (a page reads from the block start before it).
+    :param resolved: ``path`` is already a real path (the dashboard's, from
+        :meth:`~sbagents.dashboard.folders.RunFiles.file`) and is not resolved again: every read opens it without
+        following any symlink, so one swapped in since it was checked is refused rather than followed out of the
+        served folder. False: symlinks in ``path`` are resolved once, here.
     """
 
-    def __init__(self, path: Path, block_rows: int = 1024) -> None:
+    def __init__(self, path: Path, block_rows: int = 1024, resolved: bool = False) -> None:
         if block_rows < 1:
             raise ValueError(f"block_rows must be >= 1, got {block_rows}")
-        self.path = Path(path)
+        self.gzip = Path(path).name.endswith(".gz")
+        self.path = Path(os.path.abspath(path)) if resolved else Path(path).resolve()
         self.block_rows = int(block_rows)
-        self.gzip = self.path.name.endswith(".gz")
         self._lock = threading.RLock()
         #: bytes (uncompressed) this object has scanned for newlines; a cached index scans only the new tail
         self.bytes_scanned = 0
         #: True when the index came from the on-disk cache
         self.cache_loaded = False
-        self._cache_path = _cache_file(self.path.resolve(), self.block_rows)
+        self._cache_path = _cache_file(self.path, self.block_rows)
         self._last_save = 0.0
         self._saved_rows = -1
         self._reset()
@@ -105,7 +109,7 @@ class LogIndex:
 
     # ------------------------------------------------------------------ state
     def _reset(self) -> None:
-        st = os.stat(self.path)
+        st = os.lstat(self.path)
         self._inode = st.st_ino
         self.columns: list[str] = []
         self._col: dict[str, int] = {}
@@ -136,7 +140,7 @@ class LogIndex:
     def is_stale(self) -> bool:
         """True when the file was replaced or truncated since it was indexed (or is gone)."""
         try:
-            st = os.stat(self.path)
+            st = os.lstat(self.path)  # a real path: a symlink there was swapped in (then stale)
         except OSError:
             return True
         with self._lock:
@@ -215,7 +219,7 @@ class LogIndex:
     def _check_file(self) -> None:
         """Re-index from scratch when the file was replaced or truncated (lock held)."""
         try:
-            st = os.stat(self.path)
+            st = os.lstat(self.path)
         except OSError:
             return
         if self._stale(st):

@@ -8,6 +8,7 @@ indexed never makes a request for another log wait. The registry's own lock only
 
 from __future__ import annotations
 
+import os
 import threading
 from pathlib import Path
 
@@ -19,22 +20,24 @@ _REGISTRY_LOCK = threading.Lock()
 _INDEXING: set[Path] = set()
 
 
-def open_log(path: Path) -> LogIndex:
+def open_log(path: Path, resolved: bool = False) -> LogIndex:
     """The :class:`LogIndex` of ``path``, shared process-wide (keyed by the resolved path; thread-safe).
 
     A file that was replaced or truncated since it was indexed (another inode, or smaller) gets a new index.
     The returned index may be incomplete: call :meth:`LogIndex.refresh` (e.g. :func:`index_in_background`).
 
-    :raises OSError: the file cannot be opened (gone, or not a regular file).
+    :param resolved: ``path`` is already a real path (the dashboard's) and is not resolved again: a symlink swapped
+        in since it was checked makes the open fail instead of being followed (see :class:`LogIndex`).
+    :raises OSError: the file cannot be opened (gone, not a regular file, or reached through a symlink swapped in).
     """
-    key = Path(path).resolve()
+    key = Path(os.path.abspath(path)) if resolved else Path(path).resolve()
     with _REGISTRY_LOCK:
         lock = _OPENING.setdefault(key, threading.Lock())
     with lock:  # only requests for this log wait while it is opened
         with _REGISTRY_LOCK:
             index = _LOGS.get(key)
         if index is None or index.is_stale():
-            index = LogIndex(key)
+            index = LogIndex(key, resolved=True)
             with _REGISTRY_LOCK:
                 _LOGS[key] = index
                 _INDEXING.discard(key)

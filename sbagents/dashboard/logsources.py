@@ -229,13 +229,13 @@ def _load_index_cache(cache_file: Path, path: Path, block_rows: int) -> _CachedI
         with np.load(cache_file, allow_pickle=False) as npz:
             meta = json.loads(str(npz["meta"]))
             offsets = npz["offsets"]
-        st = os.stat(path)
+        st = os.lstat(path)
         if (
             meta.get("version") != CACHE_VERSION
             or meta["block_rows"] != block_rows
             or meta["inode"] != st.st_ino
             or meta["scan_pos"] > st.st_size
-            or meta["path"] != str(path.resolve())
+            or meta["path"] != str(path)
         ):
             return None
         with open_regular(path) as fh:
@@ -253,10 +253,10 @@ def _save_index_cache(cache_file: Path, path: Path, block_rows: int, offsets: li
                       header_end: int) -> bool:
     """Write the index of ``path`` (rows and offsets up to byte ``scan_pos``) to ``cache_file``; False on error."""
     try:
-        st = os.stat(path)
+        st = os.lstat(path)
         with open_regular(path) as fh:
             head, tail = _file_hashes(fh, scan_pos)
-        meta = {"version": CACHE_VERSION, "path": str(path.resolve()), "size": st.st_size,
+        meta = {"version": CACHE_VERSION, "path": str(path), "size": st.st_size,
                 "mtime_ns": st.st_mtime_ns, "inode": st.st_ino, "block_rows": block_rows,
                 "rows": rows, "scan_pos": scan_pos, "header_end": header_end,
                 "head_sha": head, "tail_sha": tail}

@@ -3,6 +3,10 @@ free) before anything starts, then runs Werkzeug's threaded WSGI server until Ct
 
 Werkzeug's server (Flask's own) is enough for a few operators on a read-only app; behind a reverse proxy with
 TLS, mount :func:`sbagents.dashboard.app.create_app` in any WSGI server instead.
+
+The token is in no line this module prints: the start line says where to add it, and every line of the server's
+log (``-v`` request lines, errors that quote a bad request line) has its ``token=`` query values replaced by
+``***`` (:func:`redact_token`).
 """
 
 from __future__ import annotations
@@ -10,15 +14,29 @@ from __future__ import annotations
 import errno
 import ipaddress
 import os
+import re
 import socket
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import unquote_plus
 
 from sbagents.errors import UsageError
 
 #: Environment variable read when ``--token`` is not given (keeps the token out of ``ps`` listings).
 TOKEN_ENV_VAR = "SBAGENTS_DASHBOARD_TOKEN"
 DEFAULT_PORT = 8050
+#: A ``name=value`` pair of a query string (the value runs to the next ``&`` or white space).
+_QUERY_PAIR = re.compile(r"([?&;])([^=&?;\s]*)=([^&\s]*)")
+
+
+def redact_token(text: str) -> str:
+    """``text`` with the value of every ``token=`` query pair replaced by ``***`` (the name compared after
+    percent-decoding, as the app reads it: ``?%74oken=`` is a token too)."""
+    def hide(match: re.Match[str]) -> str:
+        return f"{match[1]}{match[2]}=***" if unquote_plus(match[2]).strip() == "token" else match[0]
+
+    return _QUERY_PAIR.sub(hide, text)
 
 
 @dataclass
@@ -80,6 +98,9 @@ def serve(options: DashboardOptions) -> int:
             if not options.quiet:
                 super().log_request(code, size)
 
+        def log(self, type: str, message: str, *args: Any) -> None:  # every line of the server's log
+            super().log(type, "%s", redact_token(message % args if args else message))
+
     try:  # our own socket: Werkzeug prints a paragraph and exits 1 when the port is taken
         family = socket.AF_INET6 if ":" in options.host else socket.AF_INET
         listener = socket.create_server((options.host.strip("[]"), options.port), family=family)
@@ -91,9 +112,9 @@ def serve(options: DashboardOptions) -> int:
     server = make_server(options.host, listener.getsockname()[1], app, threaded=True, request_handler=Handler,
                          fd=listener.fileno())
     host = f"[{options.host}]" if ":" in options.host else options.host
-    url = f"http://{host}:{server.port}/" + (f"?token={token}" if token and is_loopback(options.host) else "")
+    url = f"http://{host}:{server.port}/"  # never with the token: this line ends up in logs
     print(f"dashboard: {url}  serving {', '.join(str(r) for r in folders.roots)} read-only (Ctrl-C stops)", flush=True)
-    if token and not is_loopback(options.host):
+    if token:
         print("dashboard: open it with ?token=<your token> once; the browser then keeps a cookie", flush=True)
     try:
         server.serve_forever()  # Werkzeug's returns on Ctrl-C (and SIGTERM, which the CLI turns into Ctrl-C)

@@ -7,6 +7,7 @@ server is what is under test, and it runs with torch, SB3 and gymnasium unimport
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import http.client
 import io
@@ -34,7 +35,9 @@ from sbagents.deploy.http_serving import (
     CONNECTION_TIMEOUT,
     MAX_BODY,
     MAX_CONNECTIONS,
+    REQUEST_TIMEOUT,
     PolicyHTTPServer,
+    bind,
     expected_hosts,
     host_allowed,
     split_host,
@@ -54,7 +57,7 @@ try:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
 except ImportError:  # in the test extra (pip install -e '.[test]'); only the property tests need it
-    given = None
+    given = None  # type: ignore[assignment]
 
 ROOT = Path(__file__).resolve().parents[1]
 OBS_NAMES = ("Temperature", "Light_Level", "Time", "Preferred_Temp", "Preferred_Light")
@@ -252,10 +255,13 @@ def test_http_answers_every_hostile_body_and_goes_on(http_server: int) -> None:
         _good(conn, i)  # the same kept-alive connection still answers
 
 
-def _raw(port: int, data: bytes, method: str = "GET") -> tuple[int, Any]:
-    """Send ``data`` as it is and read one reply (its JSON body, or None when it has none)."""
+def _raw(port: int, data: bytes, method: str = "GET", end: bool = False) -> tuple[int, Any]:
+    """Send ``data`` as it is (then the end of the stream when ``end``) and read one reply (its JSON body, or None
+    when it has none)."""
     with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
         sock.sendall(data)
+        if end:
+            sock.shutdown(socket.SHUT_WR)
         reply = http.client.HTTPResponse(sock, method=method)
         reply.begin()
         body = reply.read()
@@ -268,7 +274,7 @@ def test_http_malformed_requests_get_a_json_reply(http_server: int) -> None:
     json_post = b"POST / HTTP/1.1\r\n" + host + b"Content-Type: application/json\r\n"
     cases: list[tuple[bytes, int, str]] = [
         (b"GARBAGE\r\n\r\n", 400, ""),  # "": the standard library's words
-        (b"POST / HTTP/9.9\r\n\r\n", 505, ""),
+        (b"POST / HTTP/9.9\r\n\r\n", 400, "send HTTP/1.1"),  # not the standard library's 505: no answer is a 5xx
         (b"GET /" + b"a" * 70_000 + b" HTTP/1.1\r\n\r\n", 414, ""),
         (b"GET / HTTP/1.1\r\n" + host + b"X-Big: " + b"a" * 70_000 + b"\r\n\r\n", 431, ""),
         (b"GET / HTTP/1.1\r\n" + host + b"".join(b"X-%d: 1\r\n" % i for i in range(120)) + b"\r\n", 431, ""),
@@ -280,12 +286,15 @@ def test_http_malformed_requests_get_a_json_reply(http_server: int) -> None:
         (json_post + b"Transfer-Encoding: chunked\r\n\r\n3\r\n[1]\r\n0\r\n\r\n", 411, "chunked"),
         (b"OPTIONS / HTTP/1.1\r\n" + host + b"\r\n", 405, "OPTIONS is not served"),
         (b"DELETE / HTTP/1.1\r\n" + host + b"\r\n", 405, "DELETE is not served"),
-        (b"BREW / HTTP/1.1\r\n" + host + b"\r\n", 501, ""),
+        (b"BREW / HTTP/1.1\r\n" + host + b"\r\n", 405, "BREW is not served"),  # not the standard library's 501
+        (b"B" * 5000 + b" / HTTP/1.1\r\n" + host + b"\r\n", 405, "..."),  # the method is not echoed in full
     ]
     for data, status, reason in cases:
         got, error = _raw(http_server, data)
         assert got == status and isinstance(error["error"], str) and reason in error["error"], (data[:60], got, error)
     assert _raw(http_server, b"HEAD / HTTP/1.1\r\n" + host + b"\r\n", method="HEAD") == (405, None)  # no body
+    got, error = _raw(http_server, json_post + b"Content-Length: 10\r\n\r\n[1, 2]", end=True)  # then it stops
+    assert got == 400 and "the body ended after 6 of its 10 bytes" in error["error"]
     _good(http.client.HTTPConnection("127.0.0.1", http_server, timeout=30))
 
 
@@ -359,8 +368,8 @@ def test_host_rules() -> None:
     ]
     for bound, port, header in allowed:
         assert host_allowed(header, bound, port), (bound, header)
-    for bound, port, header in refused:
-        assert not host_allowed(header, bound, port), (bound, header)
+    for bound, port, given_header in refused:
+        assert not host_allowed(given_header, bound, port), (bound, given_header)
     assert split_host("[::1]:8000") == ("::1", 8000) and split_host("Hub.Local") == ("hub.local", None)
     assert "[::1]:8000" not in expected_hosts("127.0.0.1", 8000) and expected_hosts("hub.local", 80) == "hub.local:80"
 
@@ -415,6 +424,7 @@ def quick_timeout_server(box_policy: Policy) -> Iterator[PolicyHTTPServer]:
 def test_idle_connections_are_closed(quick_timeout_server: PolicyHTTPServer) -> None:
     assert PolicyHTTPServer.request_queue_size >= 128 and 10 <= CONNECTION_TIMEOUT <= 30
     assert PolicyHTTPServer.connection_timeout == CONNECTION_TIMEOUT
+    assert 5 <= REQUEST_TIMEOUT <= 30 and PolicyHTTPServer.request_timeout == REQUEST_TIMEOUT
     port = quick_timeout_server.port
     with socket.create_connection(("127.0.0.1", port), timeout=30) as idle:
         assert idle.recv(1) == b""  # closed by the server (the client would wait 30 s and raise)
@@ -463,6 +473,126 @@ def test_connections_over_the_cap_get_429_and_the_server_goes_on(box_policy: Pol
         server.shutdown()
         server.server_close()
         thread.join(timeout=30)
+
+
+@contextlib.contextmanager
+def serving(policy: Policy, **kwargs: Any) -> Iterator[PolicyHTTPServer]:
+    """An in-process :class:`PolicyHTTPServer` on 127.0.0.1 (a free port) with these keywords, serving in a thread
+    until the block ends."""
+    server = PolicyHTTPServer(("127.0.0.1", 0), policy, **kwargs)
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    try:
+        yield server
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(timeout=30)
+
+
+def _until_closed(sock: socket.socket) -> bytes:
+    """Everything the server sends until it closes the connection (a reset counts as closed)."""
+    data = b""
+    with contextlib.suppress(ConnectionError):
+        while chunk := sock.recv(65536):
+            data += chunk
+    return data
+
+
+def _trickle(port: int, burst: bytes, trickle: bytes, stop_at: float, results: dict[str, Any], name: str) -> None:
+    """Connect to 127.0.0.1:``port``, send ``burst`` at once, then ``trickle`` one byte every 0.1 s (nothing more
+    when it is empty), until the server closes the connection or ``stop_at`` (``time.monotonic()``): then
+    ``results[name]`` is ``(closed by the server, what it sent)``."""
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
+        sent, closed, got = 0, False, b""
+        try:
+            sock.sendall(burst)
+            while time.monotonic() < stop_at and not closed:
+                if select.select([sock], [], [], 0.1)[0]:  # a reply (the burst's, or a 408) or the close
+                    chunk = sock.recv(65536)
+                    got += chunk
+                    closed = not chunk
+                elif sent < len(trickle):
+                    sock.sendall(trickle[sent : sent + 1])
+                    sent += 1
+        except ConnectionError:  # a reset (after the reply, which is read first): the server closed the connection
+            closed = True
+        results[name] = (closed, got)
+
+
+def test_trickling_connections_are_dropped_at_the_request_deadline(box_policy: Policy) -> None:
+    """Repro 8: connections that send a byte now and then (or nothing) fill every slot of a server capped at 5; each
+    is dropped when its request is not in by the 1 s deadline (408 when part of one came; a silent close when idle),
+    so a normal client that polls (getting 429 while they hold the slots) is served soon after, not when they stop.
+    The silence limit (30 s) plays no part: every trickler sends a byte every 0.1 s."""
+    with serving(box_policy, max_connections=5, request_timeout=1.0, connection_timeout=30.0) as server:
+        port = server.port
+        host = f"Host: 127.0.0.1:{port}\r\n".encode()
+        slow = b"a" * 300  # 30 s of bytes at 0.1 s each: the tricklers outlast the client's wait below
+        cases = {
+            "idle": (b"", b""),
+            "request line": (b"", b"GET /" + slow),
+            "headers": (b"", b"GET / HTTP/1.1\r\n" + host + b"X-Slow: " + slow),
+            "body": (b"POST / HTTP/1.1\r\n" + host + b"Content-Type: application/json\r\nContent-Length: 300\r\n\r\n",
+                     b" " * 300),
+            "kept alive, idle after a request": (b"GET / HTTP/1.1\r\n" + host + b"\r\n", b""),
+        }
+        stop_at = time.monotonic() + 30
+        results: dict[str, Any] = {}
+        threads = [threading.Thread(target=_trickle, args=(port, burst, trickle, stop_at, results, name))
+                   for name, (burst, trickle) in cases.items()]
+        for t in threads:
+            t.start()
+        wait_until = time.monotonic() + 10
+        while server.open_connections < len(cases) and time.monotonic() < wait_until:
+            time.sleep(0.01)
+        statuses: list[int | str] = []
+        while time.monotonic() < stop_at - 15:  # 15 s: well before the tricklers would stop by themselves
+            client = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+            try:
+                client.request("GET", "/")
+                reply = client.getresponse()
+                info = json.loads(reply.read())
+                statuses.append(reply.status)
+            except ConnectionError as exc:  # a 429's close can reset a request still being sent: retry as after one
+                statuses.append(type(exc).__name__)
+            client.close()
+            if statuses[-1] == 200:
+                break
+            time.sleep(0.1)
+        for t in threads:
+            t.join(timeout=60)
+        assert not any(t.is_alive() for t in threads)
+        assert statuses[-1] == 200 and info["obs_names"] == list(OBS_NAMES), statuses[-5:]
+        assert all(status == 429 or isinstance(status, str) for status in statuses[:-1]), statuses
+        assert set(results) == set(cases)
+        for name in ("request line", "headers", "body"):
+            closed, got = results[name]
+            assert closed and got.split(b"\r\n")[0].split(b" ")[1] == b"408", (name, got[:200])
+            assert b"did not arrive in full within 1 s" in got, (name, got[-200:])
+        assert results["idle"] == (True, b"")
+        closed, got = results["kept alive, idle after a request"]
+        assert closed and got.count(b"HTTP/1.1 ") == 1 and got.startswith(b"HTTP/1.1 200 OK"), got[:200]
+        client = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+        _good(client)  # and it goes on serving
+        client.close()
+
+
+def test_a_pipelined_request_that_came_in_time_is_served(box_policy: Policy) -> None:
+    """The deadline is per request: requests that arrived together are all answered (the connection is not dropped
+    because the first one used up time), and a bad timeout is refused at construction."""
+    with serving(box_policy, request_timeout=1.0) as server:
+        obs = json.dumps(GOOD[0]).encode()
+        one = (f"POST /act HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nContent-Type: application/json\r\n"
+               f"Content-Length: {len(obs)}\r\n\r\n").encode() + obs
+        with socket.create_connection(("127.0.0.1", server.port), timeout=30) as sock:
+            sock.sendall(one * 3)
+            sock.shutdown(socket.SHUT_WR)  # then the end of the stream: the server closes after the third
+            got = _until_closed(sock)
+        assert got.count(b"HTTP/1.1 200 OK") == 3 and b"408" not in got
+    for bad in (0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="request_timeout must be a positive number of seconds"):
+            bind(("127.0.0.1", 0), box_policy, request_timeout=bad)
 
 
 # -- corrupt model and sidecar files --------------------------------------------------------------------------------

@@ -10,17 +10,23 @@ Routes:
   ``{"error": reason}`` for a body that is not one observation (the same reasons as the line protocol).
 - ``GET /`` (or ``/policy``): 200 with ``{"obs_names", "action_names", "discrete_action"}``.
 
-Every other answer is an error status with ``{"error": reason}``: 404 (unknown path), 405 (other methods), 408 (a
-body that stopped arriving), 411 (no ``Content-Length``; chunked bodies are not taken), 413 (a body over
+Every other answer is an error status with ``{"error": reason}``: 400 (also a body that ends before its
+``Content-Length``, and an HTTP version other than 1.x), 404 (unknown path), 405 (any other method, known or not),
+408 (a request that did not arrive in full within :data:`REQUEST_TIMEOUT`, or stopped arriving for
+:data:`CONNECTION_TIMEOUT`), 411 (no ``Content-Length``; chunked bodies are not taken), 413 (a body over
 :data:`MAX_BODY` bytes, or over the policy's larger limit), 415 (a POST that is not ``application/json``: a web page
 cannot send one without the browser asking first, which this server never allows), 421 (a ``Host`` header that is
 not this server's address: see :func:`host_allowed`; a web page that reaches the server by DNS rebinding carries its
 own host name), 429 (a connection beyond :data:`MAX_CONNECTIONS` open at once, with ``Retry-After``), and the
-standard library's 400/414/431 for requests it cannot parse. A problem with the request never closes the connection
-without a reply.
+standard library's 400/414/431 for requests it cannot parse. No answer is a 5xx. A problem with the request never
+closes the connection without a reply.
 
-Connections are kept alive (HTTP/1.1); each client connection has its own thread, closed after
-:data:`CONNECTION_TIMEOUT` seconds without a byte from the client. Decisions are made and logged one at a time.
+Connections are kept alive (HTTP/1.1); each client connection has its own thread. Each request, from the moment the
+server starts waiting for it (the connection accepted, or the previous reply sent) to the last byte of its body, must
+arrive within :data:`REQUEST_TIMEOUT` seconds in all, whatever the pace of its bytes: a connection that has not
+delivered a whole request by then is closed (after a 408 when part of one had come; silently when it was idle, so a
+kept-alive connection is closed after that long without a request). A client that trickles bytes therefore holds one
+of the :data:`MAX_CONNECTIONS` slots for at most that long. Decisions are made and logged one at a time.
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ from __future__ import annotations
 import errno
 import ipaddress
 import json
+import math
 import socket
 import sys
 import threading
+import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -43,13 +51,22 @@ MAX_BODY = MAX_REQUEST_BYTES
 #: A body over :data:`MAX_BODY` is read past (up to this many bytes) before the 413, so the client gets the reply
 #: rather than a connection reset; a larger one is answered and the connection closed at once.
 MAX_DRAIN = 1024 * 1024
-#: Seconds a connection may stay silent (idle between requests, or in the middle of one) before it is closed.
+#: Seconds a request may take to arrive in full (request line, headers and body), counted from when the server starts
+#: waiting for it: the connection accepted or the previous reply sent. A connection that has not delivered a whole
+#: request by then is closed (after a 408 if part of one came), so a client sending a byte now and then holds a
+#: connection slot for at most this long; a kept-alive connection idle for this long is closed too.
+REQUEST_TIMEOUT = 10.0
+#: Seconds a connection may stay silent within that deadline (no byte of the request) before it is closed, and the
+#: longest a reply may wait for the client to take it.
 CONNECTION_TIMEOUT = 15.0
 #: Connections the kernel queues before the server accepts them (http.server's default is 5).
 REQUEST_QUEUE_SIZE = 128
-#: Connections served at once (a thread each, for at most :data:`CONNECTION_TIMEOUT` s of silence); one more is
-#: answered 429 with ``Retry-After`` and closed, so a flood of connections cannot exhaust the server's threads.
+#: Connections served at once (a thread each; one without a whole request is closed after :data:`REQUEST_TIMEOUT`);
+#: one more is answered 429 with ``Retry-After`` and closed, so a flood of connections cannot exhaust the server's
+#: threads.
 MAX_CONNECTIONS = 64
+#: Longest request line (http.server's limit: a longer one is answered 414).
+MAX_REQUEST_LINE = 65536
 ACT_PATHS = ("/", "/act")
 INFO_PATHS = ("/", "/policy")
 ALLOW_ANY_HOST_FLAG = "--allow-any-host"
@@ -62,9 +79,13 @@ class PolicyHTTPServer(ThreadingHTTPServer):
     :param csv_path: append every served decision to this CSV (None: no log).
     :param allow_any_host: answer requests whatever their ``Host`` header (by default only this server's address:
         :func:`host_allowed`).
-    :param connection_timeout: seconds of silence after which a client connection is closed (default
-        :attr:`connection_timeout`).
+    :param connection_timeout: seconds of silence after which a client connection is closed, and the longest a
+        reply waits for the client to take it (default :attr:`connection_timeout`).
     :param max_connections: connections served at once (default :data:`MAX_CONNECTIONS`); another is answered 429.
+    :param request_timeout: seconds each request may take to arrive in full, from when the server starts waiting for
+        it (default :attr:`request_timeout`, :data:`REQUEST_TIMEOUT`); a connection that has not delivered one by
+        then is closed.
+    :raises ValueError: a timeout that is not a positive number of seconds.
     :raises OSError: the address cannot be bound (``errno.EADDRINUSE`` when the port is in use) or the CSV log
         cannot be opened.
     """
@@ -73,10 +94,15 @@ class PolicyHTTPServer(ThreadingHTTPServer):
     allow_reuse_address = False  # a port in use is an error, not something to share
     request_queue_size = REQUEST_QUEUE_SIZE
     connection_timeout: float = CONNECTION_TIMEOUT
+    request_timeout: float = REQUEST_TIMEOUT
 
     def __init__(self, address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
                  allow_any_host: bool = False, connection_timeout: float | None = None,
-                 max_connections: int = MAX_CONNECTIONS) -> None:
+                 max_connections: int = MAX_CONNECTIONS, request_timeout: float | None = None) -> None:
+        for name, value in (("connection_timeout", connection_timeout), ("request_timeout", request_timeout)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)
+                                      or not (math.isfinite(value) and value > 0)):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
         if ":" in address[0]:
             self.address_family = socket.AF_INET6
         self.policy = policy
@@ -89,7 +115,9 @@ class PolicyHTTPServer(ThreadingHTTPServer):
         self.host_name = address[0]  # as the user named it: what a Host header must say
         self.allow_any_host = allow_any_host
         if connection_timeout is not None:
-            self.connection_timeout = connection_timeout
+            self.connection_timeout = float(connection_timeout)
+        if request_timeout is not None:
+            self.request_timeout = float(request_timeout)
         super().__init__(address, _Handler)  # binds (closes itself when that fails)
         try:
             self.log = DecisionLog(policy, csv_path)
@@ -166,15 +194,125 @@ class PolicyHTTPServer(ThreadingHTTPServer):
             self.log.close()
 
 
+class RequestTimeout(OSError):
+    """A request that did not arrive in time (its deadline passed, or the client fell silent); the message says
+    which."""
+
+
+class RequestReader:
+    """A client connection's input, buffered like ``socket.makefile("rb")``, under a deadline per request.
+
+    :meth:`start` opens a request's deadline; from then on every read from the socket waits at most until that
+    deadline, and at most ``silence`` seconds for its next byte, else raises :class:`RequestTimeout`. So the request
+    line, headers and body together take at most the deadline, however slowly their bytes come.
+
+    :param sock: the connected socket (its timeout is set before every read).
+    :param silence: seconds a read waits for a byte.
+    """
+
+    #: bytes asked of the socket at once
+    CHUNK = 65536
+
+    def __init__(self, sock: socket.socket, silence: float) -> None:
+        self._sock = sock
+        self._silence = silence
+        self._buffer = bytearray()
+        self._deadline = math.inf
+        self._timeout = math.inf
+        #: bytes of the current request received so far (counting bytes a previous read took ahead)
+        self.received = 0
+        self.closed = False
+
+    def start(self, timeout: float) -> None:
+        """Start the next request: it must be read in full within ``timeout`` seconds from now."""
+        self._timeout = timeout
+        self._deadline = time.monotonic() + timeout
+        self.received = len(self._buffer)
+
+    def _fill(self) -> bool:
+        """Read what the socket has (waiting within the limits); False at the end of the stream."""
+        left = self._deadline - time.monotonic()
+        if left <= 0:
+            raise RequestTimeout(f"the request did not arrive in full within {self._timeout:g} s; send it at once")
+        wait = min(left, self._silence)
+        self._sock.settimeout(wait)
+        try:
+            chunk = self._sock.recv(self.CHUNK)
+        except TimeoutError:
+            if wait < left:
+                raise RequestTimeout(f"the request stopped arriving ({self._silence:g} s without a byte)") from None
+            raise RequestTimeout(f"the request did not arrive in full within {self._timeout:g} s; send it at "
+                                 "once") from None
+        self.received += len(chunk)
+        self._buffer += chunk
+        return bool(chunk)
+
+    def _take(self, size: int) -> bytes:
+        data = bytes(self._buffer[:size])
+        del self._buffer[:size]
+        return data
+
+    def readline(self, limit: int = -1) -> bytes:
+        """One line with its ``\\n`` (at most ``limit`` bytes; less at the end of the stream)."""
+        scanned = 0
+        while True:
+            end = self._buffer.find(b"\n", scanned)
+            if end >= 0 and (limit < 0 or end < limit):
+                return self._take(end + 1)
+            if 0 <= limit <= len(self._buffer):
+                return self._take(limit)
+            scanned = len(self._buffer)
+            if not self._fill():
+                return self._take(len(self._buffer))
+
+    def read(self, size: int = -1) -> bytes:
+        """``size`` bytes (all until the end of the stream when negative; less when it ends first)."""
+        while (size < 0 or len(self._buffer) < size) and self._fill():
+            pass
+        return self._take(len(self._buffer) if size < 0 else size)
+
+    def close(self) -> None:
+        self.closed = True
+        self._buffer.clear()
+
+
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     default_request_version = "HTTP/1.0"  # a garbled request line still gets a status line (not a bare HTTP/0.9 body)
     disable_nagle_algorithm = True  # replies are small: send at once (else ~40 ms waits on delayed ACKs)
     server: PolicyHTTPServer
+    rfile: RequestReader  # type: ignore[assignment]  # what http.server reads (readline, read) it has
+    raw_requestline: bytes
 
     def setup(self) -> None:
         super().setup()
-        self.connection.settimeout(self.server.connection_timeout)  # a silent client's thread ends
+        self.rfile.close()  # the plain makefile("rb"): replaced by one with the request deadline
+        self.rfile = RequestReader(self.connection, self.server.connection_timeout)
+
+    def handle_one_request(self) -> None:
+        """One request under its deadline (:attr:`PolicyHTTPServer.request_timeout` from now): the connection is
+        closed when it is not in by then, after a 408 when part of it came."""
+        self.rfile.start(self.server.request_timeout)
+        self.requestline, self.request_version, self.command = "", self.default_request_version, ""
+        try:
+            super().handle_one_request()
+        except RequestTimeout as exc:
+            self.close_connection = True
+            if self.rfile.received:  # an idle connection is closed without a word (a client reconnects)
+                self._refuse(408, str(exc), close=True)
+
+    def parse_request(self) -> bool:
+        """The standard library's, after skipping empty lines before the request line (RFC 9112 section 2.2; it would
+        close the connection without a reply)."""
+        while not str(self.raw_requestline, "iso-8859-1").split():
+            if not self.raw_requestline.endswith(b"\n"):  # the stream ended: nobody to answer
+                self.close_connection = True
+                return False
+            self.raw_requestline = self.rfile.readline(MAX_REQUEST_LINE + 1)
+            if len(self.raw_requestline) > MAX_REQUEST_LINE:
+                self.send_error(414)
+                return False
+        return super().parse_request()
 
     def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
         body = self._read_body(required=True)
@@ -201,12 +339,19 @@ class _Handler(BaseHTTPRequestHandler):
                                      "discrete_action": policy.discrete_action}))
 
     def _not_allowed(self) -> None:
-        self._refuse(405, f"{self.command} is not served; POST an observation, GET the policy", close=True)
+        self._refuse(405, f"{_clipped(self.command)} is not served; POST an observation, GET the policy", close=True)
 
     do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_HEAD = _not_allowed  # noqa: N815
 
     def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
-        """The standard library's parse errors (400, 414, 431, 501), as ``{"error": ...}`` like every other."""
+        """The standard library's parse errors (400, 414, 431), as ``{"error": ...}`` like every other; what it
+        answers with a 5xx is the client's doing, so it gets a 4xx: an unknown method 405 (as the other methods),
+        an HTTP version this server does not speak 400."""
+        if code == 501:
+            self._not_allowed()
+            return
+        if code == 505:
+            code, explain = 400, "send HTTP/1.1 (or HTTP/1.0)"
         reason = message or self.responses.get(code, ("error", ""))[0]
         self._refuse(code, f"{reason}" + (f": {explain}" if explain else ""), close=True)
 
@@ -227,19 +372,14 @@ class _Handler(BaseHTTPRequestHandler):
             self._refuse(400, "Content-Length must be one byte count", close=True)
             return None
         length = int(text)
-        try:
-            limit = self.server.policy.max_request_bytes
-            if length > limit:
-                self._drain(length)
-                self._refuse(413, f"body of {length} bytes; at most {limit}", close=True)
-                return None
-            body = self.rfile.read(length)  # read before any reply: the connection stays usable
-        except TimeoutError:
-            self._refuse(408, f"the body stopped arriving ({self.server.connection_timeout:g} s without a byte)",
-                         close=True)
+        limit = self.server.policy.max_request_bytes
+        if length > limit:
+            self._drain(length)
+            self._refuse(413, f"body of {length} bytes; at most {limit}", close=True)
             return None
-        if len(body) < length:  # the client closed its side: nobody to answer
-            self.close_connection = True
+        body = self.rfile.read(length)  # read before any reply: the connection stays usable
+        if len(body) < length:  # the client closed its sending side: it may still read the reply
+            self._refuse(400, f"the body ended after {len(body)} of its {length} bytes (Content-Length)", close=True)
             return None
         return body
 
@@ -264,6 +404,7 @@ class _Handler(BaseHTTPRequestHandler):
         self._reply(status, error_reply(reason), close)
 
     def _reply(self, status: int, body: str, close: bool = False) -> None:
+        self.connection.settimeout(self.server.connection_timeout)  # the reads left it at their deadline's remainder
         data = (body + "\n").encode()
         self.send_response(status)
         self.send_header("Content-Type", "application/json")
@@ -277,6 +418,11 @@ class _Handler(BaseHTTPRequestHandler):
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - one line per request is noise here
         pass
+
+
+def _clipped(text: str, limit: int = 40) -> str:
+    """``text`` cut to ``limit`` characters (a reply never echoes a whole hostile request)."""
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _shown(hosts: list[str]) -> str:
@@ -376,15 +522,17 @@ def expected_hosts(bound: str, port: int) -> str:
 
 def bind(address: tuple[str, int], policy: Policy, csv_path: str | Path | None = None, *,
          allow_any_host: bool = False, connection_timeout: float | None = None,
-         max_connections: int = MAX_CONNECTIONS) -> PolicyHTTPServer:
+         max_connections: int = MAX_CONNECTIONS, request_timeout: float | None = None) -> PolicyHTTPServer:
     """A bound :class:`PolicyHTTPServer` (not yet serving); the keywords are the server's.
 
-    :raises ValueError: the port is in use, or the host cannot be bound here (one readable line).
+    :raises ValueError: the port is in use, or the host cannot be bound here (one readable line), or a timeout is not
+        a positive number of seconds.
     :raises OSError: the CSV log cannot be opened.
     """
     try:
         return PolicyHTTPServer(address, policy, csv_path, allow_any_host=allow_any_host,
-                                connection_timeout=connection_timeout, max_connections=max_connections)
+                                connection_timeout=connection_timeout, max_connections=max_connections,
+                                request_timeout=request_timeout)
     except OSError as exc:
         if exc.filename is not None:  # the CSV log, not the address
             raise

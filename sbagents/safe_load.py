@@ -8,14 +8,14 @@ unpickler that calls numpy's own helpers lets a file choose pointers numpy deref
 
 - the algorithm class the caller names (the run's ``--algo``, with its extensions' class);
 - the policy class: found by its module and name in the entry's plain-text description, resolved like a config's
-  import path (:mod:`sbagents.core.imports`: checked before any import) and required to be a policy; else the run's
+  import path (:mod:`sbagents.import_paths`: checked before any import) and required to be a policy; else the run's
   ``policy`` hyperparameter;
 - constructor arguments: the run's resolved hyperparameters when the caller has them (validated like any config),
   else the JSON-native fields of ``data`` that are constructor parameters (``gamma``, ``n_steps``, a plain
   ``policy_kwargs``), each a bounded plain value; a ``policy_kwargs`` holding classes is rebuilt from its plain
   description (the classes by name, allow-listed);
 - the spaces: the env's (when given), checked against the plain JSON record sbagents saves with every model
-  (:mod:`sbagents.core.spaces_record`); without an env, the record itself; for a zip written elsewhere (RL Zoo's) the
+  (:mod:`sbagents.spaces_record`); without an env, the record itself; for a zip written elsewhere (RL Zoo's) the
   plain description of Box and Discrete spaces, or the env;
 - counters (``num_timesteps``, ...) from JSON, and entries a class declares it rebuilds from plain data
   (:data:`PLAIN_ENTRIES_ATTR`: a constrained model's Lagrange multiplier);
@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from sbagents.core.imports import resolve_path
+from sbagents.import_paths import resolve_path
 from sbagents.errors import UsageError
 from sbagents.plain_data import TRUST_FLAG, UntrustedContentError
 from sbagents.plain_data import short_message as _short
@@ -256,7 +256,7 @@ def _described_space(item: Any) -> Any:
 
 def _model_spaces(data: dict[str, Any], env: Any, path: Path) -> tuple[Any, Any]:
     """The model's spaces: the env's, checked against the file's record (or description); else the record's."""
-    from sbagents.core.spaces_record import RECORD_KEY, check_record, describe, same_space
+    from sbagents.spaces_record import RECORD_KEY, check_record, describe, same_space
 
     recorded = check_record(data[RECORD_KEY], str(path)) if RECORD_KEY in data else None
     if env is not None:
@@ -285,7 +285,7 @@ def _model_spaces(data: dict[str, Any], env: Any, path: Path) -> tuple[Any, Any]
 
 def record_spaces(model: Any) -> None:
     """Give ``model`` the plain record of its spaces, which SB3 then saves in the zip's ``data`` JSON."""
-    from sbagents.core.spaces_record import RECORD_KEY, spaces_record
+    from sbagents.spaces_record import RECORD_KEY, spaces_record
 
     record = spaces_record(model.observation_space, model.action_space)
     if record is not None:

@@ -1,4 +1,4 @@
-"""Import paths from files are checked before anything is imported (sbagents.core.imports)."""
+"""Import paths from files are checked before anything is imported (sbagents.import_paths)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from sbagents.core.experiment import import_object
-from sbagents.core.imports import resolve_path
+from sbagents.import_paths import resolve_path
 from sbagents.errors import UsageError
 
 
@@ -43,7 +43,7 @@ def test_a_module_its_package_does_not_load_is_not_imported() -> None:
     """An allowed package's module that nothing imported is refused, not imported (its import could act)."""
     program = (
         "import sys\n"
-        "from sbagents.core.imports import resolve_path\n"
+        "from sbagents.import_paths import resolve_path\n"
         "from sbagents.errors import UsageError\n"
         "try:\n"
         "    resolve_path('gymnasium.utils.play.play', 'env_wrapper', ('gymnasium',))\n"

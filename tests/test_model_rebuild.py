@@ -22,7 +22,7 @@ import pytest
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_model
-from sbagents.core.spaces_record import RECORD_KEY, space_from_json, space_to_json
+from sbagents.spaces_record import RECORD_KEY, space_from_json, space_to_json
 from sbagents.errors import UsageError
 from sbagents.safe_load import load_model, read_model_data
 

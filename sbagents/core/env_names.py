@@ -14,6 +14,7 @@ from __future__ import annotations
 import difflib
 import functools
 import importlib
+import keyword
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
@@ -24,6 +25,20 @@ import gymnasium as gym
 from sbagents.core.env_kinds import GAME, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.errors import UsageError
 from sbagents.registration import ARRAY_IMPLEMENTATIONS, METRIC_OBSERVERS, PETTINGZOO_ENVS
+
+#: Top-level modules of optional packages -> the sbagents extra that installs them (``pip install 'sbagents[X]'``):
+#: a name that needs one of them says which extra to install instead of "unknown env id".
+OPTIONAL_MODULES: dict[str, str] = {
+    "mpe2": "pettingzoo-envs",
+    "pymunk": "pettingzoo-envs",
+    "pygame": "pettingzoo-envs",
+    "Box2D": "pettingzoo-envs",
+    "rlcard": "pettingzoo-envs",
+    "envpool": "atari",
+    "ray": "distributed",
+    "opacus": "private",
+    "flwr": "federated",
+}
 
 
 @dataclass(frozen=True)
@@ -82,13 +97,42 @@ class EnvRef:
         return make_parallel_env(self.source, self.modules, **kwargs)
 
 
+def is_module_path(name: str) -> bool:
+    """Whether ``name`` reads as an absolute module path (``pkg.module``: identifiers joined by dots; not ``.x``,
+    ``../etc/passwd`` or an empty name, which ``importlib`` would reject with a TypeError or ValueError)."""
+    parts = name.split(".")
+    return all(part.isidentifier() and not keyword.iskeyword(part) for part in parts)
+
+
+def _top_importable(top: str) -> bool:
+    try:
+        importlib.import_module(top)
+    except ImportError:
+        return False
+    return True
+
+
+def missing_extra(exc: ImportError, module_name: str) -> UsageError | None:
+    """The one-line :class:`UsageError` naming the extra to install when importing ``module_name`` failed because
+    an optional package of :data:`OPTIONAL_MODULES` is not installed (None for any other import error)."""
+    for name in (exc.name or "", module_name):
+        top = name.split(".")[0]
+        if top in OPTIONAL_MODULES and not _top_importable(top):
+            extra = OPTIONAL_MODULES[top]
+            return UsageError(f"{module_name} needs the optional package {top!r}, which is not installed: "
+                              f"pip install 'sbagents[{extra}]'")
+    return None
+
+
 def import_packages(packages: list[str] | tuple[str, ...]) -> None:
     """Import user packages that register envs on import (``--gym-packages``)."""
     for name in packages:
+        if not is_module_path(name):
+            raise UsageError(f"--gym-packages: {name!r:.80} is not a module name (like my_package or pkg.envs)")
         try:
             importlib.import_module(name)
         except ImportError as exc:
-            raise UsageError(f"--gym-packages: cannot import {name!r}: {exc}") from None
+            raise missing_extra(exc, name) or UsageError(f"--gym-packages: cannot import {name!r}: {exc}") from None
 
 
 def make_registered(env_id: str, modules: tuple[str, ...], **kwargs: Any) -> gym.Env:
@@ -138,9 +182,16 @@ def _register_atari() -> None:
 
 
 def _import(module_name: str) -> ModuleType | None:
+    """The module ``module_name``; None when there is no such module (or the name is not a module path); a one-line
+    error when it exists but cannot be imported (naming the extra to install for a missing optional package)."""
+    if not is_module_path(module_name):
+        return None
     try:
         return importlib.import_module(module_name)
     except ImportError as exc:
+        missing = missing_extra(exc, module_name)
+        if missing is not None:
+            raise missing from None
         if exc.name is not None and module_name.startswith(exc.name):
             return None  # no such module: not a module path
         raise UsageError(f"cannot import {module_name!r}: {exc}") from None
@@ -198,6 +249,9 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
         return EnvRef(name, TEAM, modules=modules, source=source)
     if ":" in name:
         module_name, _, attr = name.partition(":")
+        if not is_module_path(module_name) or not attr:
+            raise UsageError(f"--env {name!r:.120} is not an env id, a module path or module:name "
+                             "(e.g. sbagents/GridWorld-v0, mpe2.simple_spread_v3, my_pkg.envs:MyEnv-v0)")
         module = _import(module_name)
         if module is None:
             raise UsageError(f"cannot import module {module_name!r} of --env {name}")

@@ -18,7 +18,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from sbagents.algos import ALGOS
 from sbagents.core.env_kinds import SINGLE_AGENT, EnvKind
 from sbagents.core.env_names import EnvRef
-from sbagents.core.imports import resolve_path
+from sbagents.import_paths import resolve_path
 from sbagents.core.options import TrainSpec
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.core.team_options import TeamOptions
@@ -85,7 +85,7 @@ def import_object(path: str, what: str = "object", trusted_modules: tuple[str, .
     Only from the allow-list: a class of the kind ``what`` takes (a wrapper, a callback, a network module, ...) from
     :data:`ALLOWED_IMPORTS`, or anything from ``trusted_modules`` (the modules the user named on the command line).
     The path is checked before anything is imported, and an allowed package's object is found among the modules that
-    package already loads (:func:`sbagents.core.imports.resolve_path`), so a config can neither run code on import
+    package already loads (:func:`sbagents.import_paths.resolve_path`), so a config can neither run code on import
     nor call a function of its choosing.
 
     :raises UsageError: one line: a malformed path, a module outside the allow-list, or the wrong kind of object.

@@ -49,20 +49,94 @@ ZooLoader.add_implicit_resolver(
 )
 
 
+#: The deepest nesting of lists/mappings a YAML file (zoo config, ``-conf``, a run's ``config.yml`` / ``args.yml``)
+#: may have, and the most values it may stand for once its aliases are expanded.
+MAX_FILE_DEPTH = 64
+MAX_FILE_NODES = 200_000
+
+
+class FileLoader(ZooLoader):
+    """:class:`ZooLoader` with bounds: at most :attr:`max_depth` levels of nesting (PyYAML's composer recurses
+    once per level: a file of 5,000 ``[`` would end in a RecursionError) and integer literals no longer than an
+    int64's (so ``int()`` never meets a 100,000-digit string). Aliases are accepted (RL Zoo files use anchors);
+    :func:`load_yaml` bounds what they expand to."""
+
+    max_depth = MAX_FILE_DEPTH
+    _depth = 0
+
+    def fetch_flow_collection_start(self, token_class: Any) -> None:
+        """Refuse a ``[`` or ``{`` past :attr:`max_depth` open ones while scanning: PyYAML's scanner keeps
+        every open bracket as a possible simple key and walks them all for each token (quadratic: ~0.8 s for a
+        value of 1,000 ``[``), so the composer's check below would come only after that work."""
+        if self.flow_level >= self.max_depth:
+            raise yaml.scanner.ScannerError(None, None, f"nested deeper than {self.max_depth} levels",
+                                            self.get_mark())
+        super().fetch_flow_collection_start(token_class)  # type: ignore[misc]
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        """Refuse deep nesting before composing the node."""
+        if self._depth >= self.max_depth:
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {self.max_depth} levels",
+                                              self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_bounded_int(self, node: yaml.ScalarNode) -> Any:
+        """YAML's int, refused (a :class:`~yaml.constructor.ConstructorError`) when its literal is too long to
+        be an int64."""
+        if len(str(node.value).replace("_", "")) > 2 + 64:  # 0b + 64 binary digits is the longest int64
+            raise yaml.constructor.ConstructorError(None, None, "integer out of range", node.start_mark)
+        return self.construct_yaml_int(node)
+
+
+FileLoader.add_constructor("tag:yaml.org,2002:int", FileLoader.construct_bounded_int)
+
+
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file safely; malformed YAML raises :class:`UsageError` naming the file and line."""
+    """Parse a YAML file safely (:class:`FileLoader`: nesting, expansion through aliases and integer literals
+    bounded); malformed or oversized YAML raises :class:`UsageError` naming the file (and line)."""
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as exc:
         raise UsageError(f"cannot read config file {path}: {exc.strerror}") from None
     try:
-        return yaml.load(text, Loader=ZooLoader)  # noqa: S506 - ZooLoader is a SafeLoader
+        data = yaml.load(text, Loader=FileLoader)  # noqa: S506 - FileLoader is a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise UsageError(f"malformed YAML in {path}{where}: {problem}") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # the SafeLoader's constructors on bad tagged values
+        reason = " ".join(str(exc).split())[:120] or type(exc).__name__
+        raise UsageError(f"malformed YAML in {path}: {reason}") from None
+    _check_expansion(data, path)
+    return data
+
+
+def _check_expansion(data: Any, path: Path) -> None:
+    """Raise :class:`UsageError` if ``data`` (a loaded file) is nested deeper than :data:`MAX_FILE_DEPTH` or holds
+    more than :data:`MAX_FILE_NODES` values once its aliases are expanded (``*name`` reuses a node, so a few lines
+    can stand for billions of values, or for a structure that contains itself): code walking the settings would
+    then recurse without end or run for hours."""
+    stack: list[tuple[Any, int]] = [(data, 0)]
+    seen = 0
+    while stack:
+        value, depth = stack.pop()
+        seen += 1
+        if seen > MAX_FILE_NODES:
+            raise UsageError(f"{path} holds more than {MAX_FILE_NODES:,} values once its aliases (*name) are "
+                             "expanded; a settings file is far smaller")
+        if depth > MAX_FILE_DEPTH:
+            raise UsageError(f"{path} is nested deeper than {MAX_FILE_DEPTH} levels (or an alias *name refers to "
+                             "a value that contains it)")
+        if isinstance(value, dict):
+            stack.extend((item, depth + 1) for pair in value.items() for item in pair)
+        elif isinstance(value, list | tuple | set):
+            stack.extend((item, depth + 1) for item in value)
 
 
 def default_config_path(algo: str) -> Path:
@@ -124,45 +198,18 @@ _SCALARS = (str, bool, int, float, type(None))
 _YAML_KINDS = {"bytes": "!!binary", "date": "date", "datetime": "timestamp", "set": "!!set"}
 
 
-class OverrideLoader(ZooLoader):
-    """:class:`ZooLoader` for one command-line value: no aliases (``*name``: a value can then not expand into a
-    huge or self-referencing structure), at most :data:`MAX_OVERRIDE_DEPTH` levels of nesting, and integer
-    literals no longer than an int64's (so ``int()`` never meets a 100,000-digit string)."""
+class OverrideLoader(FileLoader):
+    """:class:`FileLoader` for one command-line value: no aliases either (``*name``: a value can then not expand
+    into a huge or self-referencing structure), and at most :data:`MAX_OVERRIDE_DEPTH` levels of nesting."""
 
-    _depth = 0
-
-    def fetch_flow_collection_start(self, token_class: Any) -> None:
-        """Refuse a ``[`` or ``{`` past :data:`MAX_OVERRIDE_DEPTH` open ones while scanning: PyYAML's scanner keeps
-        every open bracket as a possible simple key and walks them all for each token (quadratic: ~0.8 s for a
-        value of 1,000 ``[``), so the composer's check below would come only after that work."""
-        if self.flow_level >= MAX_OVERRIDE_DEPTH:
-            raise yaml.scanner.ScannerError(None, None, f"nested deeper than {MAX_OVERRIDE_DEPTH} levels",
-                                            self.get_mark())
-        super().fetch_flow_collection_start(token_class)  # type: ignore[misc]
+    max_depth = MAX_OVERRIDE_DEPTH
 
     def compose_node(self, parent: Any, index: Any) -> Any:
-        """Refuse aliases and deep nesting before composing the node."""
+        """Refuse aliases, then compose as :class:`FileLoader`."""
         if self.check_event(yaml.AliasEvent):
             raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted here",
                                               self.peek_event().start_mark)
-        if self._depth >= MAX_OVERRIDE_DEPTH:
-            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_OVERRIDE_DEPTH} levels",
-                                              self.peek_event().start_mark)
-        self._depth += 1
-        try:
-            return super().compose_node(parent, index)
-        finally:
-            self._depth -= 1
-
-    def construct_bounded_int(self, node: yaml.ScalarNode) -> Any:
-        """YAML's int, refused (a :class:`~yaml.constructor.ConstructorError`) when its literal is too long to
-        be an int64."""
-        if len(str(node.value).replace("_", "")) > 2 + 64:  # 0b + 64 binary digits is the longest int64
-            raise yaml.constructor.ConstructorError(None, None, "integer out of range", node.start_mark)
-        return self.construct_yaml_int(node)
-
-
-OverrideLoader.add_constructor("tag:yaml.org,2002:int", OverrideLoader.construct_bounded_int)
+        return super().compose_node(parent, index)
 
 
 def _shorten(text: str, limit: int = 60) -> str:

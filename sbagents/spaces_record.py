@@ -44,7 +44,7 @@ def _bounds(array: np.ndarray) -> Any:
 
 
 def space_to_json(space: spaces.Space[Any]) -> dict[str, Any]:
-    """``space`` as plain JSON (:mod:`module docstring <sbagents.core.spaces_record>`).
+    """``space`` as plain JSON (:mod:`module docstring <sbagents.spaces_record>`).
 
     :raises ValueError: a kind of space the record does not describe (the model then has no record).
     """

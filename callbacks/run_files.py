@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +22,11 @@ from sbagents.atomic import save_model
 from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.state_files import save_vecnormalize
 
-#: Hidden staging names inside the run dir (never read by anything; removed when training ends).
-_STAGED_EVALUATIONS = ".evaluations.partial"
-_STAGED_BEST = ".best_model.partial"
+#: Hidden staging folders inside the run dir (never read by anything; removed when training ends), made by
+#: ``tempfile.mkdtemp``: their names are unpredictable, so a run dir shipped with symlinks cannot redirect a write.
+_STAGED_EVALUATIONS = ".evaluations."
+_STAGED_BEST = ".best_model."
+_STAGED_SUFFIX = ".partial"
 
 
 class AtomicEvalOutputs:
@@ -36,6 +39,8 @@ class AtomicEvalOutputs:
 
     _final_log: Path | None
     _final_best: Path | None
+    _staged_log: Path | None
+    _staged_best: Path | None
 
     def _init_callback(self) -> None:
         if hasattr(self, "_final_log"):  # a second learn() on the same callback: already staged
@@ -43,10 +48,17 @@ class AtomicEvalOutputs:
             return
         self._final_log = Path(self.log_path + ".npz") if self.log_path is not None else None
         self._final_best = Path(self.best_model_save_path) if self.best_model_save_path is not None else None
+        self._staged_log = self._staged_best = None
         if self._final_log is not None:
-            self.log_path = str(self._final_log.with_name(_STAGED_EVALUATIONS))  # np.savez adds ".npz"
+            self._final_log.parent.mkdir(parents=True, exist_ok=True)
+            self._staged_log = Path(tempfile.mkdtemp(prefix=_STAGED_EVALUATIONS, suffix=_STAGED_SUFFIX,
+                                                     dir=self._final_log.parent))
+            self.log_path = str(self._staged_log / "evaluations")  # np.savez adds ".npz"
         if self._final_best is not None:
-            self.best_model_save_path = str(self._final_best / _STAGED_BEST)
+            self._final_best.mkdir(parents=True, exist_ok=True)
+            self._staged_best = Path(tempfile.mkdtemp(prefix=_STAGED_BEST, suffix=_STAGED_SUFFIX,
+                                                      dir=self._final_best))
+            self.best_model_save_path = str(self._staged_best)
         super()._init_callback()  # type: ignore[misc]
 
     def _on_step(self) -> bool:
@@ -55,20 +67,21 @@ class AtomicEvalOutputs:
         return result
 
     def _publish(self) -> None:
-        if self._final_log is not None:
-            staged = self._final_log.with_name(_STAGED_EVALUATIONS + ".npz")
+        if self._final_log is not None and self._staged_log is not None:
+            staged = self._staged_log / "evaluations.npz"
             if staged.exists():
                 os.replace(staged, self._final_log)
-        if self._final_best is not None:
-            staged = self._final_best / _STAGED_BEST / "best_model.zip"
+        if self._final_best is not None and self._staged_best is not None:
+            staged = self._staged_best / "best_model.zip"
             if staged.exists():
                 os.replace(staged, self._final_best / "best_model.zip")
 
     def _on_training_end(self) -> None:
         self._publish()
-        if self._final_best is not None:
-            with contextlib.suppress(OSError):
-                shutil.rmtree(self._final_best / _STAGED_BEST)
+        for staging in (self._staged_log, self._staged_best):
+            if staging is not None:
+                with contextlib.suppress(OSError):
+                    shutil.rmtree(staging)
         super()._on_training_end()  # type: ignore[misc]
 
 

@@ -11,17 +11,30 @@ import csv
 import json
 import math
 import os
+import pickle
+import shutil
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 from cli_helpers import cli, last_json, popen, summary
 
 from sbagents.errors import UsageError
-from sbagents.rllib import CHECKPOINT_DIR, NEEDS_RAY, PROGRESS_FILE, is_rllib_run, ray_available
+from sbagents.rllib import (
+    CHECKPOINT_DIR,
+    MODULE_SUBDIR,
+    MODULES_FILE,
+    NEEDS_RAY,
+    PROGRESS_FILE,
+    WEIGHTS_FILE,
+    is_rllib_run,
+    ray_available,
+)
 
 RUN = "treasure_hunt_v0"
 SMALL = ["-params", "train_batch_size_per_learner:1000", "minibatch_size:256", "num_envs_per_env_runner:2"]
@@ -130,6 +143,9 @@ def test_local_cluster_two_env_runners_run_dir_and_evaluation(tmp_path: Path) ->
     # --save-freq 1000: a module checkpoint after 1000 and 2000 env steps (3000 is the final rllib_checkpoint)
     assert [r["checkpoint"] for r in rows] == ["checkpoint_1000", "checkpoint_2000", ""]
     assert sorted(p.name for p in run_dir.glob("checkpoint_*")) == ["checkpoint_1000", "checkpoint_2000"]
+    for saved in (CHECKPOINT_DIR, "checkpoint_1000", "checkpoint_2000"):  # the modules as plain data
+        assert (run_dir / saved / MODULES_FILE).is_file() and (run_dir / saved / WEIGHTS_FILE).is_file()
+    assert not list(run_dir.glob(".*"))  # every checkpoint was staged in a hidden folder and renamed into place
     seconds = [float(r["train_seconds"]) for r in rows]
     assert 0 < seconds[0] < seconds[1] < seconds[2] <= s["train_seconds"]
     from sbagents.core.env_names import resolve_env
@@ -180,7 +196,7 @@ def test_per_agent_policies_and_sigterm_leave_an_evaluable_checkpoint(tmp_path: 
     s = json.loads((run_dir / "summary.json").read_text())
     assert s["interrupted"] is True and s["eval"] is None and 2000 <= s["n_timesteps"] < 1_000_000
     assert s["policies"] == "per_agent" and s["num_env_runners"] == 0
-    modules = load_modules(run_dir / CHECKPOINT_DIR)
+    modules = load_modules(run_dir / CHECKPOINT_DIR, resolve_env(RUN), {"observation": "egocentric"})
     assert sorted(modules) == ["agent_0", "agent_1", "agent_2"]
     assert "agent_2/policy_loss" in _progress(run_dir)[0]
     report = evaluate_run(run_dir, "ppo", resolve_env(RUN), EvaluateOptions(n_episodes=2, seed=0))
@@ -193,6 +209,7 @@ def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path, monkeypatch: py
                                                  request: pytest.FixtureRequest) -> None:
     """The user package's heterogeneous relay_v0 (a scout that leaves early) trains one RLModule per group, and
     mpe2.simple_spread_v3 trains with its shipped entry; evaluate reads both like SB3 runs."""
+    from sbagents.core.env_names import resolve_env
     from sbagents.registration import PETTINGZOO_ENVS
     from sbagents.rllib.evaluation import load_modules
 
@@ -201,7 +218,11 @@ def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path, monkeypatch: py
     # for this test only, and leave the env registry as it was
     monkeypatch.syspath_prepend(str(user_envs))
     saved = dict(PETTINGZOO_ENVS)
-    request.addfinalizer(lambda: (PETTINGZOO_ENVS.clear(), PETTINGZOO_ENVS.update(saved)))
+    def restore() -> None:
+        PETTINGZOO_ENVS.clear()
+        PETTINGZOO_ENVS.update(saved)
+
+    request.addfinalizer(restore)
     logs = tmp_path / "logs"
     result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-n", "2000",
                  "--num-env-runners", "0", "-f", str(logs), "--seed", "1", "--eval-freq", "-1", "--verbose", "0",
@@ -209,7 +230,7 @@ def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path, monkeypatch: py
                  cwd=user_envs)
     assert result.returncode == 0, result.stderr
     run_dir = logs / "ppo" / "relay_v0_1"
-    assert sorted(load_modules(run_dir / CHECKPOINT_DIR)) == ["scout", "worker"]
+    assert sorted(load_modules(run_dir / CHECKPOINT_DIR, resolve_env("tiny_marl_pkg.relay_v0"))) == ["scout", "worker"]
     report = last_json(cli("evaluate", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-f", str(logs), "-n",
                            "6", "--json", cwd=user_envs).stdout)
     metrics = report["metrics"]
@@ -279,3 +300,224 @@ def test_lean_env_runner_samples_what_rllib_samples() -> None:
     assert {k: str(our_metrics[k]) for k in counted} == {k: str(their_metrics[k]) for k in counted}
     assert our_metrics["num_env_steps_sampled_lifetime"].peek() == 240
     assert our_metrics["num_module_steps_sampled_lifetime"]["shared"].peek() == 720
+
+
+# --- RLlib checkpoints: evaluated without unpickling anything, written atomically ----------------------------------
+# RLlib's checkpoint files are pickles (class_and_ctor_args.pkl, module_state.pkl, ...). sbagents rebuilds the
+# RLModules from plain data (sbagents_modules.json: allow-listed module class, module -> agents, model settings; the
+# spaces from the env) and loads only the weights (sbagents_modules.npz, no pickle). Below, every pickle of a trained
+# run is replaced by one that creates a marker file when unpickled: evaluation still works and the marker never
+# appears. A checkpoint without the plain-data files (an older sbagents) is refused in one line naming --trust-run.
+
+KWARGS = {"observation": "egocentric"}  # the shipped entry's env_kwargs (the modules' observation space)
+
+
+class _Marker:
+    """Unpickling this creates the file ``path`` (what a hostile pickle could do, harmlessly)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = str(path)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (open, (self.path, "w"))
+
+
+def poison(folder: Path, marker: Path) -> int:
+    """Replace every ``.pkl`` under ``folder`` with a pickle that creates ``marker``; returns how many."""
+    found = list(folder.rglob("*.pkl"))
+    for path in found:
+        path.write_bytes(pickle.dumps(_Marker(marker)))
+    return len(found)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small run (sampling in the driver, about 10 s): its log folder."""
+    logs = tmp_path_factory.mktemp("rllib")
+    result = cli("train", "--backend", "rllib", "--algo", "ppo", "--env", RUN, "-n", "1000", "--num-env-runners", "0",
+                 "-f", str(logs), "--seed", "1", "--eval-freq", "-1", "--final-eval-episodes", "0", "--verbose",
+                 "0", "-params", "train_batch_size_per_learner:1000", "minibatch_size:256")
+    assert result.returncode == 0, result.stderr
+    return logs
+
+
+def copy_run(logs: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of the trained log folder (so each test may tamper with it) and its run dir."""
+    copy = tmp_path / "logs"
+    shutil.copytree(logs, copy, symlinks=True)
+    return copy, copy / "ppo" / f"{RUN}_1"
+
+
+def _outputs(modules: dict[str, Any], obs: np.ndarray) -> dict[str, np.ndarray]:
+    import torch
+    from ray.rllib.core import Columns
+
+    with torch.no_grad():
+        return {m: module.forward_inference({Columns.OBS: torch.as_tensor(obs)})[Columns.ACTION_DIST_INPUTS].numpy()
+                for m, module in modules.items()}
+
+
+@needs_ray
+def test_rebuilt_modules_equal_rllibs_own_loader(trained: Path) -> None:
+    """The modules rebuilt from plain data compute exactly what RLlib's unpickled checkpoint computes."""
+    from sbagents.core.env_names import resolve_env
+    from sbagents.rllib.checkpoints import _unpickle, load_modules
+
+    checkpoint = trained / "ppo" / f"{RUN}_1" / CHECKPOINT_DIR
+    ours = load_modules(checkpoint, resolve_env(RUN), KWARGS)
+    spec = json.loads((checkpoint / MODULES_FILE).read_text())
+    assert spec["module_class"] == "DefaultPPOTorchRLModule" and spec["modules"] == {
+        "shared": ["agent_0", "agent_1", "agent_2"]}
+    # RLlib's own loader (what --trust-run uses for older checkpoints), on the files the fixture's run wrote
+    theirs = _unpickle(checkpoint)
+    obs = np.random.default_rng(0).uniform(-1, 1, (16, 29)).astype(np.float32)
+    mine, reference = _outputs(ours, obs), _outputs(theirs, obs)
+    assert list(mine) == list(reference) == ["shared"]
+    assert np.array_equal(mine["shared"], reference["shared"])
+
+
+@needs_ray
+def test_evaluate_unpickles_nothing(trained: Path, tmp_path: Path) -> None:
+    """Every pickle of the run dir replaced by a hostile one: ``evaluate`` gives the same report as before and no
+    pickle ran."""
+    logs, run_dir = copy_run(trained, tmp_path)
+    args = ["--algo", "ppo", "--env", RUN, "-f", str(logs), "-n", "3", "--json"]
+    before = last_json(cli("evaluate", *args).stdout)
+    marker = tmp_path / "unpickled"
+    assert poison(run_dir, marker) >= 5
+    result = cli("evaluate", *args)
+    assert result.returncode == 0, result.stderr
+    assert last_json(result.stdout) == before
+    assert not marker.exists()
+
+
+@needs_ray
+def test_an_older_checkpoint_is_refused_without_trust_run(trained: Path, tmp_path: Path) -> None:
+    """No plain-data module files: one line naming --trust-run, exit 2, nothing unpickled; trusted, RLlib loads it."""
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.options import EvaluateOptions
+    from sbagents.rllib.evaluation import evaluate_run
+
+    logs, run_dir = copy_run(trained, tmp_path)
+    for name in (MODULES_FILE, WEIGHTS_FILE):
+        (run_dir / CHECKPOINT_DIR / name).unlink()
+    result = cli("evaluate", "--algo", "ppo", "--env", RUN, "-f", str(logs), "-n", "2")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "would unpickle" in lines[0] and "--trust-run" in lines[0], result.stderr
+    report = evaluate_run(run_dir, "ppo", resolve_env(RUN), EvaluateOptions(n_episodes=2, seed=0), trust=True)
+    assert report["n_episodes"] == 2
+    marker = tmp_path / "unpickled"
+    poison(run_dir, marker)
+    with pytest.raises(UsageError, match="--trust-run"):
+        evaluate_run(run_dir, "ppo", resolve_env(RUN), EvaluateOptions(n_episodes=2, seed=0))
+    assert not marker.exists()
+
+
+@needs_ray
+@pytest.mark.parametrize(
+    ("tamper", "message"),
+    [
+        (lambda spec: spec.update(module_class="os.system"), "is not RLlib's default module of ppo"),
+        (lambda spec: spec.update(algo="evil"), "algo 'evil' is not one sbagents rebuilds"),
+        (lambda spec: spec["model"].update(custom_model="x"), "model has unknown key(s) custom_model"),
+        (lambda spec: spec.update(modules={"shared": ["pirate"]}), "acts for pirate, not agents of"),
+        (lambda spec: spec["model"].update(fcnet_hiddens=[32]), "do not fit the module"),
+        (lambda spec: spec.update(format=99), "format 1"),
+    ],
+)
+@needs_ray
+def test_tampered_module_files_are_one_line_errors(trained: Path, tmp_path: Path, tamper: Any, message: str) -> None:
+    from sbagents.core.env_names import resolve_env
+    from sbagents.rllib.checkpoints import load_modules
+
+    _, run_dir = copy_run(trained, tmp_path)
+    path = run_dir / CHECKPOINT_DIR / MODULES_FILE
+    spec = json.loads(path.read_text())
+    tamper(spec)
+    path.write_text(json.dumps(spec))
+    with pytest.raises(UsageError) as info:
+        load_modules(path.parent, resolve_env(RUN), KWARGS)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+@needs_ray
+def test_weights_with_object_arrays_are_refused(trained: Path, tmp_path: Path) -> None:
+    """An ``.npz`` whose arrays need pickle (object dtype) is refused, and the pickle inside never runs."""
+    from sbagents.core.env_names import resolve_env
+    from sbagents.rllib.checkpoints import load_modules
+
+    _, run_dir = copy_run(trained, tmp_path)
+    marker = tmp_path / "unpickled"
+    weights = run_dir / CHECKPOINT_DIR / WEIGHTS_FILE
+    with np.load(weights) as data:
+        arrays = {k: data[k] for k in data.files}
+    first = next(iter(arrays))
+    arrays[first] = np.array([_Marker(marker)], dtype=object)
+    with weights.open("wb") as fh:
+        np.savez(fh, **arrays)
+    with pytest.raises(UsageError, match="is not a plain-array .npz"):
+        load_modules(weights.parent, resolve_env(RUN), KWARGS)
+    assert not marker.exists()
+
+
+class _FakeLearnerGroup:
+    def __init__(self, fail: bool) -> None:
+        self.fail = fail
+
+    def save_to_path(self, path: str) -> None:
+        Path(path).mkdir(parents=True)
+        (Path(path) / "state.pkl").write_bytes(b"learner")
+        if self.fail:
+            raise OSError(28, "No space left on device")
+
+    def get_weights(self) -> dict[str, dict[str, np.ndarray]]:
+        return {"shared": {"w": np.ones(2, dtype=np.float32)}}
+
+
+class _FakeAlgo:
+    """What :func:`save_checkpoint` uses of an RLlib ``Algorithm``."""
+
+    def __init__(self, version: str, fail: bool = False) -> None:
+        self.version, self.fail = version, fail
+        self.learner_group = _FakeLearnerGroup(fail)
+
+    def save_to_path(self, path: str) -> str:
+        (Path(path) / "algorithm_state.pkl").write_text(self.version)
+        if self.fail:
+            raise OSError(28, "No space left on device")
+        return path
+
+
+@needs_ray
+def test_checkpoints_are_staged_and_renamed_into_place(tmp_path: Path) -> None:
+    """A save goes to a new hidden folder renamed over the old checkpoint; a save that fails midway leaves the
+    previous checkpoint whole and no hidden folder; a symlink at the checkpoint's name is replaced, not followed."""
+    from sbagents.rllib.checkpoints import save_checkpoint
+
+    run_dir, outside = tmp_path / "run", tmp_path / "outside"
+    run_dir.mkdir()
+    outside.mkdir()
+    (run_dir / CHECKPOINT_DIR).symlink_to(outside, target_is_directory=True)
+    final = run_dir / CHECKPOINT_DIR
+    assert save_checkpoint(_FakeAlgo("one"), final, "ppo", {}, {"shared": ["a"]}) == final
+    assert not final.is_symlink() and not list(outside.iterdir())
+    assert (final / "algorithm_state.pkl").read_text() == "one"
+    assert json.loads((final / MODULES_FILE).read_text())["modules"] == {"shared": ["a"]}
+    with pytest.raises(UsageError, match="No space left on device; nothing was replaced"):
+        save_checkpoint(_FakeAlgo("two", fail=True), final, "ppo", {}, {"shared": ["a"]})
+    assert (final / "algorithm_state.pkl").read_text() == "one"
+    save_checkpoint(_FakeAlgo("three"), final, "ppo", {}, {"shared": ["a"]})
+    assert (final / "algorithm_state.pkl").read_text() == "three"
+    module = run_dir / "checkpoint_1000"
+    save_checkpoint(_FakeAlgo("m"), module, "ppo", {}, {"shared": ["a"]}, learner_only=True)
+    assert sorted(p.name for p in module.iterdir()) == ["learner_group", MODULES_FILE, WEIGHTS_FILE]
+    assert (module / "learner_group" / "state.pkl").read_bytes() == b"learner"
+    assert sorted(p.name for p in run_dir.iterdir()) == sorted([CHECKPOINT_DIR, "checkpoint_1000"])
+
+
+@needs_ray
+def test_module_subdir_layout_is_what_the_trusted_loader_reads(trained: Path) -> None:
+    """RLlib still writes its own files (``--trust-run`` and RLlib tools read them)."""
+    run_dir = trained / "ppo" / f"{RUN}_1"
+    assert (run_dir / CHECKPOINT_DIR).joinpath(*MODULE_SUBDIR, "shared", "module_state.pkl").is_file()

@@ -7,7 +7,8 @@ RLlib backend. Training lives in :mod:`sbagents.rllib.training`, evaluation in :
 An RLlib run dir has the same layout as an SB3 one (``<log>/<algo>/<env>_<k>/`` with ``<env>/config.yml``,
 ``args.yml``, ``command.txt``, ``summary.json``) plus ``rllib_checkpoint/`` (``Algorithm.save_to_path``) and
 ``progress.csv`` (one row per training iteration), instead of the SB3 model zip; ``--save-freq N`` adds
-``checkpoint_<env steps>/`` module checkpoints.
+``checkpoint_<env steps>/`` module checkpoints. Every checkpoint also holds its modules and weights as plain data
+(:data:`MODULES_FILE`, :data:`WEIGHTS_FILE`), which is what evaluation reads: RLlib's own files are pickles.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ CHECKPOINT_DIR = "rllib_checkpoint"
 CHECKPOINT_PREFIX = "checkpoint"
 #: Per-iteration metrics of an RLlib run.
 PROGRESS_FILE = "progress.csv"
+#: In every checkpoint sbagents writes: its RLModules as plain data (JSON: algorithm, module class, module id ->
+#: agents, model settings) and their weights (``.npz``), read without unpickling (:mod:`sbagents.rllib.checkpoints`).
+MODULES_FILE = "sbagents_modules.json"
+WEIGHTS_FILE = "sbagents_modules.npz"
 #: Where the learner's (multi-agent) RLModule sits inside an RLlib checkpoint.
 MODULE_SUBDIR = ("learner_group", "learner", "rl_module")
 #: Module id of the parameter-shared policy (``policies: shared``); per-agent modules are named like the agents.
@@ -113,6 +118,8 @@ __all__ = [
     "CHECKPOINT_DIR",
     "CHECKPOINT_PREFIX",
     "MODULE_SUBDIR",
+    "MODULES_FILE",
+    "WEIGHTS_FILE",
     "NEEDS_RAY",
     "PROGRESS_FILE",
     "rllib_algos",

@@ -1,4 +1,5 @@
-"""Evaluating an RLlib run: greedy team episodes with the checkpoint's RLModule(s), without starting Ray.
+"""Evaluating an RLlib run: greedy team episodes with the checkpoint's RLModule(s), without starting Ray and without
+unpickling the checkpoint (:mod:`sbagents.rllib.checkpoints`).
 
 The episodes are played by the same runner and summarized as the SB3 team evaluation
 (:func:`sbagents.multiagent.team_eval.run_team_episodes`, :func:`~sbagents.multiagent.team_eval.team_summary`):
@@ -8,7 +9,6 @@ returns and the env's declared metrics.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -17,7 +17,6 @@ import numpy as np
 import torch
 from gymnasium import spaces
 from ray.rllib.core import Columns
-from ray.rllib.core.rl_module.multi_rl_module import MultiRLModule
 from ray.rllib.core.rl_module.rl_module import RLModule
 
 from sbagents.core.env_names import EnvRef
@@ -28,32 +27,9 @@ from sbagents.errors import UsageError
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.team_eval import run_team_episodes, team_summary
-from sbagents.rllib import CHECKPOINT_DIR, MODULE_SUBDIR, SHARED_MODULE
+from sbagents.rllib import CHECKPOINT_DIR, SHARED_MODULE
+from sbagents.rllib.checkpoints import load_modules
 from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
-
-
-def load_modules(checkpoint: str | Path) -> dict[str, RLModule]:
-    """The learner's RLModules of an RLlib checkpoint (``Algorithm.save_to_path``), by module id.
-
-    Only reads files (``RLModule.from_checkpoint``): no Ray instance is started.
-    """
-    path = Path(checkpoint).joinpath(*MODULE_SUBDIR)
-    if not path.is_dir():
-        raise UsageError(f"{checkpoint} is not an RLlib checkpoint with a learner module ({path} is missing)")
-    logger = logging.getLogger("ray._common.deprecation")  # RLlib's notice about its own RLModule constructor
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        multi = RLModule.from_checkpoint(str(path.resolve()))
-    finally:
-        logger.setLevel(level)
-    if not isinstance(multi, MultiRLModule):
-        raise UsageError(f"{path} holds a single-agent RLModule; sbagents RLlib runs save a MultiRLModule")
-    modules = dict(multi.items())
-    for module in modules.values():
-        if isinstance(module, torch.nn.Module):  # TorchRLModule: inference mode for dropout/batch-norm layers
-            module.eval()
-    return modules
 
 
 def module_groups(modules: Mapping[str, RLModule], agents: list[str], recorded: Mapping[str, list[str]] | None
@@ -127,15 +103,23 @@ def evaluate_modules(
 
 def evaluate_checkpoint(
     checkpoint: str | Path, ref: EnvRef, algo: str, env_kwargs: Mapping[str, Any],
-    groups: Mapping[str, list[str]] | None = None, options: EvaluateOptions | None = None,
+    groups: Mapping[str, list[str]] | None = None, options: EvaluateOptions | None = None, trust: bool = False,
 ) -> dict[str, Any]:
-    """Evaluate the modules of an RLlib checkpoint on a fresh env ``ref`` built with ``env_kwargs``."""
-    return evaluate_modules(load_modules(checkpoint), ref, env_kwargs, algo, groups, options)
+    """Evaluate the modules of an RLlib checkpoint on a fresh env ``ref`` built with ``env_kwargs``.
+
+    The modules are rebuilt from the checkpoint's plain data (:func:`~sbagents.rllib.checkpoints.load_modules`);
+    ``trust`` (``--trust-run``) lets an older checkpoint without it be unpickled by RLlib.
+    """
+    return evaluate_modules(load_modules(checkpoint, ref, env_kwargs, trust), ref, env_kwargs, algo, groups, options)
 
 
-def evaluate_run(run_dir: str | Path, algo: str, ref: EnvRef, options: EvaluateOptions) -> dict[str, Any]:
-    """Evaluate a finished (or interrupted) RLlib run dir of ``python -m sbagents.train --backend rllib``."""
+def evaluate_run(run_dir: str | Path, algo: str, ref: EnvRef, options: EvaluateOptions, trust: bool = False
+                 ) -> dict[str, Any]:
+    """Evaluate a finished (or interrupted) RLlib run dir of ``python -m sbagents.train --backend rllib``.
+
+    :param trust: ``--trust-run``: a checkpoint of an older sbagents (no plain-data module files) may be unpickled.
+    """
     run_dir = Path(run_dir)
     entry = load_run_config(run_dir, ref.env_id)
     return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref, algo, entry.get("env_kwargs") or {},
-                               run_groups(run_dir, ref.env_id), options)
+                               run_groups(run_dir, ref.env_id), options, trust)

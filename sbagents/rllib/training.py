@@ -3,9 +3,10 @@
 Flow: :class:`TrainSpec` + ``zoo_configs/rllib_<algo>.yml`` -> :class:`~sbagents.rllib.experiment.RllibExperiment`
 -> RLlib ``AlgorithmConfig`` -> Ray (a local instance sized for this machine, or the cluster at ``address``) -> run
 dir with ``rllib_checkpoint/``, ``progress.csv``, ``summary.json`` and, with ``--save-freq N``, a module checkpoint
-``checkpoint_<env steps>/`` every N env steps (:func:`save_module_checkpoint`), through the same run life as SB3 runs
-(:mod:`sbagents.core.lifecycle`). Ctrl-C / SIGTERM stop training but still leave a checkpoint and
-``summary.json`` (``interrupted: true``); Ray is shut down in every case.
+``checkpoint_<env steps>/`` every N env steps (:func:`save_module_checkpoint`), through the same run life as SB3
+runs (:mod:`sbagents.core.lifecycle`). Every checkpoint is written to a hidden folder and renamed into place, with
+its modules as plain data (:mod:`sbagents.rllib.checkpoints`). Ctrl-C / SIGTERM stop training but still leave a
+checkpoint and ``summary.json`` (``interrupted: true``); Ray is shut down in every case.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from sbagents.core.progress import ProgressReporter
 from sbagents.errors import UsageError
 from sbagents.multiagent.env_copy import declared_metrics
 from sbagents.rllib import CHECKPOINT_DIR, CHECKPOINT_PREFIX, PROGRESS_FILE, check_address
+from sbagents.rllib.checkpoints import save_checkpoint
 from sbagents.rllib.evaluation import evaluate_checkpoint
 from sbagents.rllib.experiment import RllibExperiment, build_config, build_experiment
 
@@ -127,7 +129,7 @@ def train_rllib(
                 _train_loop(algo_obj, (exp, ref, groups), run_dir, done, seed, evaluation, execution,
                             output.save_freq)
         finally:
-            algo_obj.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
+            save_checkpoint(algo_obj, run_dir / CHECKPOINT_DIR, spec.algo, exp.model, groups)
     steps = int(done["env_steps"])
     summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "backend": "rllib",
                "n_agent_steps": int(done["agent_steps"]), "iterations": int(done["iterations"]),
@@ -145,12 +147,13 @@ def train_rllib(
 _LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var")
 
 
-def save_module_checkpoint(algo: Any, path: Path) -> Path:
+def save_module_checkpoint(algo: Any, path: Path, exp: RllibExperiment, groups: dict[str, list[str]]) -> Path:
     """Save the learner's RLModule(s) (and optimizer state) of ``algo`` under ``path`` in the layout of a full
-    checkpoint (``learner_group/learner/rl_module``), which :func:`~sbagents.rllib.evaluation.evaluate_checkpoint`
-    reads; the env runners' state is left out, which keeps a periodic save short."""
-    algo.learner_group.save_to_path(str((path / "learner_group").resolve()))
-    return path
+    checkpoint (``learner_group/learner/rl_module``), with the plain-data module files that
+    :func:`~sbagents.rllib.evaluation.evaluate_checkpoint` reads, atomically
+    (:func:`~sbagents.rllib.checkpoints.save_checkpoint`); the env runners' state is left out, which keeps a
+    periodic save short."""
+    return save_checkpoint(algo, path, exp.algo, exp.model, groups, learner_only=True)
 
 
 def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[str]]], run_dir: Path,
@@ -204,7 +207,7 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
             row.update({f"{m}/{k}": learners.get(m, {}).get(k, "") for m in modules for k in _LEARNER_STATS})
             if steps >= next_eval and steps < exp.n_timesteps:
                 next_eval = steps - steps % eval_freq + eval_freq
-                ckpt = algo.save_to_path(str((run_dir / CHECKPOINT_DIR).resolve()))
+                ckpt = save_checkpoint(algo, run_dir / CHECKPOINT_DIR, exp.algo, exp.model, groups)
                 ev = evaluate_checkpoint(ckpt, ref, exp.algo, exp.env_kwargs, groups,
                                          EvaluateOptions(n_episodes=evaluation.eval_episodes, seed=seed))
                 declared = {k: ev["metrics"][k] for k in metric_keys}
@@ -212,7 +215,8 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
                 reporter.evaluation(steps, ev["mean_return"], ev["std_return"], ev["success_rate"], declared)
             if steps >= next_save and steps < exp.n_timesteps:
                 next_save = steps - steps % save_freq + save_freq
-                row["checkpoint"] = save_module_checkpoint(algo, run_dir / f"{CHECKPOINT_PREFIX}_{steps}").name
+                row["checkpoint"] = save_module_checkpoint(algo, run_dir / f"{CHECKPOINT_PREFIX}_{steps}", exp,
+                                                           groups).name
             row["train_seconds"] = round(time.perf_counter() - start, 3)
             writer.writerow(row)
             f.flush()

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
-from sbagents.atomic import raise_disk_error, write_text
+from sbagents.atomic import raise_disk_error, temporary_name, write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
@@ -60,8 +60,8 @@ class _Recorder(VecVideoRecorder):
             from moviepy.video.io.ImageSequenceClip import ImageSequenceClip
 
             final = Path(self.video_path)
-            tmp = final.with_name(f".{final.name}.{os.getpid()}.partial.mp4")  # ffmpeg takes the format from it
             clip = ImageSequenceClip(self.recorded_frames, fps=self.frames_per_sec)
+            tmp = temporary_name(final, ".partial.mp4")  # mkstemp (never a symlink); ffmpeg takes the format from it
             try:
                 clip.write_videofile(str(tmp), logger=None)
                 os.replace(tmp, final)

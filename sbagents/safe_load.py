@@ -400,6 +400,10 @@ def load_model(cls: Any, path: str | Path, *, env: Any = None, device: str = "cp
     path = Path(path)
     data = read_model_data(path)  # a clear line for a missing, empty or truncated file
     if trust:
+        from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+        if env is None and not for_training and issubclass(cls, OffPolicyAlgorithm):
+            kwargs = {"replay_buffer_class": None, "replay_buffer_kwargs": {}, **kwargs}  # HER's needs the env
         try:
             return cls.load(str(path), env=env, device=device, **kwargs)
         except UsageError:

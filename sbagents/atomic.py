@@ -277,3 +277,26 @@ def _exchange(a: Path, b: Path) -> bool:
     if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
         return False
     raise OSError(err, os.strerror(err), str(b))
+
+
+def run_subfolder(run_dir: str | Path, name: str, create: bool = True) -> Path:
+    """The folder ``<run dir>/<name>`` (``videos``, ``export``) where sbagents writes by default, made if missing
+    and ``create`` (else the caller makes it).
+
+    A run dir may come from someone else: a symlink at that name (or one that leads the folder out of the run dir)
+    would send the writes elsewhere, so it is refused instead of followed.
+
+    :raises UsageError: one line naming the link.
+    """
+    root = Path(run_dir)
+    folder = root / name
+    if folder.is_symlink() or (folder.exists() and not folder.is_dir()):
+        raise UsageError(f"{folder} is a symlink or not a folder; sbagents writes only into real folders inside the "
+                         "run dir (remove it, or pass an output folder)")
+    if not create and not folder.exists():
+        return folder
+    folder.mkdir(exist_ok=True)
+    real_root, real = os.path.realpath(root), os.path.realpath(folder)
+    if os.path.commonpath([real_root, real]) != real_root:
+        raise UsageError(f"{folder} leads out of the run dir ({real}); remove it, or pass an output folder")
+    return folder

@@ -192,3 +192,23 @@ def test_record_video_writes_no_file_outside_the_run_dir(tmp_path: Path) -> None
     assert video.read_bytes()[4:8] == b"ftyp"  # an mp4
     assert video.with_suffix(".csv").read_text().startswith("frame,episode,step,")
     shutil.rmtree(videos)
+    videos.symlink_to(outside, target_is_directory=True)  # the videos folder itself leads out
+    before = sorted(p.name for p in outside.iterdir())
+    from sbagents.errors import UsageError
+
+    with pytest.raises(UsageError, match="symlink"):
+        record_video(RunRef("qlearning", "sbagents/GridWorld-v0", logs), n_steps=4)
+    assert sorted(p.name for p in outside.iterdir()) == before
+
+
+def test_a_default_output_folder_that_is_a_symlink_is_refused(dirs: tuple[Path, Path]) -> None:
+    from sbagents.atomic import run_subfolder
+    from sbagents.errors import UsageError
+
+    run_dir, outside = dirs
+    (run_dir / "export").symlink_to(outside, target_is_directory=True)
+    with pytest.raises(UsageError, match="symlink"):
+        run_subfolder(run_dir, "export", create=False)
+    assert run_subfolder(run_dir, "videos") == run_dir / "videos" and (run_dir / "videos").is_dir()
+    assert not (run_dir / "export_checkpoint_5").exists()
+    assert run_subfolder(run_dir, "export_checkpoint_5", create=False) == run_dir / "export_checkpoint_5"

@@ -23,7 +23,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sbagents.atomic import raise_disk_error, write_json
+from sbagents.atomic import raise_disk_error, run_subfolder, write_json
 from sbagents.callbacks.common import env_attr
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
 from sbagents.core.run_dir import LoadedRun, RunRef, load_run
@@ -264,7 +264,7 @@ def export_groups(
     if n_observations < 1:
         raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
     loaded = load_run(run)
-    target = Path(out) if out is not None else loaded.run_dir / default_export_dir(run)
+    target = Path(out) if out is not None else run_subfolder(loaded.run_dir, default_export_dir(run), create=False)
     return _export_kind(loaded.env.kind, loaded, target, int8, ExportChecks(n_observations=n_observations))
 
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
-from sbagents.atomic import raise_disk_error, temporary_name, write_text
+from sbagents.atomic import raise_disk_error, run_subfolder, temporary_name, write_text
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
@@ -185,10 +185,10 @@ def record_video(
     frame_rate = fps if fps is not None else _render_fps(venvs[first])
     stats = {g: loaded.stats_paths.get(g, loaded.stats_path) for g in venvs}
     venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g], loaded.trust) for g, v in venvs.items()}
-    out = Path(output_dir) if output_dir is not None else loaded.run_dir / "videos"
     try:
+        out = Path(output_dir) if output_dir is not None else run_subfolder(loaded.run_dir, "videos")
         out.mkdir(parents=True, exist_ok=True)
-    except OSError:
+    except (OSError, UsageError):
         venvs[first].close()
         raise
     prefix = f"{run.algo}-{env_stem(ref.env_id)}"

@@ -8,12 +8,18 @@
 
 ``run`` and ``render`` take ``--output FILE`` (default ``BENCHMARKS.md``) before the name; ``run --results FILE``
 saves the results elsewhere (a scratch run that leaves ``benchmarks/results`` alone).
+
+A smoke run (``--quick``, ``--smoke`` or ``--tiny`` among the benchmark's options,
+:data:`~benchmarks.harness.SMOKE_FLAGS`) never writes the published results: its results go to a scratch file in a
+new temporary folder (or ``--results FILE``), the section is written only to an ``--output FILE`` given, and naming
+the published results file or ``BENCHMARKS.md`` for it is refused in one line (exit 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -27,8 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="every benchmark with its kind, results file and section")
     run = sub.add_parser("run", help="measure one benchmark, save its results and update its section")
-    run.add_argument("--output", default=str(MARKDOWN), help="Markdown file to update ('' to skip)")
-    run.add_argument("--results", default=None, help="results file (default: the benchmark's own)")
+    run.add_argument("--output", default=None,
+                     help="Markdown file to update ('' to skip; default BENCHMARKS.md, none for a smoke run)")
+    run.add_argument("--results", default=None,
+                     help="results file (default: the benchmark's own; a scratch file for a smoke run)")
     run.add_argument("name", help="benchmark name (see `list`)")
     run.add_argument("options", nargs=argparse.REMAINDER, help="the benchmark's own options")
     render = sub.add_parser("render", help="rebuild sections from their results files")
@@ -37,6 +45,16 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--check", action="store_true", help="change nothing; exit 1 if a section would change")
     render.add_argument("names", nargs="*", help="benchmark names (see `list`)")
     return parser
+
+
+def _published(bench: Benchmark, results: str | None, output: str | None) -> str | None:
+    """Which published file (the benchmark's results file, ``BENCHMARKS.md``) ``--results`` / ``--output`` name,
+    if any."""
+    if results and Path(results).resolve() == bench.results_path.resolve():
+        return f"results file {bench.results_path.name}"
+    if output and Path(output).resolve() == MARKDOWN.resolve():
+        return MARKDOWN.name
+    return None
 
 
 def _pick(benchmarks: dict[str, Benchmark], names: Sequence[str]) -> list[Benchmark]:
@@ -81,14 +99,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.command == "run":
         (bench,) = _pick(benchmarks, [args.name])
+        smoke = bench.is_smoke(args.options)
+        if smoke:
+            published = _published(bench, args.results, args.output)
+            if published is not None:
+                print(f"python -m benchmarks: error: a smoke run ({' / '.join(bench.smoke_flags)}) never writes the "
+                      f"published {published}; give --results and --output files elsewhere (or leave them out)",
+                      file=sys.stderr)
+                return 2
         results = bench.run(args.options)
-        path = Path(args.results) if args.results else bench.results_path
+        if args.results:
+            path = Path(args.results)
+        elif smoke:
+            path = Path(tempfile.mkdtemp(prefix=f"benchmarks-{bench.name}-")) / Path(bench.results).name
+        else:
+            path = bench.results_path
         (bench.save or save_results)(results, path)
+        if args.output is None and not smoke:
+            args.output = str(MARKDOWN)
         if args.output:
             output = Path(args.output)
             old = output.read_text() if output.exists() else "# Benchmarks\n"
             atomic_write_text(output, replace_section(old, bench.render(results), bench.name))
-        print(f"{bench.name}: results -> {path}" + (f", section -> {args.output}" if args.output else ""))
+        print(f"{bench.name}: results -> {path}" + (f", section -> {args.output}" if args.output else "")
+              + (" (smoke run: the published results and BENCHMARKS.md are left alone)" if smoke else ""))
         return 0
     if not args.all and not args.names:
         raise SystemExit("error: render needs benchmark names or --all")

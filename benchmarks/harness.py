@@ -25,6 +25,9 @@ from benchmarks.report import RESULTS_DIR, load_results
 
 #: The kinds of benchmarks, each a subpackage of ``benchmarks``.
 KINDS: tuple[str, ...] = ("speed", "learning", "suites")
+#: The options that make a run a smoke run (a check that the benchmark runs end to end, with numbers that mean
+#: nothing): its results never replace the published ones (see :meth:`Benchmark.is_smoke`).
+SMOKE_FLAGS: tuple[str, ...] = ("--quick", "--smoke", "--tiny")
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,8 @@ class Benchmark:
     :param load: reads the results file (JSON by default).
     :param save: writes the results file (indented JSON by default).
     :param command: how to run it, shown by ``list`` (default ``python -m benchmarks run NAME``).
+    :param smoke_flags: the benchmark's options that make a smoke run (default :data:`SMOKE_FLAGS`): ``run``
+        then writes its results to a scratch file and leaves ``BENCHMARKS.md`` alone unless told other files.
     """
 
     name: str
@@ -53,6 +58,7 @@ class Benchmark:
     load: Callable[[Path], Any] = field(default=load_results)
     save: Callable[[Any, Path], None] | None = None
     command: str = ""
+    smoke_flags: tuple[str, ...] = SMOKE_FLAGS
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -62,6 +68,17 @@ class Benchmark:
     def results_path(self) -> Path:
         """Absolute path of the results file."""
         return RESULTS_DIR / self.results
+
+    def is_smoke(self, options: Sequence[str]) -> bool:
+        """Whether ``options`` (the benchmark's own) ask for a smoke run: one of :attr:`smoke_flags`, or an
+        abbreviation of one that argparse would accept (``--qui``), before a ``--`` that ends the options."""
+        for option in options:
+            if option == "--":
+                break
+            name = option.partition("=")[0]
+            if name.startswith("--") and len(name) > 3 and any(flag.startswith(name) for flag in self.smoke_flags):
+                return True
+        return False
 
     def render_file(self, path: Path | None = None) -> str:
         """The section rendered from the results file (``path`` or :attr:`results_path`)."""

@@ -45,10 +45,22 @@ def _chain(wrappers: list[tuple[Any, dict[str, Any]]]) -> Callable[[gym.Env], gy
 
     def wrap(env: gym.Env) -> gym.Env:
         for wrapper, kwargs in wrappers:
-            env = wrapper(env, **kwargs)
+            env = _wrapped(wrapper, env, kwargs, "env_wrapper")
         return env
 
     return wrap
+
+
+def _wrapped(wrapper: Any, env: Any, kwargs: dict[str, Any], key: str) -> Any:
+    """``wrapper(env, **kwargs)``; a wrapper of the config that rejects its arguments (a ``TypeError`` or
+    ``ValueError`` as it is built) is one :class:`UsageError` line naming it."""
+    try:
+        return wrapper(env, **kwargs)
+    except (TypeError, ValueError) as exc:
+        name = f"{getattr(wrapper, '__module__', '')}.{getattr(wrapper, '__qualname__', wrapper)}"
+        given = ", ".join(f"{k}={v!r:.40}" for k, v in kwargs.items()) or "no arguments"
+        reason = " ".join(str(exc).split())[:160] or type(exc).__name__
+        raise UsageError(f"{key} {name} cannot be built with {given}: {reason}") from None
 
 
 def _team_vecs(
@@ -88,7 +100,7 @@ def make_team_vecs(
 
 def _vec_wrappers(venv: VecEnv, exp: Experiment) -> VecEnv:
     for wrapper, wrapper_kwargs in exp.vec_env_wrapper:
-        venv = wrapper(venv, **wrapper_kwargs)
+        venv = _wrapped(wrapper, venv, wrapper_kwargs, "vec_env_wrapper")
     if exp.frame_stack:
         venv = VecFrameStack(venv, exp.frame_stack)
     return venv
@@ -227,6 +239,24 @@ def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int |
     return next(iter(venvs.values()))
 
 
+def new_vec_normalize(venv: VecEnv, exp: Experiment) -> VecNormalize:
+    """A fresh :class:`VecNormalize` of the experiment's ``normalize`` settings around ``venv``.
+
+    :raises UsageError: one line where the settings do not fit the env: observation normalisation of observations
+        that are not ``Box`` (or ``Dict`` of ``Box``), or keyword arguments ``VecNormalize`` does not take.
+    """
+    kwargs = dict(exp.normalize) if isinstance(exp.normalize, dict) else {}
+    space = venv.observation_space
+    if kwargs.get("norm_obs", True) and not isinstance(space, gym.spaces.Box | gym.spaces.Dict):
+        raise UsageError(f"normalize needs Box (or Dict) observations to normalize; {exp.env_id}'s are {space}: drop "
+                         "normalize, or set normalize: {norm_obs: false} to scale rewards only")
+    try:
+        return VecNormalize(venv, **kwargs)
+    except (TypeError, ValueError) as exc:
+        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise UsageError(f"normalize {exp.normalize!r:.80} does not fit {exp.env_id}: {reason}") from None
+
+
 def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | None = None,
                            trust: bool = False) -> VecEnv:
     """Wrap ``venv`` in :class:`VecNormalize` when the experiment asks for it (or resume saved statistics).
@@ -241,8 +271,7 @@ def normalize_for_training(venv: VecEnv, exp: Experiment, stats_path: Path | Non
         return loaded
     if not exp.normalize:
         return venv
-    kwargs = exp.normalize if isinstance(exp.normalize, dict) else {}
-    return VecNormalize(venv, **kwargs)
+    return new_vec_normalize(venv, exp)
 
 
 def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = None,
@@ -255,8 +284,7 @@ def normalize_for_eval(venv: VecEnv, exp: Experiment, stats_path: Path | None = 
     if found is not None:
         loaded = load_vecnormalize(found, venv, trust)
     elif exp.normalize:
-        kwargs = dict(exp.normalize) if isinstance(exp.normalize, dict) else {}
-        loaded = VecNormalize(venv, **kwargs)
+        loaded = new_vec_normalize(venv, exp)
     else:
         return venv
     loaded.training = False

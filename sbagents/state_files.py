@@ -141,9 +141,13 @@ def _plain_json(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not plain data")
 
 
-def save_replay_buffer(buffer: Any, path: str | Path) -> Path:
+def save_replay_buffer(buffer: Any, path: str | Path, num_timesteps: int | None = None) -> Path:
     """Write a replay buffer's arrays and position to ``path`` (``.npz``, atomically): every numpy array attribute
-    (also per key of Dict observations), object arrays (HER's ``infos``) as JSON, and ``pos``/``full``."""
+    (also per key of Dict observations), object arrays (HER's ``infos``) as JSON, and ``pos``/``full``.
+
+    :param num_timesteps: the model's step count when the buffer was saved (recorded, so that continuing a model
+        saved at another step can tell the buffer is not its own: :func:`replay_buffer_steps`).
+    """
     arrays: dict[str, Any] = {}
     for name, value in vars(buffer).items():
         if isinstance(value, np.ndarray) and value.dtype == object:
@@ -157,8 +161,30 @@ def save_replay_buffer(buffer: Any, path: str | Path) -> Path:
             arrays |= {f"dict/{name}/{key}": v for key, v in value.items()}
     settings = {"format": FORMAT, "class": type(buffer).__name__, "pos": int(buffer.pos), "full": bool(buffer.full),
                 "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
+    if num_timesteps is not None:
+        settings["num_timesteps"] = int(num_timesteps)
     arrays[_SETTINGS] = np.asarray(json.dumps(settings))
     return write_npz(path, **arrays)
+
+
+def replay_buffer_steps(path: str | Path) -> int | None:
+    """The model step count recorded with the replay buffer at ``path`` (None: a legacy ``.pkl``, or a file saved
+    before sbagents recorded it); only the file's settings are read.
+
+    :raises UsageError: the file is not a replay buffer file.
+    """
+    path = Path(path)
+    if path.suffix == ".pkl":
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            settings = json.loads(str(data[_SETTINGS]))
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
+            raise
+        raise UsageError(f"{path} is not a valid replay buffer file ({type(exc).__name__}: {exc})") from None
+    steps = settings.get("num_timesteps") if isinstance(settings, dict) else None
+    return steps if isinstance(steps, int) and not isinstance(steps, bool) else None
 
 
 def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model: Any = None) -> None:

@@ -176,7 +176,7 @@ def test_a_home_keeps_its_state_between_rounds(tmp_path: Path) -> None:
     from sbagents.safe_load import load_model
     from sbagents.state_files import load_replay_buffer
 
-    model = load_model(DDPG, tmp_path / "home-1" / MODEL_FILE)
+    model = load_model(DDPG, tmp_path / "home-1" / MODEL_FILE, for_training=True)  # full-size buffer
     load_replay_buffer(model.replay_buffer, tmp_path / "home-1" / BUFFER_FILE)
     assert model.num_timesteps == 2 * settings.local_steps
     assert model.replay_buffer.size() == 2 * settings.local_steps  # the home's own experience, both rounds

@@ -10,7 +10,8 @@ p50/p99 over ``--latency-n`` calls, one torch / onnxruntime thread.
     python -m benchmarks run export-latency [--train-steps 2000] [--latency-n 1000] [--n-observations 1000]
     python -m benchmarks run export-latency --quick    # smoke run: untrained, 200 calls, 200 observations
 
-Results: ``benchmarks/results/export_latency.json``; section ``export-latency`` of ``BENCHMARKS.md``.
+Results: ``benchmarks/results/export_latency.json``; section ``export-latency`` of ``BENCHMARKS.md``. A ``--quick``
+run writes neither: its results go to a scratch file the harness prints (:mod:`benchmarks.__main__`).
 """
 
 from __future__ import annotations

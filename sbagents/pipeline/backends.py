@@ -6,7 +6,8 @@ asks for RLlib.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
@@ -72,10 +73,22 @@ def train(
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
         require_ray()
-        from sbagents.rllib.training import train_rllib
+        with _rllib_import("--backend rllib"):
+            from sbagents.rllib.training import train_rllib
 
         return train_rllib(spec, output, evaluation, execution, rllib)
     return train_sb3(spec, output, evaluation, execution, callbacks, features, sb3)
+
+
+@contextlib.contextmanager
+def _rllib_import(what: str) -> Iterator[None]:
+    """Importing the RLlib backend (Ray, RLlib and their dependencies): an ``ImportError`` (a Ray without RLlib's
+    dependencies, ``No module named 'tree'``) is one line naming the extra that installs them."""
+    try:
+        yield
+    except ImportError as exc:
+        raise UsageError(f"{what} cannot import Ray RLlib ({exc}): pip install 'sbagents[distributed]' installs it "
+                         "with its dependencies") from None
 
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.
@@ -102,7 +115,8 @@ def evaluate(run: RunRef, options: EvaluateOptions | None = None) -> dict[str, A
         if given:
             raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
         require_ray("evaluating an RLlib run")
-        from sbagents.rllib.evaluation import evaluate_run
+        with _rllib_import("evaluating an RLlib run"):
+            from sbagents.rllib.evaluation import evaluate_run
 
         assert run.algo is not None
         return evaluate_run(run_dir, run.algo, run.env_ref(), options)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +14,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from sbagents.algos import ALGOS
 from sbagents.errors import UsageError
 from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
-from sbagents.replay.buffer_files import ReplayBufferCheckpoint, load_replay_buffer, save_replay_buffer
+from sbagents.replay.buffer_files import ReplayBufferCheckpoint, buffer_for, load_replay_buffer, save_replay_buffer
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -22,7 +23,8 @@ class ReplayBufferOptions:
 
     :param save: keep it in ``replay_buffer.npz`` (replaced at each checkpoint and at the end, also after Ctrl-C),
         which ``-i`` loads to continue (``--save-replay-buffer``). Whatever this says, ``-i`` continues with the
-        buffer saved beside its model, if there is one.
+        buffer saved beside its model when it was saved at the model's step (the final model's); a checkpoint of
+        another step starts with an empty buffer (one warning line).
     """
 
     save: bool = False
@@ -59,10 +61,14 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
         return spec
 
     def setup(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> None:
-        loaded = None
+        loaded, reason = None, None
         if ctx.trained_agent is not None:
+            _, reason = buffer_for(ctx.model, ctx.trained_agent)
+            if reason is not None:  # before the progress bar exists: one plain line
+                print(f"warning: {reason}", file=sys.stderr, flush=True)
             loaded = load_replay_buffer(ctx.model, ctx.trained_agent, ctx.trust_run)
         ctx.state[self.name] = loaded
+        ctx.state[f"{self.name}.not_loaded"] = reason
 
     def callbacks(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> list[BaseCallback]:
         if spec.save and ctx.save_freq > 0:
@@ -74,10 +80,13 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
             save_replay_buffer(ctx.model, ctx.run_dir)
 
     def summary(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> dict[str, Any]:
-        loaded = ctx.state.get(self.name)
-        if loaded is None and not spec.save:
+        loaded, reason = ctx.state.get(self.name), ctx.state.get(f"{self.name}.not_loaded")
+        if loaded is None and not spec.save and reason is None:
             return {}
-        return {"replay_buffer": {"loaded_transitions": loaded, "saved": spec.save}}
+        item: dict[str, Any] = {"loaded_transitions": loaded, "saved": spec.save}
+        if reason is not None:
+            item["not_loaded"] = reason
+        return {"replay_buffer": item}
 
     def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
         buffer = summary.get("replay_buffer")
@@ -85,5 +94,6 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
             return []
         loaded = buffer["loaded_transitions"]
         parts = ([] if loaded is None else [f"continued with the {loaded} transitions saved beside -i's model"]) + (
+            ["-i's model has none of its own: started empty"] if buffer.get("not_loaded") else []) + (
             [f"saved in {run_dir}/replay_buffer.npz"] if buffer["saved"] else [])
         return ["replay buffer: " + "; ".join(parts)]

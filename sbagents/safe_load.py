@@ -32,6 +32,7 @@ import inspect
 import io
 import json
 import math
+import os
 import pickle
 import re
 import zipfile
@@ -40,8 +41,8 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from sbagents.import_paths import resolve_path
 from sbagents.errors import UsageError
+from sbagents.import_paths import resolve_path
 from sbagents.plain_data import TRUST_FLAG, UntrustedContentError
 from sbagents.plain_data import short_message as _short
 
@@ -58,9 +59,10 @@ PLAIN_ENTRIES_ATTR = "plain_entries"
 #: Packages whose classes a model may name (policy, buffers, activation, optimizer, features extractor).
 REFERENCE_PREFIXES: tuple[str, ...] = ("stable_baselines3", "sb3_contrib", "sbagents", "torch.nn", "torch.optim")
 
-#: The most a model file may unpack to (every member together), and its ``data`` JSON alone.
-MAX_UNPACKED_BYTES = 1 << 30
-MAX_DATA_BYTES = 64 << 20
+#: The most a model file may unpack to (every member together: 48 MiB, ``SBAGENTS_MAX_MODEL_BYTES`` for bigger
+#: models; a 512x3 TQC with its optimizers takes ~30 MiB, an Atari CNN 7), and its ``data`` JSON alone.
+MAX_UNPACKED_BYTES = int(os.environ.get("SBAGENTS_MAX_MODEL_BYTES", 48 << 20))
+MAX_DATA_BYTES = 16 << 20
 #: The most nested a plain value from ``data`` may be, and the largest integer it may hold.
 _MAX_DEPTH = 8
 _MAX_INT = 1 << 40
@@ -113,7 +115,8 @@ def _check_sizes(archive: zipfile.ZipFile, path: Path) -> None:
     data = next((info.file_size for info in infos if info.filename == "data"), 0)
     if total > MAX_UNPACKED_BYTES or data > MAX_DATA_BYTES:
         raise UsageError(f"{path} unpacks to {total} bytes (data {data}); sbagents loads models up to "
-                         f"{MAX_UNPACKED_BYTES} bytes ({MAX_DATA_BYTES} of data)")
+                         f"{MAX_UNPACKED_BYTES} bytes ({MAX_DATA_BYTES} of data; set SBAGENTS_MAX_MODEL_BYTES "
+                         "for a bigger model you trust)")
 
 
 def read_weights(path: str | Path, device: str = "cpu") -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from sbagents.atomic import write_npz
 from sbagents.errors import UsageError
+from sbagents.plain_data import short_message
 from sbagents.safe_load import load_pickle_file
 
 #: The statistics file of a run dir (of one model; ``vecnormalize.<group>.npz`` for a group's).
@@ -47,15 +48,41 @@ def existing(path: Path | None) -> Path | None:
     return legacy if legacy.exists() else None
 
 
-def _read_npz(path: Path, what: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """The arrays and the settings of one of these files (one-line errors for anything malformed)."""
+#: The most a statistics file may unpack to (a replay buffer's limit is its model's buffer size).
+MAX_STATS_BYTES = 64 << 20
+
+
+def check_npz_size(path: Path, what: str, max_bytes: int) -> None:
+    """Refuse (one line) an ``.npz`` whose members would unpack to more than ``max_bytes``, before reading any.
+
+    :raises UsageError: too large, or not a zip file.
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            infos = archive.infolist()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:
+        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
+            raise
+        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {short_message(exc)})") from None
+    total = sum(info.file_size for info in infos)
+    if len(infos) > 4096 or total > max_bytes:
+        raise UsageError(f"{path} unpacks to {total} bytes in {len(infos)} arrays; a {what} file of this model "
+                         f"holds at most {max_bytes}")
+
+
+def _read_npz(path: Path, what: str, max_bytes: int = MAX_STATS_BYTES) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The arrays and the settings of one of these files (one-line errors for anything malformed; at most
+    ``max_bytes`` unpacked, checked before anything is read)."""
+    check_npz_size(path, what, max_bytes)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in data.files}
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
+    except OSError as exc:
+        if not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
             raise
-        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {exc})") from None
+        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {short_message(exc)})") from None
+    except Exception as exc:  # noqa: BLE001 - numpy's header parser raises many kinds (tokenize, zlib, value, ...)
+        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {short_message(exc)})") from None
     try:
         settings = json.loads(str(arrays.pop(_SETTINGS)))
     except (KeyError, ValueError) as exc:
@@ -111,7 +138,18 @@ def load_vecnormalize(path: str | Path, venv: Any, trust: bool = False) -> Any:
     return norm
 
 
+def _real(array: np.ndarray, name: str) -> np.ndarray:
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} holds {array.dtype} values, not real numbers")
+    return array
+
+
 def _rms(arrays: dict[str, np.ndarray], prefix: str, cls: Any) -> Any:
+    for part in ("mean", "var", "count"):
+        _real(arrays[f"{prefix}/{part}"], f"{prefix}/{part}")
+    if arrays[f"{prefix}/var"].shape != arrays[f"{prefix}/mean"].shape or arrays[f"{prefix}/count"].size != 1:
+        raise ValueError(f"{prefix}: var of shape {arrays[f'{prefix}/var'].shape} for a mean of shape "
+                         f"{arrays[f'{prefix}/mean'].shape} (and one count)")
     stats = cls(shape=arrays[f"{prefix}/mean"].shape)
     stats.mean = arrays[f"{prefix}/mean"].astype(np.float64)
     stats.var = arrays[f"{prefix}/var"].astype(np.float64)
@@ -197,7 +235,9 @@ def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model
     if path.suffix == ".pkl":
         load_pickle_file(path, "a replay buffer", trust, lambda p: model.load_replay_buffer(str(p)))
         return
-    arrays, settings = _read_npz(path, "replay buffer")
+    expected = sum(v.nbytes for v in vars(buffer).values() if isinstance(v, np.ndarray)) + sum(
+        a.nbytes for v in vars(buffer).values() if isinstance(v, dict) for a in v.values() if isinstance(a, np.ndarray))
+    arrays, settings = _read_npz(path, "replay buffer", expected + MAX_STATS_BYTES)
     mine = {"class": type(buffer).__name__, "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
     theirs = {k: settings.get(k) for k in mine}
     if theirs != mine:
@@ -222,6 +262,11 @@ def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model
                              f"({getattr(value, 'shape', None)} {getattr(value, 'dtype', '')} vs "
                              f"{getattr(target, 'shape', None)} {getattr(target, 'dtype', '')})")
         updates[name] = (target, value)
+    pos, full = settings.get("pos"), settings.get("full")
+    if isinstance(pos, bool) or not isinstance(pos, int) or not 0 <= pos <= buffer.buffer_size \
+            or not isinstance(full, bool):
+        raise UsageError(f"{path}: its position {pos!r:.40} / full {full!r:.20} do not fit a buffer of "
+                         f"{buffer.buffer_size}")
     for target, value in updates.values():  # all checked first: a mismatch leaves the buffer as it was
         target[...] = value
-    buffer.pos, buffer.full = int(settings["pos"]), bool(settings["full"])
+    buffer.pos, buffer.full = pos, full

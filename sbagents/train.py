@@ -50,11 +50,12 @@ def build_parser() -> ArgumentParser:
                    help="show the progress bar even when stderr is not a terminal")
     p.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard log dir")
     p.add_argument("-i", "--trained-agent", default=None,
-                   help="continue training this model .zip (with the replay_buffer.npz beside it, if any)")
+                   help="continue training this model .zip (with the replay_buffer.npz beside it when it was saved "
+                        "at that model's step, and that checkpoint's own VecNormalize statistics)")
     p.add_argument("--trust-run", action="store_true",
                    help="the -i model and its files come from a source you trust: load pickles in them (older "
-                        "runs' vecnormalize.pkl / replay_buffer.pkl, model entries beyond plain data); see "
-                        "docs/security.md")
+                        "runs' vecnormalize.pkl / replay_buffer.pkl; the zip as SB3 loads it instead of rebuilt "
+                        "from plain data); see docs/security.md")
     p.add_argument("--gym-packages", nargs="+", default=[], help="packages to import that register envs")
     for extension in registered_extensions():  # trust callbacks, robust, constrained, DP training, yours
         extension.add_arguments(p.add_argument_group(extension.title))
@@ -63,7 +64,7 @@ def build_parser() -> ArgumentParser:
                    help="episodes (off-policy) or rollouts (on-policy) between logs; -1: 100 episodes / 1 rollout")
     p.add_argument("--verbose", type=int, default=1,
                    help="0 quiet, 1 progress bar + one line per evaluation (default), 2 also SB3's log tables")
-    dist = p.add_argument_group("distributed (Ray RLlib, PettingZoo envs; pip install 'sbagents[distributed]')")
+    dist = p.add_argument_group("distributed (Ray RLlib; pip install 'sbagents[distributed]')")
     dist.add_argument("--backend", choices=["sb3", "rllib"], default="sb3", help="training library (default sb3)")
     dist.add_argument("--num-env-runners", type=int, default=None, metavar="N",
                       help="RLlib env runner actors (default: the config's; 0 samples in the driver)")

@@ -42,7 +42,7 @@ HAS_FLOWER = importlib.util.find_spec("flwr") is not None
 HAS_RAY = importlib.util.find_spec("ray") is not None
 needs_flower = pytest.mark.skipif(
     not HAS_FLOWER and not REQUIRED,
-    reason="needs Flower: pip install -e '.[test,distributed,private]' (.ci/run: the Ray venv)")
+    reason="needs Flower: pip install -e '.[test,distributed,federated]' (.ci/run: the Ray venv)")
 needs_simulation = pytest.mark.skipif(not (HAS_FLOWER and HAS_RAY) and not REQUIRED,
                                       reason="Flower's simulation needs Ray: the Ray venv of .ci/run")
 #: Small and fast: 64-64 nets, learning after 100 steps.
@@ -81,7 +81,7 @@ def test_bad_input_is_one_line(args: list[str], message: str, capsys: pytest.Cap
 @pytest.mark.skipif(HAS_FLOWER, reason="Flower is installed here")
 def test_without_flower_says_which_extra(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code = run_main("federated.__main__", "--homes", "2", "-f", str(tmp_path))
-    check_error(code, capsys.readouterr().err, "pip install 'sbagents[private]'")
+    check_error(code, capsys.readouterr().err, "pip install 'sbagents[federated]'")
     assert not (tmp_path / "ddpg").exists()
 
 

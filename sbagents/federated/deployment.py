@@ -47,7 +47,7 @@ def flower_command(name: str) -> str:
     """The path of a Flower console script (``flower-superlink``, ``flwr``...) of this Python's environment."""
     found = shutil.which(name, path=flower_path())
     if found is None:
-        raise UsageError(f"{name} not found next to {sys.executable}: pip install 'sbagents[private]'")
+        raise UsageError(f"{name} not found next to {sys.executable}: pip install 'sbagents[federated]'")
     return found
 
 

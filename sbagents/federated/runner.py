@@ -48,7 +48,7 @@ def require_flower() -> None:
         require_opacus()
     except ImportError as exc:
         needs = " (Flower needs Python >= 3.11)" if sys.version_info < (3, 11) else ""
-        raise UsageError(f"federated homes need Flower and Opacus: pip install 'sbagents[private]'{needs} "
+        raise UsageError(f"federated homes need Flower and Opacus: pip install 'sbagents[federated]'{needs} "
                          f"({exc})") from None
 
 

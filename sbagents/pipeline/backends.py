@@ -119,5 +119,5 @@ def evaluate(run: RunRef, options: EvaluateOptions | None = None) -> dict[str, A
             from sbagents.rllib.evaluation import evaluate_run
 
         assert run.algo is not None
-        return evaluate_run(run_dir, run.algo, run.env_ref(), options)
+        return evaluate_run(run_dir, run.algo, run.env_ref(), options, trust=run.trust)
     return evaluate_sb3_run(load_run(run), options)

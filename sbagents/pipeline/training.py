@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -35,7 +36,13 @@ from sbagents.core.lifecycle import (
 )
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
 from sbagents.core.progress import ProgressReporter
-from sbagents.core.run_dir import CHECKPOINT_PREFIX, check_model_file, env_stem, group_stats_name
+from sbagents.core.run_dir import (
+    CHECKPOINT_PREFIX,
+    check_model_file,
+    checkpoint_stats_path,
+    env_stem,
+    group_stats_name,
+)
 from sbagents.env_construction import check_env_kwargs
 from sbagents.env_factory import make_vec, normalize_for_training
 from sbagents.errors import UsageError
@@ -47,6 +54,7 @@ from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.evaluation import evaluate_model
 from sbagents.pipeline.kinds import periodic_evaluation, training_env_kwargs
 from sbagents.pipeline.models import Resume, RunContext, check_spaces, make_model
+from sbagents.replay.buffer_files import checkpoint_steps
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
 
@@ -191,13 +199,20 @@ class _BuiltRun:
         return [cb for cbs in self.per_extension for cb in cbs]
 
 
+def _resume_stats(model: Path) -> Path:
+    """The VecNormalize statistics saved with the model ``-i`` continues: a checkpoint's own
+    (``rl_model_vecnormalize_<N>_steps.npz``), else the run dir's (those of its final model)."""
+    steps = checkpoint_steps(model)
+    return checkpoint_stats_path(model.parent, steps) if steps is not None else model.parent / VECNORMALIZE_FILE
+
+
 def _build(run: _RunPlan) -> _BuiltRun:
     """Create the run dir (removed again if anything here fails), the training envs, the model and the callbacks."""
     exp, ref, seed, resume = run.exp, run.ref, run.seed, run.resume
     with new_run_dir(run.output.log_folder, run.spec.algo, ref.env_id, exp.hyperparams, run.args,
                      run.command) as run_dir:
         set_random_seed(seed)
-        stats = resume.path.parent / VECNORMALIZE_FILE if resume is not None else None
+        stats = _resume_stats(resume.path) if resume is not None else None
         venv = make_vec(exp, ref, exp.n_envs, seed, run_dir, run.vec_env,
                         env_kwargs=training_env_kwargs(ref.kind, exp, ref, run_dir))
         train_env = normalize_for_training(venv, exp, stats, run.spec.trust_run)

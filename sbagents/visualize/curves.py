@@ -18,6 +18,7 @@ and counts frames; parameter-shared PettingZoo envs: one team step is one timest
 from __future__ import annotations
 
 import re
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,6 +64,9 @@ def read_evaluations(path: Path, notes: list[str] | None = None) -> tuple[np.nda
     None (told in ``notes``) when the file is not one: not an npz, pickled data, no ``timesteps``/``results``,
     shapes that do not match, or values that are not finite."""
     try:
+        with zipfile.ZipFile(path) as archive:
+            if sum(info.file_size for info in archive.infolist()) > 64 << 20:
+                raise ValueError("it unpacks to more than 64 MiB")
         with np.load(path, allow_pickle=False) as data:
             timesteps = np.asarray(data["timesteps"], dtype=np.float64).reshape(-1)
             results = np.asarray(data["results"], dtype=np.float64)

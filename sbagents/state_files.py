@@ -150,6 +150,10 @@ def _rms(arrays: dict[str, np.ndarray], prefix: str, cls: Any) -> Any:
     if arrays[f"{prefix}/var"].shape != arrays[f"{prefix}/mean"].shape or arrays[f"{prefix}/count"].size != 1:
         raise ValueError(f"{prefix}: var of shape {arrays[f'{prefix}/var'].shape} for a mean of shape "
                          f"{arrays[f'{prefix}/mean'].shape} (and one count)")
+    mean, var, count = (arrays[f"{prefix}/{part}"].astype(np.float64) for part in ("mean", "var", "count"))
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var)) and np.all(var >= 0) and np.isfinite(count)
+            and count >= 0):
+        raise ValueError(f"{prefix} holds a mean or variance that is not finite, a negative variance or count")
     stats = cls(shape=arrays[f"{prefix}/mean"].shape)
     stats.mean = arrays[f"{prefix}/mean"].astype(np.float64)
     stats.var = arrays[f"{prefix}/var"].astype(np.float64)
@@ -256,7 +260,7 @@ def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model
                 value = np.asarray(json.loads(str(value)), dtype=object).reshape(np.shape(target))  # type: ignore[arg-type]
             except (ValueError, RecursionError, TypeError) as exc:
                 raise UsageError(f"{path}: {rest} is not valid ({type(exc).__name__}: {exc})") from None
-        if not isinstance(target, np.ndarray) or target.shape != value.shape or (
+        if not isinstance(target, np.ndarray) or not isinstance(value, np.ndarray) or target.shape != value.shape or (
                 kind != "json" and target.dtype != value.dtype):
             raise UsageError(f"{path}: {rest} does not fit this model's replay buffer "
                              f"({getattr(value, 'shape', None)} {getattr(value, 'dtype', '')} vs "

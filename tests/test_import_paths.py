@@ -8,8 +8,8 @@ import sys
 import pytest
 
 from sbagents.core.experiment import import_object
-from sbagents.import_paths import resolve_path
 from sbagents.errors import UsageError
+from sbagents.import_paths import resolve_path
 
 
 @pytest.mark.parametrize("path", [

@@ -22,9 +22,9 @@ import pytest
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_model
-from sbagents.spaces_record import RECORD_KEY, space_from_json, space_to_json
 from sbagents.errors import UsageError
 from sbagents.safe_load import load_model, read_model_data
+from sbagents.spaces_record import RECORD_KEY, space_from_json, space_to_json
 
 
 def _small() -> dict[str, Any]:

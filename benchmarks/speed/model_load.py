@@ -101,8 +101,9 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for algo, env_id in MODELS:
-            cls = ALGOS[algo].cls
-            extra = {"learning_starts": 100} if ALGOS[algo].off_policy else {"n_steps": 64, "batch_size": 64}
+            cls: Any = ALGOS[algo].cls
+            extra: dict[str, Any] = ({"learning_starts": 100} if ALGOS[algo].off_policy
+                                     else {"n_steps": 64, "batch_size": 64})
             model = cls("MlpPolicy", gym.make(env_id), seed=0, **extra)
             model.learn(args.n_timesteps)
             path = save_model(model, Path(folder) / f"{algo}_{env_id.replace('/', '_')}.zip")

@@ -330,7 +330,7 @@ class Mutator:
         rng = self.rng
         try:
             obj = json.loads(content)
-        except ValueError:
+        except (ValueError, RecursionError):
             return self.bytes_(content, "data: ")
         if not isinstance(obj, dict):
             return self.bytes_(content, "data: ")
@@ -344,7 +344,7 @@ class Mutator:
                 if isinstance(entry, dict) and isinstance(entry.get(":serialized:"), str):
                     try:
                         payload = base64.b64decode(entry[":serialized:"])
-                    except ValueError:
+                    except (ValueError, RecursionError):
                         payload = b""
                     entry[":serialized:"] = base64.b64encode(self.pickle(payload, f"data[{key!r}]: ")).decode()
                     continue
@@ -573,7 +573,7 @@ class Mutator:
             if op == "json" and value.dtype.kind == "U" and value.ndim == 0:
                 try:
                     obj = json.loads(str(value))
-                except ValueError:
+                except (ValueError, RecursionError):
                     obj = None
                 if isinstance(obj, dict) and obj:
                     path = pick_path(obj, rng)
@@ -717,7 +717,7 @@ class Mutator:
             if op == "header" and lines and lines[0].startswith(b"#"):
                 try:
                     head = json.loads(lines[0][1:])
-                except ValueError:
+                except (ValueError, RecursionError):
                     head = {}
                 path = pick_path(head, rng) if isinstance(head, dict) and rng.random() < 0.7 else []
                 value = self.random_json()
@@ -1226,7 +1226,7 @@ def classify(returncode: int, stderr: str, maxrss_mib: float, timed_out: bool = 
     if returncode < 0:
         try:
             name = signal.Signals(-returncode).name
-        except ValueError:
+        except (ValueError, RecursionError):
             name = f"signal {-returncode}"
         return "signal", name
     execs = [what for kind, what in events if kind == "exec"]

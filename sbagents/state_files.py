@@ -65,9 +65,36 @@ def check_npz_size(path: Path, what: str, max_bytes: int) -> None:
             raise
         raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {short_message(exc)})") from None
     total = sum(info.file_size for info in infos)
+    _check_headers(path, what)
+    settings = sum(info.file_size for info in infos if info.filename == f"{_SETTINGS}.npy")
+    if settings > 1 << 20:
+        raise UsageError(f"{path}: its settings take {settings} bytes; a {what} file's take a few hundred")
     if len(infos) > 4096 or total > max_bytes:
         raise UsageError(f"{path} unpacks to {total} bytes in {len(infos)} arrays; a {what} file of this model "
                          f"holds at most {max_bytes}")
+
+
+def _check_headers(path: Path, what: str) -> None:
+    """Every member's ``.npy`` header must describe no more data than the member holds (a header may claim a shape
+    of 10^12 elements, which numpy would allocate before it reads)."""
+    import math
+
+    from numpy.lib import format as npy
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                with archive.open(info) as member:
+                    version = npy.read_magic(member)
+                    reader = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+                    shape, _, dtype = reader(member, max_header_size=10_000)
+                    if dtype.hasobject or math.prod(shape) * dtype.itemsize > info.file_size:
+                        raise ValueError(f"{info.filename} claims {shape} {dtype}, more than its {info.file_size} "
+                                         "bytes")
+    except UsageError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupt header or member raises many kinds
+        raise UsageError(f"{path} is not a valid {what} file ({type(exc).__name__}: {short_message(exc)})") from None
 
 
 def _read_npz(path: Path, what: str, max_bytes: int = MAX_STATS_BYTES) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -218,13 +245,18 @@ def replay_buffer_steps(path: str | Path) -> int | None:
     path = Path(path)
     if path.suffix == ".pkl":
         return None
+    check_npz_size(path, "replay buffer", 1 << 62)  # the settings member alone is bounded here
     try:
         with np.load(path, allow_pickle=False) as data:
             settings = json.loads(str(data[_SETTINGS]))
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        if isinstance(exc, OSError) and not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
+    except OSError as exc:
+        if not isinstance(exc, zipfile.BadZipFile) and exc.errno is not None:
             raise
-        raise UsageError(f"{path} is not a valid replay buffer file ({type(exc).__name__}: {exc})") from None
+        raise UsageError(f"{path} is not a valid replay buffer file ({type(exc).__name__}: {short_message(exc)})"
+                         ) from None
+    except Exception as exc:  # noqa: BLE001 - numpy's and json's parsers raise many kinds on a corrupt file
+        raise UsageError(f"{path} is not a valid replay buffer file ({type(exc).__name__}: {short_message(exc)})"
+                         ) from None
     steps = settings.get("num_timesteps") if isinstance(settings, dict) else None
     return steps if isinstance(steps, int) and not isinstance(steps, bool) else None
 

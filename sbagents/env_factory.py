@@ -239,6 +239,16 @@ def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int |
     return next(iter(venvs.values()))
 
 
+def _off_policy(algo: str) -> bool:
+    """Whether ``algo`` (a name of :data:`sbagents.algos.ALGOS`) learns from a replay buffer."""
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+    from sbagents.algos import ALGOS
+
+    entry = ALGOS.get(algo)
+    return entry is not None and issubclass(entry.cls, OffPolicyAlgorithm)
+
+
 def new_vec_normalize(venv: VecEnv, exp: Experiment) -> VecNormalize:
     """A fresh :class:`VecNormalize` of the experiment's ``normalize`` settings around ``venv``.
 
@@ -250,6 +260,11 @@ def new_vec_normalize(venv: VecEnv, exp: Experiment) -> VecNormalize:
     if kwargs.get("norm_obs", True) and not isinstance(space, gym.spaces.Box | gym.spaces.Dict):
         raise UsageError(f"normalize needs Box (or Dict) observations to normalize; {exp.env_id}'s are {space}: drop "
                          "normalize, or set normalize: {norm_obs: false} to scale rewards only")
+    if not isinstance(space, gym.spaces.Box | gym.spaces.Dict) and _off_policy(exp.algo):
+        # SB3's off-policy _store_transition indexes each terminal observation as next_obs[i, :] under
+        # VecNormalize, which fails on the 1-D batch of scalar observations (IndexError at the first episode end)
+        raise UsageError(f"normalize on {space} observations works with on-policy algorithms only (SB3's replay "
+                         f"buffer needs array observations under VecNormalize); drop normalize for {exp.algo}")
     try:
         return VecNormalize(venv, **kwargs)
     except (TypeError, ValueError) as exc:

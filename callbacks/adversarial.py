@@ -56,7 +56,8 @@ def evaluate_under_attack(
     venv = as_vec_env(env)
     attacker = ObservationAttacker(model.policy, venv, attack, seed)
     episodes = run_episodes(
-        model, venv, n_episodes, deterministic, seed, act=lambda o: attacker.act(o, deterministic)
+        model, venv, n_episodes, deterministic, seed,
+        policy=lambda obs, state, starts: attacker.step(obs, state, starts, deterministic),
     )
     return {
         "attack": attack.name,

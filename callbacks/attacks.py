@@ -22,6 +22,9 @@ Conventions (documented in README/DESIGN by the lead):
   ``Q(s, a(s~))`` for actor-critics, and for Q-learners pushes ``argmax Q(s~, .)`` towards
   ``argmin Q(s, .)`` (cross-entropy).
 - Dict observations are not supported (``ValueError``).
+- Recurrent policies (sb3-contrib's ``RecurrentPPO``): every objective is the policy's at the step's hidden state
+  (the state before this observation); the attacked observation is what the policy then remembers (the state it
+  returns is the one computed from the attacked input), and the state resets where an episode starts.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import contextlib
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -214,12 +218,32 @@ class ObservationAttacker:
         self.device = policy.device
         self.scale, self.low, self.high = (t.to(self.device) for t in (self.scale, self.low, self.high))
         self.max_perturbation = 0.0
+        self.recurrent = hasattr(policy, "lstm_hidden_state_shape")
+        #: the hidden state and episode starts of the step being attacked (recurrent policies only)
+        self._memory: tuple[tuple[th.Tensor, th.Tensor], th.Tensor] | None = None
+
+    # ------------------------------------------------------------------ the policy at this step
+    def _distribution(self, x: th.Tensor) -> Any:
+        """The policy's action distribution at ``x`` (at this step's hidden state for a recurrent policy)."""
+        if self._memory is not None:
+            states, starts = self._memory
+            recurrent: Any = self.policy
+            return recurrent.get_distribution(x, states, starts)[0]
+        return self.policy.get_distribution(x)  # type: ignore[operator]
+
+    def _actions(self, x: th.Tensor, deterministic: bool = True) -> th.Tensor:
+        """The policy's actions at ``x`` (in the policy's own space, before rescaling)."""
+        if self._memory is not None:
+            states, starts = self._memory
+            recurrent: Any = self.policy
+            return recurrent._predict(x, states, starts, deterministic)[0]  # type: ignore[no-any-return]
+        return self.policy._predict(x, deterministic=deterministic)
 
     # ------------------------------------------------------------------ objectives
     def _logits(self, x: th.Tensor) -> th.Tensor:
         policy = self.policy
         if hasattr(policy, "get_distribution"):
-            return policy.get_distribution(x).distribution.logits  # type: ignore[operator,union-attr]
+            return self._distribution(x).distribution.logits  # type: ignore[no-any-return]
         q = policy.q_net(x)  # type: ignore[operator]
         return q.mean(dim=1) if q.dim() == 3 else q  # QR-DQN: (batch, quantiles, actions)
 
@@ -232,19 +256,19 @@ class ObservationAttacker:
                 worst = self._logits(x).argmin(dim=1)
                 return lambda xa: -F.cross_entropy(self._logits(xa), worst, reduction="none")
             if self.attack.name == "critic":
-                return lambda xa: -policy.critic(x, policy._predict(xa, deterministic=True))[0].sum(dim=1)  # type: ignore[operator]
+                return lambda xa: -policy.critic(x, self._actions(xa))[0].sum(dim=1)  # type: ignore[operator]
             if discrete:
                 clean = self._logits(x).argmax(dim=1)
                 return lambda xa: F.cross_entropy(self._logits(xa), clean, reduction="none")
-            ref = policy._predict(x, deterministic=True).reshape(len(x), -1)
+            ref = self._actions(x).reshape(len(x), -1)
             sigma = th.ones_like(ref)
             if isinstance(policy, ActorCriticPolicy):
-                dist = policy.get_distribution(x).distribution
+                dist = self._distribution(x).distribution
                 if isinstance(dist, th.distributions.Normal):
                     sigma = dist.stddev.reshape(len(x), -1).clamp_min(1e-6)
 
         def mad(xa: th.Tensor) -> th.Tensor:
-            action = policy._predict(xa, deterministic=True).reshape(len(x), -1)
+            action = self._actions(xa).reshape(len(x), -1)
             return (((action - ref) / sigma) ** 2).sum(dim=1)
 
         return mad
@@ -293,13 +317,42 @@ class ObservationAttacker:
         return xa.detach()
 
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
-        """Env actions of the policy on the attacked observations ``obs`` (a VecEnv batch)."""
-        policy = self.policy
+        """Env actions of a stateless policy on the attacked observations ``obs`` (a VecEnv batch)."""
+        if self.recurrent:
+            raise ValueError("a recurrent policy acts with step(obs, state, episode_start)")
+        return self.step(obs, None, np.zeros(len(obs), dtype=bool), deterministic)[0]
+
+    def step(self, obs: np.ndarray, state: Any, episode_start: np.ndarray, deterministic: bool = True
+             ) -> tuple[np.ndarray, Any]:
+        """The :class:`~sbagents.callbacks.episodes.Policy` step on the attacked observations: env actions of the
+        policy for the VecEnv batch ``obs``, and its next hidden state (None for a stateless policy).
+
+        :param state: the previous step's state (None at the first step: zeros).
+        :param episode_start: ``(n_envs,)`` bools, True where an episode starts (the state is reset there).
+        """
+        policy: Any = self.policy
         x = _encode(obs, self.obs_space).to(self.device)
-        with relaxed_observation_space(policy, self.dim):
-            xa = self.perturb(x)
-            with th.no_grad():
-                actions = policy._predict(xa, deterministic=deterministic).cpu().numpy()
+        new_state = None
+        if self.recurrent:
+            if state is None:
+                zeros = np.zeros((*policy.lstm_hidden_state_shape[:1], len(x),
+                                  *policy.lstm_hidden_state_shape[2:]), dtype=np.float32)
+                state = (zeros, zeros)
+            states = (th.as_tensor(state[0], dtype=th.float32, device=self.device),
+                      th.as_tensor(state[1], dtype=th.float32, device=self.device))
+            self._memory = (states, th.as_tensor(np.asarray(episode_start), dtype=th.float32, device=self.device))
+        try:
+            with relaxed_observation_space(policy, self.dim):
+                xa = self.perturb(x)
+                with th.no_grad():
+                    if self._memory is not None:
+                        chosen, next_states = policy._predict(xa, *self._memory, deterministic)
+                        new_state = tuple(t.cpu().numpy() for t in next_states)
+                    else:
+                        chosen = policy._predict(xa, deterministic=deterministic)
+                    actions = chosen.cpu().numpy()
+        finally:
+            self._memory = None
         if self.attack.name != "none" and self.attack.eps > 0:
             rel = ((xa - x).abs() / self.scale).max().item()
             self.max_perturbation = max(self.max_perturbation, float(rel))
@@ -310,4 +363,4 @@ class ObservationAttacker:
                 actions = policy.unscale_action(actions)
             else:
                 actions = np.clip(actions, space.low, space.high)
-        return actions
+        return actions, new_state

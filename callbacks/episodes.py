@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -36,8 +36,31 @@ from sbagents.core.info_keys import ILLEGAL_KEY, RETURN_KEY, SEAT_KEY, UNPLAYED_
 #: Keys of SB3's ``episode`` info that are not episode metrics.
 EPISODE_STAT_KEYS = frozenset({"r", "l", "t"})
 
-#: ``obs batch -> actions`` of one VecEnv (or ``obs -> action`` of one Gymnasium env).
+#: ``obs batch -> actions`` of one VecEnv (or ``obs -> action`` of one Gymnasium env): a stateless policy, made a
+#: :class:`Policy` by :func:`stateless`.
 Act = Callable[[Any], Any]
+
+
+class Policy(Protocol):
+    """The one policy protocol of every rollout in sbagents: ``(obs, state, episode_start) -> (actions, state)``.
+
+    SB3's ``predict`` contract: ``obs`` is a VecEnv batch ``(n_envs, *obs_shape)`` (one Gymnasium observation for
+    :func:`play_env_episodes`); ``state`` is what the previous call returned (None at the first call; a recurrent
+    policy's hidden state, e.g. RecurrentPPO's ``(h, c)`` each ``(n_layers, n_envs, hidden)``; stateless policies
+    return None); ``episode_start`` is a bool array ``(n_envs,)``, True where this observation is the first of an
+    episode (for a team VecEnv: the first of that slot's agent), where a recurrent policy resets its state.
+    """
+
+    def __call__(self, obs: Any, state: Any, episode_start: np.ndarray) -> tuple[Any, Any]: ...
+
+
+def stateless(act: Act) -> Policy:
+    """The :class:`Policy` of an ``obs -> actions`` function (its state is always None)."""
+
+    def policy(obs: Any, state: Any, episode_start: np.ndarray) -> tuple[Any, Any]:
+        return act(obs), None
+
+    return policy
 #: ``step infos of one episode -> {metric: value}`` (an env's ``episode_metrics`` hook).
 MetricsFn = Callable[[list[dict[str, Any]]], Mapping[str, float]]
 
@@ -175,12 +198,32 @@ def slot_agents(venv: VecEnv) -> list[str] | None:
     return [str(a) for a in agents] if agents else None
 
 
-def model_actor(model: Any, deterministic: bool = True) -> Act:
-    """``obs -> actions`` of anything with SB3's ``predict`` (an SB3 policy is put in eval mode)."""
+def is_recurrent(model: Any) -> bool:
+    """Whether ``model`` (an SB3 algorithm or policy) keeps a hidden state between steps (sb3-contrib's recurrent
+    policies: ``lstm_hidden_state_shape``)."""
+    policy = getattr(model, "policy", model)
+    return hasattr(policy, "lstm_hidden_state_shape")
+
+
+def model_actor(model: Any, deterministic: bool = True,
+                action_masks: Callable[[], np.ndarray] | None = None) -> Policy:
+    """The :class:`Policy` of anything with SB3's ``predict`` (an SB3 policy is put in eval mode): the hidden state
+    and episode starts go through ``predict(obs, state, episode_start)``, so a recurrent policy keeps its memory.
+
+    :param action_masks: ``() -> masks`` of the current observations (MaskablePPO's ``action_masks`` argument).
+    """
     policy = getattr(model, "policy", None)
     if policy is not None:
         policy.set_training_mode(False)
-    return lambda obs: model.predict(obs, deterministic=deterministic)[0]
+
+    def act(obs: Any, state: Any, episode_start: np.ndarray) -> tuple[Any, Any]:
+        if action_masks is not None:
+            return model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic,
+                                 action_masks=action_masks())  # type: ignore[no-any-return]
+        return model.predict(obs, state=state, episode_start=episode_start,  # type: ignore[no-any-return]
+                             deterministic=deterministic)
+
+    return act
 
 
 def is_monitor_wrapped(venv: VecEnv) -> bool:
@@ -191,7 +234,7 @@ def is_monitor_wrapped(venv: VecEnv) -> bool:
 
 def play_episodes(
     envs: VecEnv | Mapping[str, VecEnv],
-    acts: Act | Mapping[str, Act],
+    acts: Policy | Mapping[str, Policy],
     n_episodes: int,
     seed: int | None = None,
     monitor_episodes: bool = False,
@@ -211,7 +254,8 @@ def play_episodes(
 
     :param envs: a VecEnv, or group -> VecEnv of one team (the same number of copies each, in the team's group
         order; only the first one is seeded).
-    :param acts: ``obs batch -> actions`` (group -> one, with ``envs`` a mapping).
+    :param acts: the :class:`Policy` (group -> one, with ``envs`` a mapping); each group's state is carried from
+        step to step and its ``episode_start`` is True at the first step and then where that slot was done.
     :param seed: ``seed(seed)`` before the reset (the same episodes for every call); None: as the env is.
     :param monitor_episodes: ``evaluate_policy``'s rule for a plain VecEnv wrapped in ``Monitor``: returns and
         lengths are Monitor's (``info["episode"]``: rewards below any outer wrapper, the return rounded to 1e-6)
@@ -247,14 +291,18 @@ def play_episodes(
         if seed is not None:
             venvs[order[0]].seed(seed)
         obs = {g: venvs[g].reset() for g in order}
+        states: dict[str, Any] = dict.fromkeys(order)
+        starts = {g: np.ones(venvs[g].num_envs, dtype=bool) for g in order}
         while sum(counts) < sum(targets):
             for g in order:
-                venvs[g].step_async(actors[g](obs[g]))
+                actions, states[g] = actors[g](obs[g], states[g], starts[g])
+                venvs[g].step_async(actions)
             infos: dict[str, list[dict[str, Any]]] = {}
             dones: dict[str, np.ndarray] = {}
             raw: dict[str, np.ndarray] = {}
             for g in order:
                 obs[g], rewards, dones[g], infos[g] = venvs[g].step_wait()
+                starts[g] = np.asarray(dones[g], dtype=bool)
                 vn = norms[g]
                 raw[g] = vn.get_original_reward() if vn is not None else rewards
             for c in range(n_copies):
@@ -283,7 +331,7 @@ def play_episodes(
 
 def play_env_episodes(
     env: gym.Env,
-    act: Act,
+    act: Policy,
     n_episodes: int,
     seed: int | None = None,
     episode_metrics: MetricsFn | None = None,
@@ -295,7 +343,8 @@ def play_env_episodes(
     record per such game (length 0, ``game`` set) before the next episode; an episode whose last info has
     :data:`RETURN_KEY` gets that return and a :class:`GameOutcome`.
 
-    :param act: ``obs -> action``.
+    :param act: the :class:`Policy` of one observation (``episode_start`` has shape ``(1,)``; the state is reset
+        at every episode's first step).
     :param seed: seed of the first reset (then the env's generator continues).
     """
     if n_episodes < 1:
@@ -309,9 +358,11 @@ def play_env_episodes(
         if len(records) >= n_episodes:
             break
         tally.reset()
-        done = False
+        done, state, start = False, None, np.ones(1, dtype=bool)
         while not done:
-            obs, reward, terminated, truncated, info = env.step(act(obs))
+            action, state = act(obs, state, start)
+            start = np.zeros(1, dtype=bool)
+            obs, reward, terminated, truncated, info = env.step(action)
             tally.add([float(reward)], [info])
             tally.tick(info)
             done = terminated or truncated

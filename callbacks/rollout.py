@@ -15,7 +15,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, sync_envs_normalization
 
 from sbagents.callbacks.common import find_vec_normalize
-from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
+from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, stateless, summarize_records
 
 #: The former name of :class:`~sbagents.callbacks.episodes.EpisodeRecord`.
 EpisodeResult = EpisodeRecord
@@ -43,25 +43,31 @@ def run_episodes(
     deterministic: bool = True,
     seed: int | None = None,
     act: Callable[[Any], np.ndarray] | None = None,
+    policy: Policy | None = None,
 ) -> list[EpisodeRecord]:
     """Run ``n_episodes`` episodes of ``model`` on ``env`` with :func:`~sbagents.callbacks.episodes.play_episodes`
     and return their records in completion order.
 
-    :param model: anything with SB3's ``predict`` (an SB3 policy is put in eval mode), or None with ``act``.
-    :param act: maps a VecEnv observation batch to env actions (default ``model.predict``).
+    :param model: anything with SB3's ``predict`` (an SB3 policy is put in eval mode), or None with ``act`` or
+        ``policy``.
+    :param act: a stateless ``obs batch -> env actions`` to act with instead of ``model.predict``.
+    :param policy: a :class:`~sbagents.callbacks.episodes.Policy` to act with (state carried, e.g. an attacked
+        recurrent policy); default: ``model``'s, through ``predict(obs, state, episode_start)``.
     :param seed: ``env.seed(seed)`` before the reset (same episodes for every call).
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-    if act is None:
+    if policy is None and act is not None:
+        policy = stateless(act)
+    if policy is None:
         if model is None:
-            raise ValueError("run_episodes needs a model or an act function")
-        act = model_actor(model, deterministic)
+            raise ValueError("run_episodes needs a model, an act function or a policy")
+        policy = model_actor(model, deterministic)
     else:
-        policy = getattr(model, "policy", None)
-        if policy is not None:
-            policy.set_training_mode(False)
-    return play_episodes(env, act, n_episodes, seed)
+        sb3_policy = getattr(model, "policy", None)
+        if sb3_policy is not None:
+            sb3_policy.set_training_mode(False)
+    return play_episodes(env, policy, n_episodes, seed)
 
 
 def summarize_episodes(episodes: Sequence[EpisodeRecord]) -> dict[str, Any]:
@@ -112,16 +118,11 @@ class EpisodeEvalCallback:
     callback_on_new_best: Any
     logger: Any
 
-    def _episode_actor(self) -> Callable[[Any], np.ndarray]:
+    def _episode_actor(self) -> Policy:
         if not getattr(self, "use_masking", False):
             return model_actor(self.model, self.deterministic)
-        model, env, deterministic = self.model, self.eval_env, self.deterministic
-
-        def masked(obs: Any) -> np.ndarray:
-            masks = np.stack(env.env_method("action_masks"))
-            return model.predict(obs, deterministic=deterministic, action_masks=masks)[0]  # type: ignore[call-arg]
-
-        return masked
+        env = self.eval_env
+        return model_actor(self.model, self.deterministic, lambda: np.stack(env.env_method("action_masks")))
 
     def _on_step(self) -> bool:
         if self.render or self.eval_freq <= 0 or self.n_calls % self.eval_freq != 0:

@@ -12,6 +12,12 @@ GYM_ENVS: dict[str, str] = {
     "sbagents/PickAndPlaceGoal-v0": "sbagents.envs.kuka:PickAndPlaceGoalEnv",
     "sbagents/KukaPickAndPlace-v0": "sbagents.envs.kuka:KukaPickAndPlaceEnv",
     "sbagents/RobustKukaPickAndPlace-v0": "sbagents.envs.kuka:RobustKukaPickAndPlaceEnv",
+    "sbagents/CartPoleNoVel-v1": "sbagents.envs.no_velocity:CartPoleNoVelEnv",
+}
+
+#: Registration keywords of the IDs in :data:`GYM_ENVS` that need more than an entry point.
+GYM_ENV_KWARGS: dict[str, dict[str, object]] = {
+    "sbagents/CartPoleNoVel-v1": {"max_episode_steps": 500, "reward_threshold": 475.0},
 }
 
 
@@ -26,7 +32,7 @@ def register_envs() -> None:
         return
     for env_id, entry_point in GYM_ENVS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry_point)
+            gym.register(id=env_id, entry_point=entry_point, **GYM_ENV_KWARGS.get(env_id, {}))  # type: ignore[arg-type]
 
 
 #: Short names of PettingZoo envs the CLIs accept -> where the env comes from: a module exposing

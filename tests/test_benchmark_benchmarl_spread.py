@@ -19,6 +19,7 @@ from benchmarks.learning import benchmarl_venv as bv
 from benchmarks.learning import spread_ours as ours
 from benchmarks.learning.seed_table import stats_of
 from benchmarks.learning.team_baselines import spread_assignment_actor
+from sbagents.callbacks.episodes import stateless
 from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
@@ -62,7 +63,8 @@ def test_spread_episodes_are_the_team_vecenv_episodes_with_the_same_seeds() -> N
     factory = ParallelEnvFactory("mpe2.simple_spread_v3", (), {}, [])
     venvs = team_vec_envs(factory, 1, TeamOptions("shared"))
     try:
-        theirs = [run_team_episodes(venvs, dict.fromkeys(venvs, actor), 1, 10_000 + k)[0].ret for k in range(3)]
+        policies = dict.fromkeys(venvs, stateless(actor))
+        theirs = [run_team_episodes(venvs, policies, 1, 10_000 + k)[0].ret for k in range(3)]
     finally:
         next(iter(venvs.values())).close()
     np.testing.assert_allclose(mine, theirs, rtol=1e-6)

@@ -25,6 +25,7 @@ from sbagents.callbacks.episodes import (
     game_rates,
     play_env_episodes,
     play_episodes,
+    stateless,
     summarize_records,
 )
 
@@ -61,8 +62,8 @@ class Scripted(gym.Env[np.ndarray, int]):
         return np.zeros(1, np.float32), self.reward, done, False, info
 
 
-def zeros(obs: np.ndarray) -> np.ndarray:
-    return np.zeros(len(obs), dtype=np.int64)
+def zeros(obs: np.ndarray, state: Any, episode_start: np.ndarray) -> tuple[np.ndarray, Any]:
+    return np.zeros(len(obs), dtype=np.int64), None
 
 
 def test_a_plain_episode_records_return_length_success_cost_and_info() -> None:
@@ -161,7 +162,7 @@ class TwoAgentVec(VecEnv):
 
 
 def test_a_team_episode_records_per_agent_returns_and_declared_metrics() -> None:
-    records = play_episodes(TwoAgentVec(), lambda obs: np.zeros(len(obs), np.int64), 2)
+    records = play_episodes(TwoAgentVec(), stateless(lambda obs: np.zeros(len(obs), np.int64)), 2)
     assert len(records) == 2
     first = records[0]
     assert first.agent_returns == {"a": 3.0, "b": 6.0} and first.ret == 9.0 and first.length == 3
@@ -196,7 +197,7 @@ class Game(gym.Env[np.ndarray, int]):
 
 
 def test_a_game_records_its_outcome_and_the_games_ended_at_a_reset() -> None:
-    records = play_env_episodes(Game(), lambda obs: 0, 3, seed=0)
+    records = play_env_episodes(Game(), stateless(lambda obs: 0), 3, seed=0)
     assert [r.game for r in records] == [GameOutcome(1, -1.0), GameOutcome(0, 1.0, 1), GameOutcome(1, -1.0)]
     assert [(r.ret, r.length) for r in records] == [(-1.0, 0), (1.0, 2), (-1.0, 0)]
     assert records[1].success is True
@@ -226,4 +227,4 @@ def test_bad_counts_are_refused() -> None:
     with pytest.raises(ValueError, match="n_episodes must be >= 1"):
         play_episodes(DummyVecEnv([Scripted]), zeros, 0)
     with pytest.raises(ValueError, match="n_episodes must be >= 1"):
-        play_env_episodes(Scripted(), lambda obs: 0, 0)
+        play_env_episodes(Scripted(), stateless(lambda obs: 0), 0)

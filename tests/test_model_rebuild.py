@@ -56,7 +56,7 @@ def _model(algo: str, env: gym.Env) -> Any:
     kwargs = _off() if ALGOS[algo].off_policy else _small()
     if algo == "ars":
         kwargs = {"policy_kwargs": {"net_arch": [8]}, "n_delta": 2}
-    policy = "MlpPolicy"
+    policy = "MlpLstmPolicy" if ALGOS[algo].recurrent else "MlpPolicy"
     return cls(policy, env, seed=0, **kwargs)
 
 

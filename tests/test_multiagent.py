@@ -121,7 +121,8 @@ def test_monitor_csv(tmp_path: Path) -> None:
 class _Oracle:
     """Each agent walks towards its nearest treasure (egocentric obs): a scripted reference."""
 
-    def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: object = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
         acts = []
         for o in obs:
             dr, dc = o[7], o[8]  # near0_drow, near0_dcol

@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sbagents.callbacks.episodes import Policy
 from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
-from sbagents.multiagent.team_eval import Actor, run_team_episodes, slot_agents, team_summary
+from sbagents.multiagent.team_eval import run_team_episodes, slot_agents, team_summary
 
 #: Discrete mpe2 moves: no-op, -x, +x, -y, +y.
 MOVES = np.array([[0.0, 0.0], [-1.0, 0.0], [1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])
@@ -112,12 +113,12 @@ def raw_obs_dims(env: str) -> dict[str, int]:
 
 
 def mixed_actor(env: str, venv: VecEnv, agents: list[str], players: Mapping[str, str],
-                model_act: Actor | None = None, seed: int = 0) -> Actor:
+                model_act: Policy | None = None, seed: int = 0) -> Policy:
     """One shared-group actor whose agents play as ``players`` says: ``model``, ``random`` or ``scripted``.
 
     :param venv: the shared team VecEnv (slot ``k`` is ``agents[k % len(agents)]``); under ``VecNormalize`` the
         scripts read its original observations.
-    :param model_act: the trained model's actor (needed when some agent plays ``model``).
+    :param model_act: the trained model's policy (needed when some agent plays ``model``; its state is carried).
     """
     n = len(agents)
     dims = raw_obs_dims(env)
@@ -128,9 +129,12 @@ def mixed_actor(env: str, venv: VecEnv, agents: list[str], players: Mapping[str,
     if unknown:
         raise ValueError(f"players must be model, random or scripted, got {sorted(unknown)}")
 
-    def act(obs: np.ndarray) -> np.ndarray:
-        actions = (np.asarray(model_act(obs)).copy() if model_act is not None
-                   else np.zeros(len(obs), dtype=np.int64))
+    def act(obs: np.ndarray, state: Any, episode_start: np.ndarray) -> tuple[np.ndarray, Any]:
+        if model_act is not None:
+            chosen, state = model_act(obs, state, episode_start)
+            actions = np.asarray(chosen).copy()
+        else:
+            actions = np.zeros(len(obs), dtype=np.int64)
         raw = np.asarray(venv.get_original_obs() if isinstance(venv, VecNormalize) else obs)
         for c in range(len(obs) // n):
             copy = {a: np.asarray(raw[c * n + j][: dims[a]], dtype=np.float64) for j, a in enumerate(agents)}
@@ -140,7 +144,7 @@ def mixed_actor(env: str, venv: VecEnv, agents: list[str], players: Mapping[str,
                     actions[c * n + j] = rng.integers(n_actions)
                 elif players[a] == "scripted":
                     actions[c * n + j] = scripted[a]
-        return actions
+        return actions, state
 
     return act
 

@@ -196,13 +196,14 @@ def _tag_random_adversaries(task: Task, run_dir: Path, logs: Path) -> float:
     """Catches per episode of random adversaries against the run's trained agent."""
     from benchmarks.learning.team_baselines import random_actor
     from sbagents.api import RunRef
+    from sbagents.callbacks.episodes import stateless
     from sbagents.core.run_dir import load_run
     from sbagents.env_factory import make_team_vecs
     from sbagents.multiagent.team_eval import model_actor, run_team_episodes, slot_agents, team_summary
 
     loaded = load_run(RunRef(task.algo, task.env, logs, exp_id=int(run_dir.name.rsplit("_", 1)[1])))
     venvs = make_team_vecs(loaded.experiment, loaded.env, 1, None, vec_env="dummy")
-    actors = {g: random_actor(v, 0) if g == "adversary" else model_actor(loaded.models[g])
+    actors = {g: stateless(random_actor(v, 0)) if g == "adversary" else model_actor(loaded.models[g])
               for g, v in venvs.items()}
     try:
         episodes = run_team_episodes(venvs, actors, task.eval_episodes, 10_000)

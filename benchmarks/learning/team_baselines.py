@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.callbacks.episodes import stateless
 from sbagents.core.team_options import TeamOptions
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
@@ -70,7 +71,7 @@ def baseline_summary(source: str, env_kwargs: dict[str, Any], policy: str, episo
     try:
         actors = {g: (actor_for(v) if actor_for is not None else random_actor(v, seed + i))
                   for i, (g, v) in enumerate(venvs.items())}
-        episodes_run = run_team_episodes(venvs, actors, episodes, seed)
+        episodes_run = run_team_episodes(venvs, {g: stateless(a) for g, a in actors.items()}, episodes, seed)
         summary = team_summary(episodes_run, {g: slot_agents(v, g) for g, v in venvs.items()})
     finally:
         next(iter(venvs.values())).close()

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from gymnasium import spaces
-from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ, MaskablePPO
+from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ, MaskablePPO, RecurrentPPO
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -25,6 +25,8 @@ class AlgoSpec:
     :param observation_spaces: observation space types it can read.
     :param off_policy: True for replay-buffer algorithms (they accept ``replay_buffer_class``, e.g. HER).
     :param masked: acts with action masks (the env must have ``action_masks()``: turn-based games).
+    :param recurrent: its policy keeps a hidden state between steps (sb3-contrib's ``RecurrentPPO``): it acts
+        through ``predict(obs, state, episode_start)`` and trains on sequences from its own rollout buffer.
     :param features: the training features it supports (:data:`FEATURES`).
     """
 
@@ -33,6 +35,7 @@ class AlgoSpec:
     observation_spaces: tuple[type[spaces.Space], ...] = _ANY_OBS
     off_policy: bool = False
     masked: bool = False
+    recurrent: bool = False
     features: frozenset[str] = frozenset()
 
     def supports(self, observation_space: spaces.Space, action_space: spaces.Space) -> bool:
@@ -65,6 +68,7 @@ ALGOS: dict[str, AlgoSpec] = {
     "a2c": AlgoSpec(A2C, _ANY_ACTION, features=_features("dp", "federated", "centralized_critic")),
     "ppo": AlgoSpec(PPO, _ANY_ACTION,
                     features=_features("dp", "constrained", "federated", "rllib", "centralized_critic")),
+    "ppo_lstm": AlgoSpec(RecurrentPPO, _ANY_ACTION, recurrent=True),  # RL Zoo's name for sb3-contrib's RecurrentPPO
     "trpo": AlgoSpec(TRPO, _ANY_ACTION),
     "ppo_mask": AlgoSpec(MaskablePPO, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary), masked=True),
     "ars": AlgoSpec(ARS, (spaces.Box, spaces.Discrete), (spaces.Box, spaces.Discrete)),
@@ -110,7 +114,8 @@ def capability_rows() -> list[dict[str, str]]:
     for name, spec in ALGOS.items():
         row = {"algo": name, "actions": _space_names(spec.action_spaces),
                "observations": "any" if spec.observation_spaces == _ANY_OBS else _space_names(spec.observation_spaces),
-               "kind": "masked" if spec.masked else "off-policy" if spec.off_policy else "on-policy"}
+               "kind": "masked" if spec.masked else "off-policy" if spec.off_policy else
+               "on-policy, recurrent" if spec.recurrent else "on-policy"}
         row.update({feature: "yes" if feature in spec.features else "" for feature in FEATURES})
         rows.append(row)
     return rows

@@ -30,12 +30,25 @@ from sbagents.core.run_dir import LoadedRun, RunRef, load_run
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
     OBS_INPUT,
+    START_INPUT,
+    STATE_INPUTS,
+    STATE_OUTPUTS,
     check_exportable,
     export_onnx,
     quantize_int8,
+    state_shape,
     taken_observation_space,
 )
-from sbagents.deploy.parity import INT8_TOLERANCE, action_deviation, check_parity, latency_table, record_observations
+from sbagents.deploy.parity import (
+    INT8_TOLERANCE,
+    Observations,
+    Recording,
+    action_deviation,
+    check_parity,
+    latency_table,
+    record_episodes,
+    state_parity,
+)
 from sbagents.env_factory import make_eval_vec
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import OBS_KEY
@@ -49,6 +62,8 @@ class ExportReport:
     ``int8_acceptable``: whether it is within :data:`INT8_TOLERANCE` for the action space (``action_kind``:
     ``box`` or ``discrete``). ``preprocessing``: the env wrappers and frame stack the policy works inside (it takes
     their observations, e.g. an Atari run's 84x84 grayscale 4-frame stack), None when it takes the env's own.
+    ``parity_state``: a recurrent policy's max abs hidden/cell state difference vs SB3 over the recorded episodes
+    (both carrying their own state; None for a stateless policy).
     """
 
     onnx_path: Path
@@ -64,6 +79,7 @@ class ExportReport:
     n_parity_observations: int = 0
     latency: dict[str, dict[str, float]] = field(default_factory=dict)
     preprocessing: dict[str, Any] | None = None
+    parity_state: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (paths as str)."""
@@ -117,7 +133,7 @@ def export_run(
     vec_normalize: VecNormalize | None = None,
     int8: bool = False,
     checks: ExportChecks | None = None,
-    observations: np.ndarray | None = None,
+    observations: Observations | None = None,
     preprocessing: dict[str, Any] | None = None,
 ) -> ExportReport:
     """Export ``model``, quantize it (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
@@ -129,8 +145,9 @@ def export_run(
     :param env: where parity observations are recorded (default ``gym.make(env_id)``); a ``VecNormalize`` env also
         supplies the normalization statistics.
     :param vec_normalize: the statistics the model was trained with, when ``env`` does not carry them.
-    :param observations: raw parity observations ``(N, *obs_shape)`` recorded elsewhere (then ``env`` only names
-        observations and actions, and may be None); e.g. a team's, where one group's env cannot step alone.
+    :param observations: raw parity observations ``(N, *obs_shape)`` or a :class:`~sbagents.deploy.parity.Recording`
+        (required for a recurrent model) recorded elsewhere (then ``env`` only names observations and actions, and
+        may be None); e.g. a team's, where one group's env cannot step alone.
     :param preprocessing: the env wrappers and frame stack ``env`` applies, which the exported policy does not
         (recorded in the sidecar and the report: a caller applies them before calling the policy).
     :raises TypeError: the model cannot be exported (:func:`check_exportable`).
@@ -167,7 +184,7 @@ def export_run(
 
 def _export_into(
     model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv | None,
-    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: np.ndarray | None, *,
+    vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: Observations | None, *,
     preprocessing: dict[str, Any] | None = None,
 ) -> ExportReport:
     """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
@@ -183,13 +200,16 @@ def _export_into(
     env_space = env.observation_space if env is not None else None
     obs_space = taken_observation_space(model, env_space)  # channels-last images: the env's layout
     onnx_path = export_onnx(model, staging / "policy.onnx", obs_rms, clip_obs, epsilon, obs_space)
+    observations: Observations
     if recorded is not None:
         observations = recorded
     else:
         assert env is not None
         plain_norm = None if isinstance(env, VecNormalize) else norm
-        observations = record_observations(env, model, checks.n_observations, checks.seed,
-                                           vec_normalize=plain_norm)  # type: ignore[arg-type]
+        observations = record_episodes(env, model, checks.n_observations, checks.seed,
+                                       vec_normalize=plain_norm)  # type: ignore[arg-type]
+    first = (observations.flat() if isinstance(observations, Recording) else observations)[0]
+    recurrent = state_shape(model)
 
     paths: dict[str, Path] = {"onnx": onnx_path}
     report = ExportReport(
@@ -198,6 +218,9 @@ def _export_into(
         onnx_bytes=onnx_path.stat().st_size, n_parity_observations=len(observations),
         action_kind="box" if isinstance(model.action_space, spaces.Box) else "discrete", preprocessing=preprocessing,
     )
+    if recurrent is not None:
+        assert isinstance(observations, Recording)  # check_parity refused anything else
+        report.parity_state = state_parity(model, onnx_path, observations, norm)
     if int8:
         int8_path = quantize_int8(onnx_path, staging / "policy.int8.onnx")
         paths["onnx_int8"] = int8_path
@@ -206,7 +229,7 @@ def _export_into(
         report.parity_int8 = check_parity(model, int8_path, observations, norm)
         report.int8_deviation = action_deviation(model, int8_path, observations, norm)
         report.int8_acceptable = report.int8_deviation <= INT8_TOLERANCE[report.action_kind]
-    report.latency = latency_table(model, paths, observations[0], checks.latency_n, norm)
+    report.latency = latency_table(model, paths, first, checks.latency_n, norm)
 
     n_obs = int(np.prod(obs_space.shape)) if obs_space.shape else 1
     n_act = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
@@ -220,6 +243,9 @@ def _export_into(
         "input_name": OBS_INPUT,
         "output_name": ACTION_OUTPUT,
         "obs_normalization_baked_in": obs_rms is not None,
+        **({"recurrent": {"state_inputs": list(STATE_INPUTS), "state_outputs": list(STATE_OUTPUTS),
+                          "start_input": START_INPUT, "n_layers": recurrent[0], "hidden": recurrent[1]}}
+           if recurrent is not None else {}),
         **({"preprocessing": preprocessing} if preprocessing else {}),
         "files": {name: p.name for name, p in paths.items()},
         "report": report.to_dict(),
@@ -330,7 +356,9 @@ def format_report(report: ExportReport) -> str:
     """The human-readable export report: files, parity, whether int8 is acceptable, latency."""
     lines = [f"wrote {report.onnx_path} ({report.onnx_bytes:,} bytes) and {report.sidecar_path}",
              f"parity fp32: max abs action difference {report.parity_fp32:.2e} over "
-             f"{report.n_parity_observations} observations"]
+             f"{report.n_parity_observations} observations"
+             + (f" (whole episodes, state carried; max abs state difference {report.parity_state:.2e})"
+                if report.parity_state is not None else "")]
     if report.int8_path is not None and report.int8_deviation is not None:
         limit = INT8_TOLERANCE[report.action_kind]
         if report.action_kind == "box":

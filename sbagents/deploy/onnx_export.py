@@ -6,6 +6,12 @@ the deterministic policy, tanh squashing and rescaling to the Box bounds (or cli
 Gaussian policies) are all inside the graph. Discrete actions come out as the int64 argmax index;
 Discrete observations go in as an int64 index (one-hot inside the graph).
 
+A recurrent policy (sb3-contrib's ``RecurrentPPO``, ``ppo_lstm``) is exported with its memory as inputs and
+outputs: ``obs``, ``state_h``, ``state_c`` (each ``(n_layers, batch, hidden)``, zeros at the first step) and
+``episode_start`` ``(batch,)`` float32 (1.0 where an episode starts: the state is reset there, as
+``RecurrentPPO.predict`` does) -> ``action``, ``state_h_out``, ``state_c_out``; a caller feeds the outputs back as
+the next step's state.
+
 We use the legacy TorchScript exporter (``dynamo=False``): it needs no ``onnxscript`` and traces SB3's
 distributions as they are; its deprecation warning is silenced locally. Argument validation of
 ``torch.distributions`` is switched off while tracing (it would add data-dependent checks) and restored.
@@ -26,6 +32,10 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 
 OBS_INPUT = "obs"
 ACTION_OUTPUT = "action"
+#: A recurrent graph's extra inputs (hidden and cell state, episode starts) and outputs (the next state).
+STATE_INPUTS: tuple[str, str] = ("state_h", "state_c")
+START_INPUT = "episode_start"
+STATE_OUTPUTS: tuple[str, str] = ("state_h_out", "state_c_out")
 ONNX_OPSET = 17
 
 
@@ -73,18 +83,61 @@ class OnnxPolicy(torch.nn.Module):
         self.squash = bool(getattr(self.policy, "squash_output", False))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        obs = self._prepare(obs)
+        actor_actions = getattr(self.policy, "actor_actions", None)  # a centralized critic: the actor alone
+        action = actor_actions(obs) if actor_actions is not None else self.policy._predict(obs, deterministic=True)
+        return self._finish(action)
+
+    def _prepare(self, obs: torch.Tensor) -> torch.Tensor:
+        """Raw observations -> what the SB3 policy takes (normalized, channels first)."""
         if self.normalize:  # VecNormalize's statistics are in the env's layout, before SB3's transposition
             obs = torch.clamp((obs - self.obs_mean) / self.obs_scale, -self.clip_obs, self.clip_obs)
         if self.channels_last:
             obs = obs.permute(0, 3, 1, 2)
-        actor_actions = getattr(self.policy, "actor_actions", None)  # a centralized critic: the actor alone
-        action = actor_actions(obs) if actor_actions is not None else self.policy._predict(obs, deterministic=True)
+        return obs
+
+    def _finish(self, action: torch.Tensor) -> torch.Tensor:
+        """The policy's actions -> the env's (int64 index, or rescaled / clipped to the Box bounds)."""
         if not self.box:
             return action.long()
         action = action.float().reshape((-1, *self.act_low.shape))
         if self.squash:
             return self.act_low + 0.5 * (action + 1.0) * (self.act_high - self.act_low)
         return torch.max(torch.min(action, self.act_high), self.act_low)
+
+
+class OnnxRecurrentPolicy(OnnxPolicy):
+    """A recurrent (LSTM) actor: ``(obs, state_h, state_c, episode_start) -> (action, state_h_out, state_c_out)``.
+
+    The actor's LSTM step is written out (features, state reset where ``episode_start`` is 1, one LSTM step, the
+    actor MLP, the deterministic action) rather than traced through sb3-contrib's ``_process_sequence``, whose
+    "no episode starts" shortcut is a data-dependent branch a trace would freeze; both compute the same step.
+    States are ``(n_layers, batch, hidden)`` float32, ``episode_start`` ``(batch,)`` float32.
+    """
+
+    def forward(  # type: ignore[override]
+        self, obs: torch.Tensor, state_h: torch.Tensor, state_c: torch.Tensor, episode_start: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        from stable_baselines3.common.policies import BaseModel
+
+        policy: Any = self.policy
+        features = BaseModel.extract_features(policy, self._prepare(obs), policy.pi_features_extractor)
+        keep = (1.0 - episode_start).view(1, -1, 1)
+        out, (h, c) = policy.lstm_actor(features.unsqueeze(0), (keep * state_h, keep * state_c))
+        latent = policy.mlp_extractor.forward_actor(out.squeeze(0))
+        action = policy._get_action_dist_from_latent(latent).get_actions(deterministic=True)
+        return self._finish(action), h, c
+
+
+def is_recurrent_policy(model: BaseAlgorithm) -> bool:
+    """Whether ``model``'s policy keeps an LSTM state (sb3-contrib's recurrent policies)."""
+    return hasattr(model.policy, "lstm_hidden_state_shape")
+
+
+def state_shape(model: BaseAlgorithm) -> tuple[int, int] | None:
+    """``(n_layers, hidden)`` of a recurrent policy's actor state (each of ``h`` and ``c``), else None."""
+    shape = getattr(model.policy, "lstm_hidden_state_shape", None)
+    return (int(shape[0]), int(shape[2])) if shape is not None else None
 
 
 def actor_observation_space(model: BaseAlgorithm) -> spaces.Space[Any]:
@@ -105,7 +158,8 @@ def taken_observation_space(model: BaseAlgorithm, env_space: spaces.Space[Any] |
 
 
 def predict_actions(model: BaseAlgorithm, observations: np.ndarray) -> np.ndarray:
-    """Greedy SB3 actions for a batch of (already normalized) actor observations ``(N, *obs_shape)``."""
+    """Greedy SB3 actions for a batch of (already normalized) actor observations ``(N, *obs_shape)`` (a recurrent
+    policy: each as the first step of an episode, from a zero state)."""
     predict_actor = getattr(model.policy, "predict_actor", None)
     if predict_actor is not None:
         return np.asarray(predict_actor(observations))
@@ -130,7 +184,7 @@ def export_onnx(
 ) -> Path:
     """Write ``model``'s deterministic policy (with normalization and action rescaling baked in) as ONNX.
 
-    :param model: a DQN, PPO, A2C, SAC, TD3 or DDPG model (Box or Discrete actions).
+    :param model: a DQN, PPO, RecurrentPPO, A2C, SAC, TD3 or DDPG model (Box or Discrete actions).
     :param out_path: destination ``.onnx`` file (parents are created).
     :param obs_rms: ``VecNormalize.obs_rms`` when the model was trained on normalized observations.
     :param clip_obs: ``VecNormalize.clip_obs``.
@@ -138,7 +192,8 @@ def export_onnx(
     :param obs_space: the observations the graph takes (default: the model's): a channels-last image space
         (:func:`taken_observation_space`) puts the transposition SB3 does for CNNs inside the graph.
     :return: the written path. Input ``obs`` ``(batch, *obs_shape)`` float32 (int64 ``(batch,)`` for
-        Discrete observations), output ``action`` ``(batch, *act_shape)`` float32 or ``(batch,)`` int64.
+        Discrete observations), output ``action`` ``(batch, *act_shape)`` float32 or ``(batch,)`` int64; a recurrent
+        policy's graph also has the state inputs and outputs of :class:`OnnxRecurrentPolicy`.
     """
     if not isinstance(model.action_space, spaces.Box | spaces.Discrete):
         raise TypeError(f"only Box and Discrete action spaces can be exported, got {model.action_space}")
@@ -152,9 +207,21 @@ def export_onnx(
     if taken.shape != own.shape and taken_observation_space(model, taken) is not taken:
         raise TypeError(f"the policy takes observations of shape {own.shape}, not {taken.shape}")
     channels_last = taken.shape != own.shape
-    wrapper = OnnxPolicy(model, obs_rms, clip_obs, epsilon, channels_last).cpu().eval()  # moves model.policy to CPU
+    recurrent = state_shape(model)
+    cls = OnnxRecurrentPolicy if recurrent is not None else OnnxPolicy
+    wrapper = cls(model, obs_rms, clip_obs, epsilon, channels_last).cpu().eval()  # moves model.policy to CPU
     model.policy.set_training_mode(False)
-    dummy = _dummy_obs(taken)
+    dummy: tuple[torch.Tensor, ...] = (_dummy_obs(taken),)
+    inputs, outputs = [OBS_INPUT], [ACTION_OUTPUT]
+    axes: dict[str, dict[int, str]] = {OBS_INPUT: {0: "batch"}, ACTION_OUTPUT: {0: "batch"}}
+    if recurrent is not None:
+        layers, hidden = recurrent
+        zeros = torch.zeros((layers, 1, hidden), dtype=torch.float32)
+        dummy = (*dummy, zeros, zeros.clone(), torch.ones((1,), dtype=torch.float32))
+        inputs += [*STATE_INPUTS, START_INPUT]
+        outputs += list(STATE_OUTPUTS)
+        axes.update({name: {1: "batch"} for name in (*STATE_INPUTS, *STATE_OUTPUTS)})
+        axes[START_INPUT] = {0: "batch"}
     validate = torch.distributions.Distribution._validate_args
     torch.distributions.Distribution.set_default_validate_args(False)
     try:
@@ -162,14 +229,16 @@ def export_onnx(
             warnings.simplefilter("ignore", DeprecationWarning)
             warnings.simplefilter("ignore", FutureWarning)
             warnings.simplefilter("ignore", torch.jit.TracerWarning)
+            # the LSTM's initial state is a graph input here, which is what this warning asks for
+            warnings.filterwarnings("ignore", message="Exporting a model to ONNX with a batch_size other than 1")
             torch.onnx.export(
                 wrapper,
-                (dummy,),
+                dummy,
                 str(out),
                 dynamo=False,
-                input_names=[OBS_INPUT],
-                output_names=[ACTION_OUTPUT],
-                dynamic_axes={OBS_INPUT: {0: "batch"}, ACTION_OUTPUT: {0: "batch"}},
+                input_names=inputs,
+                output_names=outputs,
+                dynamic_axes=axes,  # type: ignore[arg-type]
                 opset_version=ONNX_OPSET,
             )
     finally:

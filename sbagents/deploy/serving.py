@@ -14,6 +14,12 @@ Protocol:
   nested JSON, wrong length, unknown, missing or repeated keys, non-numbers, NaN/Infinity, numbers out of the
   float32 range or a Discrete observation outside the sidecar's range). Serving goes on after an error. The output
   is flushed per line.
+- A recurrent policy (an ONNX graph with the state inputs ``state_h``, ``state_c``, ``episode_start`` that
+  ``python -m sbagents.export`` writes for ``ppo_lstm``) keeps no memory in the server: the state travels in the
+  request and the reply. A request is ``{"obs": <observation as above>, "state": <the "state" of the previous
+  reply, or null at an episode start>}`` (``state`` may be left out at an episode start); the reply is
+  ``{"action": <action>, "state": [<2 * n_layers * hidden numbers>]}``. So any number of clients, over stdin or
+  HTTP, each carry their own episode; a wrong-length or non-finite state is an error reply like a bad observation.
 - CSV log: every served decision is appended as ``timestamp, <obs_names>, <action_names>`` (header written
   when the file is new or empty; LF line ends) and flushed per line.
 
@@ -77,6 +83,10 @@ class Policy:
         except Exception as exc:  # onnxruntime raises its own exception types
             raise ValueError(f"invalid ONNX model {path}: {_first_line(exc)}") from None
         inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        #: ``(n_layers, hidden)`` of a recurrent graph's state (each of h and c), None for a stateless one
+        self.state_shape = _state_shape(path, inputs, outputs)
+        if self.state_shape is not None:
+            inputs = inputs[:1]
         if len(inputs) != 1 or not outputs or inputs[0].type not in TENSOR_TYPES or outputs[0].type not in TENSOR_TYPES:
             raise ValueError(f"invalid policy model {path}: expected one float32 or int64 input and a float32 or int64 "
                              f"output (as python -m sbagents.export writes), got inputs "
@@ -93,8 +103,10 @@ class Policy:
                              f"shape {inp.shape}")
         self.obs_dim = 1 if self.discrete_obs else int(np.prod(shape)) if shape else 1
         self.obs_shape = tuple(int(d) for d in shape)
+        #: numbers in a recurrent request's or reply's ``state`` (0 for a stateless policy)
+        self.state_size = 2 * self.state_shape[0] * self.state_shape[1] if self.state_shape is not None else 0
         #: longest observation line or body accepted for this policy (:func:`request_limit`)
-        self.max_request_bytes = request_limit(self.obs_dim)
+        self.max_request_bytes = request_limit(self.obs_dim + self.state_size)
         self.discrete_action = out.type == "tensor(int64)"
         self.act_dim = 1 if self.discrete_action else int(np.prod(out_shape)) if out_shape else 1
         meta_file = Path(meta_path) if meta_path is not None else path.parent / "policy.json"
@@ -134,13 +146,51 @@ class Policy:
                              "writes)")
         return meta
 
+    @property
+    def recurrent(self) -> bool:
+        """Whether the policy's state travels in requests and replies (``{"obs": ..., "state": ...}``)."""
+        return self.state_shape is not None
+
     def parse(self, data: str | bytes) -> list[float]:
         """One observation line or body -> ``obs_dim`` finite numbers.
 
         :raises ServeError: anything but one observation (the message says what was wrong and what is accepted);
             nothing else is raised, whatever ``data`` holds.
         """
+        if self.recurrent:
+            raise ServeError('this policy is recurrent: send {"obs": <observation>, "state": <the previous '
+                             'reply\'s state, or null at an episode start>}')
+        return self._observation(_loads(data, self.max_request_bytes))
+
+    def parse_step(self, data: str | bytes) -> tuple[list[float], list[float] | None]:
+        """One request of a recurrent policy -> ``(observation, state)`` (state None: an episode starts); for a
+        stateless policy the request is the observation and the state None.
+
+        :raises ServeError: anything else (what was wrong and what is accepted).
+        """
         value = _loads(data, self.max_request_bytes)
+        if not self.recurrent:
+            return self._observation(value), None
+        if not isinstance(value, dict) or "obs" not in value or set(value) - {"obs", "state"}:
+            keys = _clip_list(list(value)) if isinstance(value, dict) else _kind(value) if not isinstance(
+                value, list) else "a list"
+            raise ServeError(f'this policy is recurrent: send {{"obs": <observation>, "state": <the previous reply\'s '
+                             f'state, or null at an episode start>}}, got {keys}')
+        state = value.get("state")
+        if state is not None:
+            if not isinstance(state, list) or len(state) != self.state_size:
+                size = f"{len(state)} values" if isinstance(state, list) else _kind(state)
+                raise ServeError(f"state must be the {self.state_size} numbers of the previous reply (or null at "
+                                 f"an episode start), got {size}")
+            for v in state:
+                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(
+                        v) > FLOAT32_MAX:
+                    raise ServeError(f"state holds {_show(v)}; it holds finite float32 numbers")
+            state = [float(v) for v in state]
+        return self._observation(value["obs"]), state
+
+    def _observation(self, value: Any) -> list[float]:
+        """A decoded JSON observation -> ``obs_dim`` finite numbers (:class:`ServeError` otherwise)."""
         if isinstance(value, dict):
             keys = set(value)
             unknown = sorted(keys - set(self.obs_names))
@@ -168,22 +218,62 @@ class Policy:
         return [float(v) for v in value]
 
     def act(self, obs: Sequence[float]) -> list[float] | int:
-        """Action for one observation: a list of floats (Box) or an int (Discrete).
+        """Action for one observation: a list of floats (Box) or an int (Discrete); a recurrent policy acts as at
+        an episode start (use :meth:`step` to carry its state).
 
         :raises ServeError: the policy gave a non-finite action (a JSON reply cannot carry it).
+        """
+        return self.step(obs, None)[0]
+
+    def step(self, obs: Sequence[float], state: Sequence[float] | None) -> tuple[list[float] | int, list[float]]:
+        """Action and next state (``[]`` for a stateless policy) for one observation; ``state`` None: an episode
+        starts (zeros).
+
+        :raises ServeError: the policy gave a non-finite action or state (a JSON reply cannot carry it).
         """
         x: np.ndarray
         if self.discrete_obs:
             x = np.asarray([int(obs[0])], dtype=np.int64)
         else:
             x = np.asarray(obs, dtype=np.float32).reshape((1, *self.obs_shape))
-        action = self.session.run(None, {self.input_name: x})[0]
+        feed = {self.input_name: x}
+        if self.state_shape is not None:
+            layers, hidden = self.state_shape
+            flat = np.zeros(self.state_size, np.float32) if state is None else np.asarray(state, np.float32)
+            h, c = flat.reshape((2, layers, 1, hidden))
+            feed.update({"state_h": h, "state_c": c,
+                         "episode_start": np.asarray([1.0 if state is None else 0.0], np.float32)})
+        action, *next_state = self.session.run(None, feed)
+        new_state = [float(v) for v in np.concatenate([np.asarray(t).reshape(-1) for t in next_state])] \
+            if next_state else []
+        if not all(math.isfinite(v) for v in new_state):
+            raise ServeError("the policy gave a non-finite state for this observation")
+        return self._action(action), new_state
+
+    def _action(self, action: Any) -> list[float] | int:
         if self.discrete_action:
             return int(np.asarray(action).reshape(-1)[0])
         values = [float(a) for a in np.asarray(action).reshape(-1)]
         if not all(math.isfinite(a) for a in values):
             raise ServeError(f"the policy gave a non-finite action {values} for this observation")
         return values
+
+
+def _state_shape(path: Path, inputs: Sequence[Any], outputs: Sequence[Any]) -> tuple[int, int] | None:
+    """``(n_layers, hidden)`` of a recurrent policy graph (inputs ``obs, state_h, state_c, episode_start``, outputs
+    ``action, state_h_out, state_c_out``), None for any other graph (checked as a stateless one)."""
+    names = [i.name for i in inputs]
+    if names[1:] != ["state_h", "state_c", "episode_start"]:
+        return None
+    h, c, start = inputs[1:]
+    layers, hidden = h.shape[0], h.shape[2] if len(h.shape) == 3 else None
+    if (len(outputs) != 3 or h.shape != c.shape or not isinstance(layers, int) or not isinstance(hidden, int)
+            or layers < 1 or hidden < 1 or layers * hidden > 1 << 16 or any(
+                t.type != "tensor(float)" for t in (h, c, start, *outputs[1:]))):
+        raise ValueError(f"invalid policy model {path}: a recurrent policy has float32 state inputs state_h and "
+                         "state_c (n_layers, batch, hidden), episode_start (batch,), and the action and the next "
+                         "state as its three outputs (as python -m sbagents.export writes)")
+    return layers, hidden
 
 
 def request_limit(obs_dim: int) -> int:
@@ -335,16 +425,18 @@ def decide(policy: Policy, data: str | bytes | None, log: DecisionLog) -> tuple[
         return False, error_reply(f"line of more than {policy.max_request_bytes} bytes; one observation is at most "
                                   "that")
     try:
-        obs = policy.parse(data)
+        obs, state = policy.parse_step(data)
     except ServeError as exc:
         return False, error_reply(str(exc))
     try:
-        action = policy.act(obs)
+        action, next_state = policy.step(obs, state)
     except ServeError as exc:
         return False, error_reply(str(exc))
     except Exception as exc:  # onnxruntime's own exception types: the model failed on this input
         return False, error_reply(f"the policy could not decide on this observation: {_first_line(exc)}")
     log.write(obs, action)
+    if policy.recurrent:
+        return True, json.dumps({"action": action, "state": next_state}, allow_nan=False)
     return True, json.dumps(action, allow_nan=False)
 
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sbagents.callbacks.episodes import EpisodeRecord, game_rates, play_env_episodes, summarize_records
+from sbagents.callbacks.episodes import EpisodeRecord, game_rates, play_env_episodes, stateless, summarize_records
 from sbagents.games.players import Player
 from sbagents.games.selfplay import SelfPlayEnv
 
@@ -43,7 +43,7 @@ def play_games(env: SelfPlayEnv, player: Player, n_games: int, seed: int | None 
     :param env: a :class:`SelfPlayEnv` with the opponent fixed (it is reset with ``seed`` first).
     """
     opp_before = env.opponent_illegal_moves
-    games = play_env_episodes(env, lambda obs: player(obs, env.action_masks()), n_games, seed)
+    games = play_env_episodes(env, stateless(lambda obs: player(obs, env.action_masks())), n_games, seed)
     return MatchResult(list(env.seats), games, sum(g.game.illegal_moves for g in games if g.game is not None),
                        env.opponent_illegal_moves - opp_before)
 

@@ -13,6 +13,15 @@ An image observation space is a ``uint8`` :class:`~gymnasium.spaces.Box` of shap
 ``C`` in 1, 3 (RGB) or 4 (RGBA); a 2-D image is read as ``(H, W, 1)``. Every agent's observation space must be one.
 When the env's ``state_space`` is an image too, ``state()`` is preprocessed the same way (and ``state_space``
 updated); any other state passes through unchanged.
+
+Why not SuperSuit's wrappers (3.11; measured in ``tests/test_supersuit_parity.py``): ``color_reduction_v0("full")``
+truncates where OpenCV (and ``WarpFrame`` on the Gymnasium side) rounds, one grey level darker on 98% of
+pistonball's pixels, takes RGB only and drops the channel axis; ``resize_v1`` resamples bilinearly or nearest, not by
+area (up to 167 grey levels apart on cooperative pong at 84x84, where the ball dims to 31 of 255); neither touches an
+image ``state()``; and as SuperSuit has no parallel form of them, each runs the env through ``parallel_to_aec`` and
+back (about 5x this wrapper's cost per step on pistonball). Frame stacking stays SB3's ``VecFrameStack``
+(``frame_stack_v1`` stacks the same values but overwrites one returned array in place); observations stay ``uint8``
+(``dtype_v0``/``normalize_obs_v0`` would give float images that SB3's ``CnnPolicy`` refuses).
 """
 
 from __future__ import annotations

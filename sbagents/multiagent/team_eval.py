@@ -20,10 +20,11 @@ from stable_baselines3.common.callbacks import EvalCallback
 from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 
 from sbagents.atomic import save_model, write_npz
-from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
+from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, stateless, summarize_records
 from sbagents.callbacks.episodes import slot_agents as episode_slot_agents
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP, ParameterSharingVecEnv
 
+#: ``obs batch -> actions`` (a stateless actor; :func:`~sbagents.callbacks.episodes.stateless` makes it a ``Policy``).
 Actor = Callable[[Any], np.ndarray]
 #: The former name of :class:`~sbagents.callbacks.episodes.EpisodeRecord`.
 EpisodeResult = EpisodeRecord
@@ -35,7 +36,7 @@ def slot_agents(venv: VecEnv, default: str) -> list[str]:
 
 
 def run_team_episodes(
-    venvs: Mapping[str, VecEnv], actors: Mapping[str, Actor], n_episodes: int, seed: int | None = None
+    venvs: Mapping[str, VecEnv], actors: Mapping[str, Policy], n_episodes: int, seed: int | None = None
 ) -> list[EpisodeRecord]:
     """Play ``n_episodes`` team episodes on the group VecEnvs of one team (a single VecEnv for a shared policy),
     every group acting with its actor (:func:`~sbagents.callbacks.episodes.play_episodes`).
@@ -43,7 +44,8 @@ def run_team_episodes(
     Rewards are unnormalized; each ``VecNormalize`` is frozen meanwhile.
 
     :param venvs: group -> its VecEnv (they step one team together), in the team's group order.
-    :param actors: group -> ``obs -> actions``.
+    :param actors: group -> its :class:`~sbagents.callbacks.episodes.Policy` (its hidden state is kept per slot and
+        reset where that slot's agent starts an episode).
     :param seed: seed of the first reset (then the env's RNG continues) -> reproducible returns.
     :return: per episode: team return, length, ``is_success``, violation steps and cost (every agent's), the first
         slot's last ``info``, each agent's return and the env's declared metrics.
@@ -77,7 +79,7 @@ def evaluate_team(
     :param act: maps an observation batch ``(n_agents, *obs_shape)`` to actions (default ``model.predict``).
     :return: :func:`team_summary` of the episodes.
     """
-    actor = act if act is not None else model_actor(model, deterministic)
+    actor = stateless(act) if act is not None else model_actor(model, deterministic)
     venv = env if isinstance(env, VecEnv) else ParameterSharingVecEnv([env])
     try:
         return team_summary(run_team_episodes({SHARED_GROUP: venv}, {SHARED_GROUP: actor}, n_episodes, seed))

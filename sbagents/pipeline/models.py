@@ -97,7 +97,8 @@ def make_model(
 
 def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
     """Death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
-    experiment; returns the policy to use and completes ``kwargs``.
+    experiment; returns the policy to use and completes ``kwargs``. A recurrent algorithm (``ppo_lstm``) keeps
+    sb3-contrib's sequence buffer: an agent that leaves before its team's episode ends adds its padded steps.
 
     :raises UsageError: an off-policy algorithm on Dict observations (no masked Dict replay buffer yet).
     """
@@ -107,7 +108,7 @@ def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) 
     if centralized and exp.algo not in algos_with("centralized_critic"):
         raise UsageError(f"critic: centralized is for {' and '.join(algos_with('centralized_critic'))} (a value "
                          f"function to centralize), not {exp.algo}")
-    if on_policy:
+    if on_policy and not ALGOS[exp.algo].recurrent:  # a recurrent algorithm keeps its own sequence buffer
         kwargs.setdefault("rollout_buffer_class", MaskedDictRolloutBuffer if dict_obs else MaskedRolloutBuffer)
     elif ALGOS[exp.algo].off_policy and dict_obs and "replay_buffer_class" not in kwargs:
         raise UsageError(f"{exp.algo} on a PettingZoo env with Dict observations is not supported (absent agents "

@@ -19,6 +19,7 @@ from gymnasium import spaces
 from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.rl_module import RLModule
 
+from sbagents.callbacks.episodes import stateless
 from sbagents.core.env_names import EnvRef
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.run_dir import load_run_config, run_groups
@@ -93,7 +94,7 @@ def evaluate_modules(
                 raise UsageError(f"RLlib evaluation supports Discrete actions; module {module_id} acts in "
                                  f"{venv.action_space}")
         rng = np.random.default_rng(options.seed)
-        actors = {m: module_actor(modules[m], options.greedy(), rng) for m in venvs}
+        actors = {m: stateless(module_actor(modules[m], options.greedy(), rng)) for m in venvs}
         episodes = run_team_episodes(venvs, actors, options.n_episodes, options.seed)
     finally:
         for venv in venvs.values():

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sbagents.callbacks.episodes import model_actor
 from sbagents.core.experiment import Experiment
 
 
@@ -13,11 +15,14 @@ def greedy_path(model: BaseAlgorithm, env: gym.Env, max_steps: int = 1000) -> tu
 
     :return: the visited cells (start included) and the episode return.
     """
+    policy = model_actor(model, deterministic=True)
     obs, _ = env.reset(seed=0)
     base = env.unwrapped
     path, total = [base.agent], 0.0  # type: ignore[attr-defined]
+    state, start = None, np.ones(1, dtype=bool)
     for _ in range(max_steps):
-        action, _ = model.predict(obs, deterministic=True)
+        action, state = policy(obs, state, start)
+        start = np.zeros(1, dtype=bool)
         obs, reward, terminated, truncated, _ = env.step(action)
         path.append(base.agent)  # type: ignore[attr-defined]
         total += float(reward)

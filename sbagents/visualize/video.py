@@ -27,6 +27,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
 from sbagents.atomic import raise_disk_error, run_subfolder, temporary_name, write_text
 from sbagents.callbacks.common import find_vec_normalize
+from sbagents.callbacks.episodes import model_actor
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
@@ -261,20 +262,27 @@ def _(kind: TeamKind, recorder: VecEnv) -> _DecisionLog | None:
 def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], loaded: LoadedRun, n_steps: int,
           deterministic: bool, log: _DecisionLog | None = None) -> None:
     """Step ``n_steps`` times: the other groups act first, then the recorded (first) group's step moves the team;
-    ``log`` gets every step of a single-agent run."""
+    ``log`` gets every step of a single-agent run. Each group's policy carries its state (a recurrent policy's
+    memory), reset in the slots whose episode ended."""
     first, *others = list(venvs)
+    policies = {g: model_actor(loaded.models[g], deterministic) for g in venvs}
     obs: dict[str, Any] = {first: recorder.reset()}
     obs.update({g: venvs[g].reset() for g in others})
+    states: dict[str, Any] = dict.fromkeys(venvs)
+    starts = {g: np.ones(venvs[g].num_envs, dtype=bool) for g in venvs}
     if log is not None:
         log.observe(obs[first])
     for _ in range(n_steps):
         for g in others:
-            venvs[g].step_async(loaded.models[g].predict(obs[g], deterministic=deterministic)[0])
-        actions, _ = loaded.models[first].predict(obs[first], deterministic=deterministic)
+            actions, states[g] = policies[g](obs[g], states[g], starts[g])
+            venvs[g].step_async(actions)
+        actions, states[first] = policies[first](obs[first], states[first], starts[first])
         with contextlib.redirect_stdout(io.StringIO()):  # SB3 prints "Saving video to ..." at the last step
             obs[first], rewards, dones, infos = recorder.step(actions)
+        starts[first] = np.asarray(dones, dtype=bool)
         if log is not None:
             log.record(actions, rewards, dones, infos)
             log.observe(obs[first])
         for g in others:
-            obs[g] = venvs[g].step_wait()[0]
+            obs[g], _, other_dones, _ = venvs[g].step_wait()
+            starts[g] = np.asarray(other_dones, dtype=bool)

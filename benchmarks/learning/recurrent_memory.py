@@ -1,0 +1,138 @@
+"""Memory where the observation hides the state: RecurrentPPO (``ppo_lstm``) beside PPO at the same budget.
+
+Each task trains ``ppo_lstm`` and ``ppo`` with the hyperparameters of ``zoo_configs/`` (for CartPoleNoVel: RL Zoo's
+entries, identical but for the LSTM) over seeds, each run in its own ``python -m sbagents.train`` process (two at a
+time), then evaluates the final model with ``python -m sbagents.evaluate -n 20`` (deterministic, the state carried
+through each episode). Finished runs are appended to ``--work DIR/runs.jsonl`` as they end, so a stopped
+measurement resumes with the same ``--work``.
+
+    python -m benchmarks run recurrent-memory [--seeds 0 1 2] [--work DIR] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from benchmarks.harness import Benchmark
+from benchmarks.report import load_average, machine_info
+from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+
+NAME = "recurrent-memory"
+#: (env id, the level RL Zoo's ppo_lstm reaches there, what the observation hides)
+TASKS: tuple[tuple[str, float, str], ...] = (
+    ("sbagents/CartPoleNoVel-v1", 450.0, "cart and pole velocities (always 0)"),
+)
+ALGOS: tuple[str, ...] = ("ppo_lstm", "ppo")
+EVAL_EPISODES = 20
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run recurrent-memory``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {NAME}", description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--envs", nargs="+", default=[t[0] for t in TASKS], help="env ids (of TASKS)")
+    parser.add_argument("--work", default=None, help="folder of the runs and runs.jsonl (default: a new temp dir)")
+    parser.add_argument("--jobs", type=int, default=2, help="runs at a time (one core each)")
+    parser.add_argument("--n-timesteps", type=int, default=None, help="override the configs' budget (smoke runs)")
+    parser.add_argument("--quick", action="store_true", help="smoke run: 2,048 steps, one seed")
+    return parser
+
+
+def _one(algo: str, env: str, seed: int, work: Path, n_timesteps: int | None) -> dict[str, Any]:
+    """Train then evaluate one (algo, env, seed) in child processes; its row."""
+    folder = work / f"{algo}_{env.replace('/', '_')}_{seed}"
+    budget = ["--n-timesteps", str(n_timesteps)] if n_timesteps else []
+    child_env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    subprocess.run([sys.executable, "-m", "sbagents.train", "--algo", algo, "--env", env, "--seed", str(seed),
+                    "-f", str(folder), "--final-eval-episodes", "0", *budget],
+                   check=True, capture_output=True, env=child_env)
+    (summary_file,) = folder.rglob("summary.json")
+    summary = json.loads(summary_file.read_text())
+    out = subprocess.run([sys.executable, "-m", "sbagents.evaluate", "--algo", algo, "--env", env, "-f", str(folder),
+                          "-n", str(EVAL_EPISODES), "--seed", "1000", "--json"],
+                         check=True, capture_output=True, text=True, env=child_env)
+    evaluation = json.loads(out.stdout.strip().splitlines()[-1])
+    return {"algo": algo, "env": env, "seed": seed, "n_timesteps": summary["n_timesteps"],
+            "train_seconds": summary["train_seconds"], "return": evaluation["mean_return"],
+            "return_std": evaluation["std_return"], "episodes": evaluation["n_episodes"]}
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Every (env, algo, seed) run, resumed from ``--work``; rows and per-(env, algo) statistics."""
+    args = build_parser().parse_args(list(argv))
+    if args.quick:
+        args.seeds, args.n_timesteps = args.seeds[:1], args.n_timesteps or 2048
+    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="recurrent-memory-"))
+    work.mkdir(parents=True, exist_ok=True)
+    log = work / "runs.jsonl"
+    done = [json.loads(line) for line in log.read_text().splitlines() if line.strip()] if log.exists() else []
+    have = {(r["algo"], r["env"], r["seed"]) for r in done}
+    todo = [(a, e, s) for e in args.envs for a in ALGOS for s in args.seeds if (a, e, s) not in have]
+    load_before = load_average()
+    print(f"{len(done)} runs done in {work}, {len(todo)} to go", file=sys.stderr)
+
+    def job(key: tuple[str, str, int]) -> dict[str, Any]:
+        row = _one(*key, work, args.n_timesteps)
+        with log.open("a") as fh:  # one line per finished run: what a resumed measurement skips
+            fh.write(json.dumps(row) + "\n")
+        print(f"{row['algo']} {row['env']} seed {row['seed']}: return {row['return']:.1f} "
+              f"({row['train_seconds']:.0f} s)", file=sys.stderr)
+        return row
+
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        rows = done + list(pool.map(job, todo))
+    wanted = {(a, e, s) for e in args.envs for a in ALGOS for s in args.seeds}
+    rows = sorted((r for r in rows if (r["algo"], r["env"], r["seed"]) in wanted),
+                  key=lambda r: (r["env"], ALGOS.index(r["algo"]), r["seed"]))
+    stats = {f"{e} {a}": seed_stats([r["return"] for r in rows if r["env"] == e and r["algo"] == a])
+             for e in args.envs for a in ALGOS}
+    seeds = " ".join(str(s) for s in args.seeds)
+    return {"command": f"python -m benchmarks run {NAME} --seeds {seeds} --jobs {args.jobs}",
+            "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()},
+            "runs": rows, "stats": stats}
+
+
+def render(results: dict[str, Any]) -> str:
+    """The section: one row per run, then per (env, algo) mean +- std and IQM of the evaluation return."""
+    m, runs, stats = results["machine"], results["runs"], results["stats"]
+    levels = {env: (level, hidden) for env, level, hidden in TASKS}
+    lines = [
+        "## Memory: RecurrentPPO (`ppo_lstm`) beside PPO where the observation hides the state",
+        "",
+        f"Command: `{results['command']}`. Each run is `python -m sbagents.train --algo ALGO --env ENV --seed SEED` "
+        "with `zoo_configs/` (CartPoleNoVel: RL Zoo's `ppo_lstm` entry and RL Zoo's PPO CartPole entry, the same "
+        "hyperparameters and budget but the LSTM), then `python -m sbagents.evaluate -n "
+        f"{EVAL_EPISODES}` (deterministic, the LSTM state carried through each episode). {m['cpu']}, "
+        f"{m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} after.",
+        "",
+        "| env | hidden | algo | seed | steps | return (20 ep) | train s |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
+    lines += [f"| {r['env']} | {levels.get(r['env'], (0, '?'))[1]} | {r['algo']} | {r['seed']} | "
+              f"{r['n_timesteps']:,} | {r['return']:.1f} +- {r['return_std']:.1f} | {r['train_seconds']:.0f} |"
+              for r in runs]
+    lines.append("")
+    for key, st in stats.items():
+        env, algo = key.rsplit(" ", 1)
+        level = levels.get(env, (None, ""))[0]
+        reached = sum(r["return"] >= level for r in runs if r["env"] == env and r["algo"] == algo) if level else 0
+        lines.append(f"- {env} `{algo}`: return {format_mean_std(st, '.1f')} (mean +- std over {st['n']} seeds), "
+                     f"IQM {format_iqm(st, '.1f')}; {reached}/{st['n']} seeds at RL Zoo's level (>= {level:.0f}).")
+    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable)."]
+    return "\n".join(lines)
+
+
+BENCHMARKS = (
+    Benchmark(name=NAME, kind="learning", results="recurrent_memory.json",
+              summary="ppo_lstm vs ppo at the same budget on partially observable envs (CartPoleNoVel), over seeds",
+              run=run, render=render),
+)

@@ -1,6 +1,6 @@
 """Observation attacks on SB3 policies (SA-MDP, Zhang et al. 2020): random noise, MAD (FGSM/PGD), critic.
 
-Conventions (documented in README/DESIGN by the lead):
+Conventions (docs/robust.md):
 
 - What is attacked: the policy's input. Under ``VecNormalize`` (with ``norm_obs``) that is the normalized
   observation and the per-dimension scale is 1 (so ``eps`` is in units of the running std, as in SA-PPO);

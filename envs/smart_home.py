@@ -15,6 +15,9 @@ with their own preferred temperature and light level.
 - Reward: ``-|temp - pref_temp| - 0.5 |light - pref_light| - 0.1 (|a_temp| + 0.05 |a_light|)``, on the
   state after the action; ``info["energy"]`` is the step's ``|a_temp| + 0.05 |a_light|`` (energy use).
 - ``max_steps`` (100) steps, then truncation; the episode never terminates.
+- Partial observability (``preference_steps``, off by default): the user states their preferences only in the
+  first ``preference_steps`` observations of an episode (the reset's is the first); later observations show 0
+  in their place, so a policy must remember them (``sbagents/SmartHomePrefOnce-v0``: told once, at the reset).
 
 Choices the book leaves open (documented in the README table):
 
@@ -82,6 +85,8 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
     :param max_steps: episode length (truncation); the episode never terminates.
     :param warmup_steps: steps excluded from the comfort criterion at the start of an episode.
     :param success_share: ``is_success`` threshold on the episode's criterion share.
+    :param preference_steps: observations per episode that show the preferences (None: all of them); the later
+        ones show 0 there (the observation bounds then include 0).
     :param render_mode: ``"ansi"`` (the state as a text line), ``"human"`` (prints it) or
         ``"rgb_array"`` (an ``(H, W, 3)`` uint8 bar chart: temperature, light, hour).
     """
@@ -109,6 +114,7 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         warmup_steps: int = 10,
         success_share: float = 0.97,
         render_mode: str | None = None,
+        preference_steps: int | None = None,
     ) -> None:
         noise_std = check_number(noise_std, "noise_std", 0.0, MAX_MAGNITUDE)
         temp_tolerance = check_number(temp_tolerance, "temp_tolerance", 0.0, MAX_MAGNITUDE)
@@ -147,10 +153,14 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
         self.max_steps, self.warmup_steps = int(max_steps), int(warmup_steps)
         self.success_share = float(success_share)
         self.render_mode = render_mode
+        self.preference_steps = None if preference_steps is None else check_int(
+            preference_steps, "preference_steps", 0, MAX_EPISODE_STEPS)
 
         margin = 5.0 * self.noise_std
         (t_lo, t_hi), (l_lo, l_hi) = self.temp_range, self.light_range
-        self._obs_low = np.array([t_lo - margin, l_lo - margin, 0.0, t_lo, l_lo], np.float32)
+        hidden_low = 0.0 if self.preference_steps is not None else np.inf  # what a hidden preference reads
+        self._obs_low = np.array([t_lo - margin, l_lo - margin, 0.0, min(t_lo, hidden_low), min(l_lo, hidden_low)],
+                                 np.float32)
         self._obs_high = np.array([t_hi + margin, l_hi + margin, 23.0, t_hi, l_hi], np.float32)
         self._act_low = np.array([-max_temp_step, -max_light_step], np.float32)
         self._act_high = np.array([max_temp_step, max_light_step], np.float32)
@@ -219,7 +229,9 @@ class SmartHomeEnv(gym.Env[np.ndarray, np.ndarray]):
     def _observe(self) -> np.ndarray:
         noise = self.np_random.normal(0.0, self.noise_std, size=2) if self.noise_std > 0 else np.zeros(2)
         temp, light = self.temperature + noise[0], self.light + noise[1]
-        obs = np.array([temp, light, self.hour, self.preferred_temp, self.preferred_light], dtype=np.float32)
+        told = self.preference_steps is None or self.steps < self.preference_steps
+        prefs = (self.preferred_temp, self.preferred_light) if told else (0.0, 0.0)
+        obs = np.array([temp, light, self.hour, *prefs], dtype=np.float32)
         return np.clip(obs, self._obs_low, self._obs_high)
 
     def _info(self) -> dict[str, Any]:

@@ -2,9 +2,12 @@
 
 A feature (DP-SGD training, robust training, constrained training, the trust callbacks, replay-buffer saving, or one
 of your own) is a :class:`TrainingExtension`. It declares its flags, parses them into a frozen spec at the CLI
-boundary, checks the spec against the backend and the experiment, and then takes part in an SB3 run through the
-hooks below, which :func:`sbagents.pipeline.training.train_sb3` calls in this fixed order for every extension whose
-spec the run carries (in registration order: the built-in ones first, then yours)::
+boundary, checks the spec against the backend and the experiment, and then takes part in a one-model SB3 run
+through the hooks below, which :func:`sbagents.pipeline.training.train_sb3` calls in this fixed order for every
+extension whose spec the run carries (in registration order: the built-in ones first, then yours). A run of one
+model per group (``policies: per_group|per_agent``) goes through its own path, which calls none of these hooks: an
+extension without :attr:`TrainingExtension.group_runs` is refused there in one line, one with it is accepted and
+wired by that path itself (the replay buffer and trust extensions)::
 
     add_arguments(group)                      the extension's flags, in an argument group of its own
     from_args(args) -> spec | None            the parsed flags as a frozen spec (None: not used by this run)
@@ -15,13 +18,13 @@ spec the run carries (in registration order: the built-in ones first, then yours
     record(spec) -> dict                      entries of args.yml (command_args(spec): flags for command.txt)
     wrap_train_env(spec, env) -> env          the training vec env
     model_class(spec, algo, cls, kwargs)      the SB3 class and extra keyword arguments of the model
-    load_model(spec, cls, path, **kw)         how ``-i`` continues a model (None: SB3's own load)
+    load_model(spec, cls, path, **kw)         how ``-i`` continues a model (None: the default rebuild from plain data)
     setup(spec, ctx)                          once the model exists (e.g. load what -i left beside it)
     callbacks(spec, ctx) -> [BaseCallback]    after sbagents' own callbacks, before the caller's
     after_learn(spec, ctx)                    once learning stopped (also after Ctrl-C), before the summary
     summary(spec, ctx) -> dict                keys of summary.json
     judge_evaluation(spec, summary, result)   after the final evaluation
-    results(spec, callbacks) -> dict          what ``TrainResult.trust``/the console shows of the callbacks
+    results(spec, callbacks) -> dict          what ``TrainResult.results``/the console shows of the callbacks
 
 and, for any run (the spec is no longer there): :meth:`~TrainingExtension.summary_lines` (the console lines of
 ``train`` from ``summary.json``) and :meth:`~TrainingExtension.load_class` (the SB3 class that loads a run whose
@@ -79,7 +82,8 @@ class TrainingContext(Protocol):
         ...
 
     def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:
-        """A fresh evaluation vec env of the run's env (its VecNormalize statistics synced from training)."""
+        """A fresh evaluation vec env of the run's env (VecNormalize statistics are not synced: a callback copies
+        them from the training env when it evaluates)."""
         ...
 
 
@@ -126,7 +130,8 @@ class TrainingExtension(Generic[SpecT]):
     flags: ClassVar[str] = ""
     #: The frozen spec type this extension's hooks take (:func:`extension_for` finds the extension of a spec).
     spec_type: ClassVar[type]
-    #: Whether runs of one model per group (``policies: per_group``) take the extension (else refused in one line).
+    #: Whether runs of one model per group (``policies: per_group``) accept the extension (else refused in one line);
+    #: that path calls none of the hooks, so an accepted extension must be wired there (the built-in ones are).
     group_runs: ClassVar[bool] = False
     #: Backends the extension works with.
     backends: ClassVar[tuple[str, ...]] = ("sb3",)
@@ -225,7 +230,7 @@ class TrainingExtension(Generic[SpecT]):
         """Look at the final evaluation ``result`` (may update ``summary`` in place)."""
 
     def results(self, spec: SpecT, callbacks: Sequence[BaseCallback]) -> dict[str, Any]:
-        """Final results of the run's callbacks worth showing (``TrainResult.trust``)."""
+        """Final results of the run's callbacks worth showing (``TrainResult.results``)."""
         return {}
 
     # --- any finished run ---------------------------------------------------------------------------------------

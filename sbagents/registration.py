@@ -13,11 +13,13 @@ GYM_ENVS: dict[str, str] = {
     "sbagents/KukaPickAndPlace-v0": "sbagents.envs.kuka:KukaPickAndPlaceEnv",
     "sbagents/RobustKukaPickAndPlace-v0": "sbagents.envs.kuka:RobustKukaPickAndPlaceEnv",
     "sbagents/CartPoleNoVel-v1": "sbagents.envs.no_velocity:CartPoleNoVelEnv",
+    "sbagents/SmartHomePrefOnce-v0": "sbagents.envs.smart_home:SmartHomeEnv",
 }
 
 #: Registration keywords of the IDs in :data:`GYM_ENVS` that need more than an entry point.
 GYM_ENV_KWARGS: dict[str, dict[str, object]] = {
     "sbagents/CartPoleNoVel-v1": {"max_episode_steps": 500, "reward_threshold": 475.0},
+    "sbagents/SmartHomePrefOnce-v0": {"kwargs": {"preference_steps": 1}},  # preferences told at the reset only
 }
 
 

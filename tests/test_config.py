@@ -112,7 +112,7 @@ def test_conversions() -> None:
     ("entry", "message"),
     [
         ({"n_envs": 0}, "n_envs must be a positive integer"),
-        ({"policy_kwargs": "dict(net_arch=[64])"}, "policy_kwargs must be a mapping"),
+        ({"policy_kwargs": "net_arch=[64]"}, "policy_kwargs must be a mapping"),
         ({"noise_type": "pink"}, "noise_type must be"),
         ({"env_wrapper": "no.such.Module"}, "outside the import allow-list"),
         ({"env_wrapper": "sbagents.no_such.Module"}, "cannot import env_wrapper"),

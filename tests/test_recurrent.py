@@ -18,6 +18,7 @@ from sb3_contrib import RecurrentPPO
 import sbagents  # noqa: F401 (registers the env ids)
 from sbagents.algos import ALGOS
 from sbagents.callbacks.episodes import model_actor, play_env_episodes
+from sbagents.core.experiment import resolve
 from sbagents.core.zoo_config import default_config_path, lookup_entry
 from sbagents.deploy.exporting import ExportChecks, export_run
 from sbagents.deploy.parity import Recording, check_parity, record_episodes, state_parity
@@ -60,8 +61,12 @@ def test_ppo_lstm_is_rl_zoos_recurrent_ppo_with_its_cartpole_no_vel_entry() -> N
     entry = lookup_entry(default_config_path("ppo_lstm"), ENV)
     assert entry["policy"] == "MlpLstmPolicy" and entry["n_envs"] == 8 and float(entry["n_timesteps"]) == 1e5
     assert (entry["n_steps"], entry["batch_size"], entry["n_epochs"], entry["gamma"]) == (32, 256, 20, 0.98)
-    ppo = lookup_entry(default_config_path("ppo"), ENV)  # the memoryless baseline: the same entry but the policy
-    assert {k: v for k, v in ppo.items() if k != "policy"} == {k: v for k, v in entry.items() if k != "policy"}
+    ppo = lookup_entry(default_config_path("ppo"), ENV)  # the memoryless baseline: the same entry but the LSTM
+    differ = ("policy", "policy_kwargs")
+    assert {k: v for k, v in ppo.items() if k not in differ} == {k: v for k, v in entry.items() if k not in differ}
+    lstm_kwargs = resolve("ppo_lstm", ENV, entry, "ppo_lstm.yml").algo_kwargs["policy_kwargs"]
+    ppo_kwargs = resolve("ppo", ENV, ppo, "ppo.yml").algo_kwargs["policy_kwargs"]
+    assert {k: v for k, v in lstm_kwargs.items() if k not in ("lstm_hidden_size", "enable_critic_lstm")} == ppo_kwargs
 
 
 def test_the_policy_protocol_carries_the_lstm_state(lstm: RecurrentPPO) -> None:
@@ -211,3 +216,19 @@ def test_recurrent_team_runs_train_evaluate_and_export(env: str, params: tuple[s
     sidecars = [json.loads(p.read_text()) for p in logs.rglob("policy.json")]
     assert sidecars and all(s["recurrent"]["hidden"] == 8 for s in sidecars)
     assert all(s["report"]["parity_fp32"] <= 1e-4 and s["report"]["parity_state"] <= 1e-4 for s in sidecars)
+
+
+def test_smart_home_pref_once_states_the_preferences_at_the_reset_only() -> None:
+    env = gym.make("sbagents/SmartHomePrefOnce-v0")
+    check_env(env.unwrapped)
+    obs, info = env.reset(seed=1)
+    np.testing.assert_allclose(obs[3:], [info["preferred_temp"], info["preferred_light"]], rtol=1e-6)
+    for _ in range(5):
+        obs, _, _, _, info = env.step(env.action_space.sample())
+        assert np.all(obs[3:] == 0.0) and info["preferred_temp"] > 0.0
+    plain = gym.make("sbagents/SmartHome-v0")
+    assert plain.observation_space.low[3] == 18.0  # the book's env keeps its bounds
+    obs, _ = plain.reset(seed=1)
+    assert np.all(plain.step(plain.action_space.sample())[0][3:] > 0.0)
+    with pytest.raises(ValueError, match="preference_steps"):
+        gym.make("sbagents/SmartHome-v0", preference_steps=-1)

@@ -1,4 +1,6 @@
-"""The lowest layer: what every other part of sbagents may use and which uses none of them.
+"""The lowest layer of the run pipeline: what every other part of sbagents may use. Of the rest of sbagents it uses
+only :mod:`sbagents.algos` (the algorithm table), :mod:`sbagents.extensions` (the hook protocol and registry) and
+:mod:`sbagents.registration` (env ids and module paths), never a feature package (checked by import-linter).
 
 - :mod:`~sbagents.core.options`, :mod:`~sbagents.core.team_options`, :mod:`~sbagents.core.selfplay_options`: the
   option types of a run.

@@ -21,7 +21,7 @@ from sbagents.core.env_names import EnvRef
 from sbagents.core.options import TrainSpec
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.core.team_options import TeamOptions
-from sbagents.core.zoo_config import ZOO_KEYS, spec_entry
+from sbagents.core.zoo_config import ZOO_KEYS, expression_values, spec_entry
 from sbagents.errors import UsageError
 from sbagents.extensions import config_keys
 from sbagents.import_paths import resolve_path
@@ -209,6 +209,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, kind: En
     :param trusted_modules: modules the user named, whose objects import paths may name (:func:`import_object`).
     """
     trusted = trusted_modules
+    entry = expression_values(entry, source)  # RL Zoo's "dict(...)" strings, read as data
     kind.check_entry(entry, source)
     accepted = accepted_algo_kwargs(algo)
     zoo_keys = ZOO_KEYS | config_keys()  # RL Zoo's keys, sbagents' own and the training extensions'

@@ -2,11 +2,16 @@
 
 A zoo file maps env ids (then ``atari``, then ``default``) to hyperparameters. Unlike RL Zoo nothing is
 ``eval``'d: values are YAML data, classes are named by import path, and CLI overrides ``key:value`` are
-parsed as YAML scalars, lists or mappings with a safe loader.
+parsed as YAML scalars, lists or mappings with a safe loader. RL Zoo's Python-expression strings for mappings
+(``policy_kwargs: "dict(activation_fn=nn.ReLU, net_arch=dict(pi=[64], vf=[64]))"``) are read by
+:func:`python_literal`, which walks the expression's syntax tree and accepts data only (numbers, strings,
+``True``/``False``/``None``, lists, tuples, ``{...}`` and ``dict(key=...)``, and dotted names such as ``nn.ReLU``,
+kept as their text for the import allow-list): nothing in the string is run.
 """
 
 from __future__ import annotations
 
+import ast
 import re
 from importlib import resources
 from pathlib import Path
@@ -137,6 +142,79 @@ def _check_expansion(data: Any, path: Path) -> None:
             stack.extend((item, depth + 1) for pair in value.items() for item in pair)
         elif isinstance(value, list | tuple | set):
             stack.extend((item, depth + 1) for item in value)
+
+
+#: Entry keys whose value may be one of RL Zoo's Python-expression strings of a mapping (:func:`python_literal`).
+EXPRESSION_KEYS: frozenset[str] = frozenset({"policy_kwargs", "normalize", "env_kwargs", "eval_env_kwargs",
+                                             "monitor_kwargs", "replay_buffer_kwargs", "normalize_kwargs"})
+#: Longest expression string read (RL Zoo's are a few hundred characters).
+MAX_EXPRESSION_CHARS = 4096
+
+
+def python_literal(text: str, where: str) -> Any:
+    """The data of one of RL Zoo's Python-expression strings (``"dict(ortho_init=False, activation_fn=nn.ReLU)"``)
+    without running it: ``dict(k=v, ...)`` and ``{...}`` become dicts, lists and tuples lists, constants stay,
+    and a dotted name (``nn.ReLU``) becomes its text, which the caller resolves (activations by name, classes
+    through the import allow-list).
+
+    :raises UsageError: anything else (a call other than ``dict``, an operator, a subscript, a lambda, ...), or a
+        string longer than :data:`MAX_EXPRESSION_CHARS`; one line naming ``where`` and what is accepted.
+    """
+    accepted = ("accepted: numbers, strings, True/False/None, lists, {...}, dict(key=value, ...) and dotted names "
+                "like nn.ReLU")
+    if len(text) > MAX_EXPRESSION_CHARS:
+        raise UsageError(f"{where}: an expression of {len(text)} characters; at most {MAX_EXPRESSION_CHARS}")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+        return _literal(tree.body, where, accepted)
+    except SyntaxError as exc:
+        raise UsageError(f"{where}: {text!r:.60} is not an expression ({exc.msg}); {accepted}") from None
+    except (RecursionError, MemoryError):
+        raise UsageError(f"{where}: the expression is nested too deeply; {accepted}") from None
+
+
+def _dotted(node: ast.expr) -> str | None:
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        head = _dotted(node.value)
+        return None if head is None else f"{head}.{node.attr}"
+    return None
+
+
+def _literal(node: ast.expr, where: str, accepted: str) -> Any:
+    if isinstance(node, ast.Constant) and isinstance(node.value, int | float | str | bool | type(None)):
+        return node.value
+    if (isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub) and isinstance(node.operand, ast.Constant)
+            and isinstance(node.operand.value, int | float) and not isinstance(node.operand.value, bool)):
+        return -node.operand.value
+    if isinstance(node, ast.List | ast.Tuple):
+        return [_literal(item, where, accepted) for item in node.elts]
+    if isinstance(node, ast.Dict):
+        if any(key is None for key in node.keys):
+            raise UsageError(f"{where}: ** inside a mapping is not data; {accepted}")
+        return {_literal(k, where, accepted): _literal(v, where, accepted)  # type: ignore[arg-type]
+                for k, v in zip(node.keys, node.values, strict=True)}
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+        if any(kw.arg is None for kw in node.keywords):
+            raise UsageError(f"{where}: ** inside dict(...) is not data; {accepted}")
+        return {str(kw.arg): _literal(kw.value, where, accepted) for kw in node.keywords}
+    name = _dotted(node)
+    if name is not None and name not in ("True", "False", "None"):
+        return name
+    shown = ast.unparse(node)
+    raise UsageError(f"{where}: {shown[:60]!r} is not data; {accepted}")
+
+
+def expression_values(entry: dict[str, Any], source: str) -> dict[str, Any]:
+    """``entry`` with RL Zoo's expression strings under :data:`EXPRESSION_KEYS` read by :func:`python_literal`
+    (a string that starts with ``dict(`` or ``{``); other values unchanged."""
+    out = dict(entry)
+    for key in EXPRESSION_KEYS & set(entry):
+        value = entry[key]
+        if isinstance(value, str) and value.lstrip().startswith(("dict(", "{")):
+            out[key] = python_literal(value, f"{key} ({source})")
+    return out
 
 
 def default_config_path(algo: str) -> Path:

@@ -1,8 +1,9 @@
 """Training with SB3: :func:`train_sb3`, the SB3 backend of ``python -m sbagents.train``.
 
 Flow (docs/architecture.md): :class:`TrainSpec` + zoo config -> :class:`Experiment` -> env factory -> SB3 model +
-callbacks -> run directory. Everything that can be checked is checked before the run dir is created; a setup
-failure removes the half-made run dir; an interrupted run (Ctrl-C, SIGTERM) still saves its model and logs.
+callbacks -> run directory. A one-model run checks what it can before the run dir is created (a run of one model
+per group still checks its groups' spaces after); a setup failure removes the half-made run dir; an interrupted run
+(Ctrl-C, SIGTERM) still saves its model and logs.
 """
 
 from __future__ import annotations

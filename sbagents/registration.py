@@ -52,6 +52,13 @@ ARRAY_IMPLEMENTATIONS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batc
 #: declares the same metrics itself): simple spread's collisions and landmarks covered.
 METRIC_OBSERVERS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_metrics:spread_metrics_env"}
 
+#: The built-in training backends (``--backend``, :mod:`sbagents.core.backends`) as ``module:class`` paths, imported
+#: the first time a backend is asked for (the default one first).
+BACKENDS: dict[str, str] = {
+    "sb3": "sbagents.pipeline.sb3_backend:Sb3Backend",
+    "rllib": "sbagents.rllib.backend:RllibBackend",
+}
+
 #: The built-in training extensions (:mod:`sbagents.extensions`), in hook order, as ``module:class`` paths like
 #: :data:`GYM_ENVS`: :func:`sbagents.extensions.registered_extensions` imports them the first time extensions are
 #: consulted, so that nothing below the pipeline imports the feature packages.

@@ -13,6 +13,7 @@ from typing import Any
 
 from sbagents.algos import ALGOS, capability_table
 from sbagents.cli_common import ArgumentParser, run
+from sbagents.core.backends import DEFAULT_BACKEND, backend_names
 from sbagents.core.env_names import import_packages, sbagents_env_ids
 from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, RllibOptions, Sb3Options, TrainSpec
 from sbagents.core.zoo_config import parse_overrides
@@ -65,7 +66,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--verbose", type=int, default=1,
                    help="0 quiet, 1 progress bar + one line per evaluation (default), 2 also SB3's log tables")
     dist = p.add_argument_group("distributed (Ray RLlib; pip install 'sbagents[distributed]')")
-    dist.add_argument("--backend", choices=["sb3", "rllib"], default="sb3", help="training library (default sb3)")
+    dist.add_argument("--backend", choices=backend_names(), default=DEFAULT_BACKEND,
+                      help=f"training library (default {DEFAULT_BACKEND})")
     dist.add_argument("--num-env-runners", type=int, default=None, metavar="N",
                       help="RLlib env runner actors (default: the config's; 0 samples in the driver)")
     dist.add_argument("--address", default=None, metavar="ADDR",

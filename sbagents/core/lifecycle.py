@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sbagents.atomic import write_json
+from sbagents.core.backends import DEFAULT_BACKEND
 from sbagents.core.options import ExecOptions, TrainSpec
 from sbagents.core.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
 
@@ -163,6 +164,6 @@ def default_command(spec: TrainSpec, execution: ExecOptions, extensions: Sequenc
     args = ["--algo", spec.algo, "--env", spec.env]
     for active in extensions:
         args += active.extension.command_args(active.spec)
-    if execution.backend != "sb3":
+    if execution.backend != DEFAULT_BACKEND:
         args += ["--backend", execution.backend]
     return "python -m sbagents.train " + shlex.join(args)

@@ -21,7 +21,6 @@ from typing import Any
 
 from sbagents.errors import UsageError
 
-BACKENDS = ("sb3", "rllib")
 VEC_ENV_TYPES = ("auto", "dummy", "subproc", "batched", "envpool")
 
 
@@ -135,8 +134,10 @@ class ExecOptions:
 
     def validate(self) -> None:
         """Check the backend and the device name (through torch, if torch is asked to parse one)."""
-        if self.backend not in BACKENDS:
-            raise UsageError(f"--backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        from sbagents.core.backends import backend_names
+
+        if self.backend not in backend_names():
+            raise UsageError(f"--backend must be one of {', '.join(backend_names())}, got {self.backend!r}")
         if self.device != "auto":
             import torch
 

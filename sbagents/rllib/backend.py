@@ -1,0 +1,85 @@
+"""The Ray RLlib backend (``--backend rllib``) behind the :class:`~sbagents.core.backends.Backend` protocol.
+
+Importing this module imports neither Ray nor RLlib: they are imported when a run trains or is evaluated, and a
+missing or broken install is one line naming the extra that installs them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+from sbagents.core.backends import Backend
+from sbagents.core.lifecycle import TrainResult
+from sbagents.core.options import (
+    EvalOptions,
+    EvaluateOptions,
+    ExecOptions,
+    OutputOptions,
+    RllibOptions,
+    Sb3Options,
+    TrainSpec,
+)
+from sbagents.core.run_dir import RunRef
+from sbagents.errors import UsageError
+from sbagents.extensions import activate
+from sbagents.rllib import check_options, is_rllib_run, require_ray
+
+#: ``evaluate`` options RLlib runs do not support -> their flag.
+UNSUPPORTED_EVALUATE = {"attacks": "--attack", "fairness": "--fairness", "opponent": "--opponent"}
+
+
+@contextlib.contextmanager
+def rllib_import(what: str) -> Iterator[None]:
+    """Importing the RLlib backend (Ray, RLlib and their dependencies): an ``ImportError`` (a Ray without RLlib's
+    dependencies, ``No module named 'tree'``) is one line naming the extra that installs them."""
+    try:
+        yield
+    except ImportError as exc:
+        raise UsageError(f"{what} cannot import Ray RLlib ({exc}): pip install 'sbagents[distributed]' installs it "
+                         "with its dependencies") from None
+
+
+class RllibBackend(Backend):
+    """Ray RLlib (PettingZoo envs; one machine or a Ray cluster with ``--address``)."""
+
+    name: ClassVar[str] = "rllib"
+    summary: ClassVar[str] = "Ray RLlib (PettingZoo envs; --address reaches a Ray cluster)"
+
+    def train(self, spec: TrainSpec, output: OutputOptions | None, evaluation: EvalOptions | None,
+              execution: ExecOptions, callbacks: Sequence[Any], features: Sequence[Any], sb3: Sb3Options,
+              rllib: RllibOptions) -> TrainResult:
+        from sbagents.core.env_names import resolve_env
+
+        ref = resolve_env(spec.env, spec.gym_packages)
+        ref.kind.refuse_backend(ref, self.name)
+        refused = [flag for a in activate(features) for flag in a.extension.unsupported_flags(a.spec, self.name)]
+        check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution, "sb3": sb3,
+                       "rllib": rllib}, refused)
+        if callbacks:
+            raise UsageError("SB3 callbacks do not apply to --backend rllib")
+        require_ray()
+        with rllib_import("--backend rllib"):
+            from sbagents.rllib.training import train_rllib
+
+        return train_rllib(spec, output, evaluation, execution, rllib)
+
+    def owns_run(self, run_dir: Path) -> bool:
+        return is_rllib_run(run_dir)
+
+    def evaluate(self, run: RunRef, options: EvaluateOptions) -> dict[str, Any]:
+        run_dir = run.run_dir()
+        given = [flag for name, flag in UNSUPPORTED_EVALUATE.items() if getattr(options, name)]
+        given += ["--load-best"] if run.load_best else []
+        given += ["--load-checkpoint"] if run.checkpoint is not None else []
+        given += ["--env-kwargs"] if run.env_kwargs else []
+        if given:
+            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
+        require_ray("evaluating an RLlib run")
+        with rllib_import("evaluating an RLlib run"):
+            from sbagents.rllib.evaluation import evaluate_run
+
+        assert run.algo is not None
+        return evaluate_run(run_dir, run.algo, run.env_ref(), options, trust=run.trust)

@@ -13,7 +13,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef, pettingzoo_factory
 from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
@@ -24,7 +24,7 @@ def env_constructor(ref: EnvRef) -> Callable[..., Any]:
     return _constructor(ref.kind, ref)
 
 
-@functools.singledispatch
+@kind_operation()
 def _constructor(kind: EnvKind, ref: EnvRef) -> Callable[..., Any]:
     """A Gymnasium env: its registered entry point."""
     entry_point = gym.spec(ref.env_id).entry_point
@@ -48,7 +48,7 @@ def _(kind: GameKind, ref: EnvRef) -> Callable[..., Any]:
     return game_factory(ref.source)
 
 
-@functools.singledispatch
+@kind_operation(TeamKind)
 def env_fn(kind: EnvKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
     """The ``env_id`` argument of SB3's ``make_vec_env`` for a Gymnasium env (picklable)."""
     return ref.make_fn()
@@ -92,7 +92,7 @@ def _accepted_kwargs(ref: EnvRef) -> set[str] | None:
     return None
 
 
-@functools.singledispatch
+@kind_operation(TeamKind)
 def _env_kwargs_of_env(kind: EnvKind, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     """The env kwargs the env's constructor takes (a game's seat env takes self-play settings of its own)."""
     return env_kwargs
@@ -136,7 +136,7 @@ def render_modes(exp: Experiment, ref: EnvRef) -> list[str]:
     return _render_modes(ref.kind, exp, ref)
 
 
-@functools.singledispatch
+@kind_operation(GameKind)
 def _render_modes(kind: EnvKind, exp: Experiment, ref: EnvRef) -> list[str]:
     return list((getattr(env_constructor(ref), "metadata", None) or {}).get("render_modes", []))
 

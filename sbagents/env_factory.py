@@ -10,7 +10,6 @@ sits among the feature packages it composes (:mod:`sbagents.multiagent`, :mod:`s
 from __future__ import annotations
 
 import contextlib
-import functools
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -25,7 +24,7 @@ from stable_baselines3.common.vec_env import (
     VecNormalize,
 )
 
-from sbagents.core.env_kinds import EnvKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.env_construction import check_env_kwargs, env_fn, env_kwargs_error, missing_dependency_error
@@ -212,7 +211,7 @@ class _VecArgs(NamedTuple):
     wrapper: Callable[[Any], Any] | None
 
 
-@functools.singledispatch
+@kind_operation(GameKind)
 def _plain_vec(env_kind: EnvKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None,
                how: _VecArgs) -> VecEnv:
     """SB3's ``make_vec_env`` (``dummy`` or ``subproc``) for a Gymnasium env or a game's seat env."""

@@ -52,6 +52,17 @@ ARRAY_IMPLEMENTATIONS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batc
 #: declares the same metrics itself): simple spread's collisions and landmarks covered.
 METRIC_OBSERVERS: dict[str, str] = {"mpe2.simple_spread_v3": "sbagents.batched.spread_metrics:spread_metrics_env"}
 
+#: The modules that define env-kind operations (:func:`sbagents.core.env_kinds.kind_operation`): importing them
+#: fills :data:`sbagents.core.env_kinds.KIND_OPERATIONS`.
+KIND_OPERATION_MODULES: tuple[str, ...] = (
+    "sbagents.env_construction",
+    "sbagents.env_factory",
+    "sbagents.pipeline.kinds",
+    "sbagents.pipeline.evaluation",
+    "sbagents.deploy.exporting",
+    "sbagents.visualize.video",
+)
+
 #: The built-in training backends (``--backend``, :mod:`sbagents.core.backends`) as ``module:class`` paths, imported
 #: the first time a backend is asked for (the default one first).
 BACKENDS: dict[str, str] = {

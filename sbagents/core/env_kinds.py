@@ -9,14 +9,18 @@
 :class:`~sbagents.core.env_names.EnvRef` holds its kind (``ref.kind``). What a kind means in this layer (config
 entries, the keys it owns, the experiment settings it adds, how to probe its observation spaces) lives on the kind;
 what it means in a higher layer (building its VecEnvs, periodic and final evaluation, export, video) is registered
-for the kind's class where that code lives, with :func:`functools.singledispatch` (e.g.
-``sbagents.env_factory``, ``sbagents.pipeline.kinds``), so no layer tests booleans to tell kinds apart.
+for the kind's class where that code lives, as a :func:`kind_operation` (a :func:`functools.singledispatch` whose
+base refuses a kind it has no implementation for, instead of falling back to single-agent behaviour), so no layer
+tests booleans to tell kinds apart. :data:`KIND_OPERATIONS` lists every operation; :func:`missing_operations` says
+which ones a kind lacks (a test holds every registered kind to all of them), and :func:`register_env_kind` adds a
+kind from outside the package: its :meth:`EnvKind.claim` is asked first when an ``--env`` name is resolved.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, ClassVar
+import functools
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from sbagents.errors import UsageError
 
@@ -85,6 +89,12 @@ class EnvKind:
         found = [env.observation_space]
         env.close()
         return found
+
+    def claim(self, name: str, modules: tuple[str, ...]) -> EnvRef | None:
+        """The :class:`~sbagents.core.env_names.EnvRef` of ``--env name`` when it names an env of this kind, else
+        None. Asked for kinds added with :func:`register_env_kind` (before the built-in names are looked up);
+        ``modules`` are the ``--gym-packages`` already imported."""
+        return None
 
     def refuse_backend(self, ref: EnvRef, backend: str) -> None:
         """Raise :class:`UsageError` when ``backend`` does not train this kind."""
@@ -172,3 +182,71 @@ class GameKind(EnvKind):
 SINGLE_AGENT = SingleAgentKind()
 TEAM = TeamKind()
 GAME = GameKind()
+
+
+R = TypeVar("R")
+
+#: Every kind operation (``module.name`` -> its dispatcher), filled as the modules that define them are imported;
+#: :data:`sbagents.registration.KIND_OPERATION_MODULES` names those modules.
+KIND_OPERATIONS: dict[str, Any] = {}
+
+
+def kind_operation(*also: type[EnvKind]) -> Callable[[Callable[..., R]], functools._SingleDispatchCallable[R]]:
+    """Declare an operation every env kind must implement; the decorated function is the implementation of
+    :class:`SingleAgentKind` and of the kinds in ``also``. Other kinds register theirs with ``@op.register``; calling
+    the operation for a kind without one raises :class:`NotImplementedError` naming the operation (no silent
+    single-agent fallback)."""
+
+    def decorate(func: Callable[..., R]) -> functools._SingleDispatchCallable[R]:
+        qualified = f"{func.__module__}.{func.__name__}"
+
+        @functools.wraps(func)
+        def missing(kind: EnvKind, *args: Any, **kwargs: Any) -> R:
+            raise NotImplementedError(f"env kind {kind.name or type(kind).__name__!r} does not implement {qualified}: "
+                                      f"register one with @{func.__name__}.register")
+
+        dispatcher = functools.singledispatch(missing)
+        kinds: tuple[type[EnvKind], ...] = (SingleAgentKind, *also)
+        for cls in kinds:
+            dispatcher.register(cls, func)
+        KIND_OPERATIONS[qualified] = dispatcher
+        return dispatcher
+
+    return decorate
+
+
+def load_kind_operations() -> dict[str, Any]:
+    """:data:`KIND_OPERATIONS` with every module that defines operations imported."""
+    import importlib
+
+    from sbagents.registration import KIND_OPERATION_MODULES
+
+    for module in KIND_OPERATION_MODULES:
+        importlib.import_module(module)
+    return KIND_OPERATIONS
+
+
+def missing_operations(kind: EnvKind) -> list[str]:
+    """The kind operations ``kind`` has no implementation of (after :func:`load_kind_operations`)."""
+    return sorted(name for name, op in load_kind_operations().items() if op.dispatch(type(kind)) is op.registry[object])
+
+
+#: Kinds added with :func:`register_env_kind`, asked first (latest first) when an ``--env`` name is resolved.
+REGISTERED_KINDS: list[EnvKind] = []
+
+
+def register_env_kind(kind: EnvKind) -> EnvKind:
+    """Add an env kind from outside the package: ``kind.claim`` is asked before the built-in names are looked up.
+
+    :raises ValueError: the kind lacks kind operations (:func:`missing_operations`; register them first).
+    """
+    missing = missing_operations(kind)
+    if missing:
+        raise ValueError(f"env kind {kind.name!r} lacks the operations {', '.join(missing)}")
+    REGISTERED_KINDS.insert(0, kind)
+    return kind
+
+
+def builtin_kinds() -> tuple[EnvKind, ...]:
+    """The kinds sbagents ships."""
+    return (SINGLE_AGENT, TEAM, GAME)

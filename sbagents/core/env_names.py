@@ -22,7 +22,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from sbagents.core.env_kinds import GAME, SINGLE_AGENT, TEAM, EnvKind
+from sbagents.core.env_kinds import GAME, REGISTERED_KINDS, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.errors import UsageError
 from sbagents.registration import ARRAY_IMPLEMENTATIONS, METRIC_OBSERVERS, PETTINGZOO_ENVS
 
@@ -240,10 +240,15 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same without
     the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make`` does), a
     PettingZoo env module path, ``module:callable`` returning a ``ParallelEnv``, and the short names of
-    :data:`~sbagents.registration.PETTINGZOO_ENVS`.
+    :data:`~sbagents.registration.PETTINGZOO_ENVS`; before any of them, the names that kinds added with
+    :func:`~sbagents.core.env_kinds.register_env_kind` claim.
     """
     import_packages(gym_packages)
     modules = tuple(gym_packages)
+    for kind in REGISTERED_KINDS:  # kinds added from outside the package (register_env_kind) first
+        claimed = kind.claim(name, modules)
+        if claimed is not None:
+            return claimed
     if name in PETTINGZOO_ENVS:
         source = PETTINGZOO_ENVS[name]
         return EnvRef(name, TEAM, modules=modules, source=source)

@@ -8,7 +8,6 @@ partial export.
 
 from __future__ import annotations
 
-import functools
 import os
 import shutil
 import tempfile
@@ -25,7 +24,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.atomic import raise_disk_error, run_subfolder, write_json
 from sbagents.callbacks.common import env_attr
-from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.run_dir import LoadedRun, RunRef, load_run
 from sbagents.deploy.onnx_export import (
     ACTION_OUTPUT,
@@ -307,7 +306,7 @@ def _check_exportable_run(loaded: LoadedRun, wrappers: bool = False) -> None:
             raise UsageError(f"cannot export {exp.algo}: {exc}") from None
 
 
-@functools.singledispatch
+@kind_operation()
 def _export_kind(kind: EnvKind, loaded: LoadedRun, target: Path, int8: bool,
                  checks: ExportChecks) -> dict[str, ExportReport]:
     """A Gymnasium env's run: its one model, with parity observations from its evaluation env (built as in training:

@@ -6,7 +6,6 @@ one with :func:`summarize`.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,7 +14,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.episodes import EpisodeRecord, model_actor, play_episodes, summarize_records
-from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
@@ -75,7 +74,7 @@ def evaluate_model(
     return _evaluate_kind(ref.kind, model, exp, ref, options, stats_path, trust)
 
 
-@functools.singledispatch
+@kind_operation()
 def _evaluate_kind(kind: EnvKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
                    stats_path: Path | None, trust: bool) -> dict[str, Any]:
     """A Gymnasium env: episodes on one reference env (rendered when asked)."""

@@ -3,14 +3,13 @@ extra keyword arguments of its training envs, registered per kind with :func:`fu
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.callbacks.run_files import AtomicEvalCallback
-from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.env_factory import make_eval_vec
@@ -20,7 +19,7 @@ from sbagents.pipeline.models import RunContext
 EVAL_SEED_OFFSET = 10_000
 
 
-@functools.singledispatch
+@kind_operation()
 def periodic_evaluation(kind: EnvKind, ctx: RunContext, n_eval_envs: int, after_eval: BaseCallback,
                         vec_env: str = "auto") -> list[BaseCallback]:
     """The callbacks that evaluate a run every ``ctx.eval_freq`` env steps (``best_model.zip``, ``evaluations.npz``)
@@ -65,7 +64,7 @@ def _eval_settings(ctx: RunContext, after_eval: BaseCallback) -> dict[str, Any]:
                 best_model_save_path=str(ctx.run_dir), verbose=0, callback_after_eval=after_eval)
 
 
-@functools.singledispatch
+@kind_operation(TeamKind)
 def training_env_kwargs(kind: EnvKind, exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
     """Extra keyword arguments of the training envs (none for most kinds)."""
     return None

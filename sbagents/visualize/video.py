@@ -15,7 +15,6 @@ step, so each decision can be shown with the frame it was taken in (see :func:`r
 from __future__ import annotations
 
 import contextlib
-import functools
 import io
 import os
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.episodes import model_actor
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
-from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.run_dir import LoadedRun, RunRef, env_stem, load_run
@@ -228,7 +227,7 @@ def _render_vecs(loaded: LoadedRun, seed: int) -> dict[str, VecEnv]:
         raise UsageError(f"{ref.env_id} cannot be created with render_mode='rgb_array': {exc}") from None
 
 
-@functools.singledispatch
+@kind_operation()
 def _kind_render_vecs(kind: EnvKind, exp: Experiment, ref: EnvRef, seed: int,
                       kwargs: dict[str, Any]) -> dict[str, VecEnv]:
     """A Gymnasium env: one VecEnv."""
@@ -248,7 +247,7 @@ def _(kind: GameKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str,
                      "python -m sbagents.play, or measure it with sbagents.evaluate --opponent")
 
 
-@functools.singledispatch
+@kind_operation(GameKind)
 def _decision_log(kind: EnvKind, recorder: VecEnv) -> _DecisionLog | None:
     """The decisions sidecar of a one-agent video (teams have none)."""
     return _DecisionLog(recorder)

@@ -251,3 +251,11 @@ def test_a_groups_mapping_must_name_every_agent_once(tmp_path: Path, capsys: pyt
     check_error(code, capsys.readouterr().err, "groups must name every agent once (missing: worker_1; unknown: "
                 "worker_9); the env's agents: scout_0, worker_0, worker_1")
     assert not list((tmp_path / "logs").glob("*/*"))
+
+
+def test_group_spaces_are_checked_before_a_run_dir_exists(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    logs = tmp_path / "logs"
+    code = run_main("train", "--algo", "dqn", "-n", "64", "-f", str(logs), "--env",
+                    "tiny_marl_pkg.variants:steering_scout", "-params", "policies:per_group")
+    check_error(code, capsys.readouterr().err, "dqn cannot learn group scout")
+    assert not logs.exists()  # refused in the plan: not even the log folder was made

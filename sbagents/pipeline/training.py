@@ -1,8 +1,8 @@
 """Training with SB3: :func:`train_sb3`, the SB3 backend of ``python -m sbagents.train``.
 
 Flow (docs/architecture.md): :class:`TrainSpec` + zoo config -> :class:`Experiment` -> env factory -> SB3 model +
-callbacks -> run directory. A one-model run checks what it can before the run dir is created (a run of one model
-per group still checks its groups' spaces after); a setup failure removes the half-made run dir; an interrupted run
+callbacks -> run directory. Every run checks what it can before the run dir is created (a run of one model per group
+builds one team copy to check its groups' spaces); a setup failure removes the half-made run dir; an interrupted run
 (Ctrl-C, SIGTERM) still saves its model and logs.
 """
 
@@ -166,6 +166,8 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
             raise UsageError(f"{', '.join(refused)} not supported for runs of one model per group ({ref.env_id})")
     if groups is None or len(groups) == 1:
         check_spaces(exp, ref)
+    else:
+        _check_group_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
@@ -313,6 +315,19 @@ def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:
     agents = [str(a) for a in probe.possible_agents]
     probe.close()
     return team_groups(exp.team, agents)
+
+
+def _check_group_spaces(exp: Experiment, ref: EnvRef) -> None:
+    """Refuse, before a run dir exists, a group whose spaces the algorithm cannot act in (one team copy is built
+    and closed)."""
+    from sbagents.env_factory import make_team_vecs
+    from sbagents.pipeline.team_training import check_group_spaces
+
+    venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy")
+    try:
+        check_group_spaces(exp, venvs)
+    finally:
+        next(iter(venvs.values())).close()
 
 
 def _train_groups(

@@ -58,3 +58,29 @@ def test_the_callbacks_take_info_keys_without_loading_pettingzoo() -> None:
             "'sbagents.pipeline'))))\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and result.stdout.strip() == "[]", result.stdout + result.stderr
+
+
+def test_the_feature_packages_are_independent_except_where_declared() -> None:
+    """Every package of the feature layer is in the independence contract, and each import between two of them is
+    declared (an ``ignore_imports`` line with its reason) rather than allowed by the layer."""
+    contract = _contract("feature-packages-independent")
+    layers = _contract("layers")["layers"]
+    feature_layer = next(layer for layer in layers if "multiagent" in layer)  # type: ignore[attr-defined]
+    names = {f"sbagents.{name.strip()}" for name in feature_layer.replace("|", ":").split(":")}
+    assert contract["type"] == "independence" and set(contract["modules"]) == names  # type: ignore[arg-type]
+    graph = grimp.build_graph("sbagents", exclude_type_checking_imports=False, cache_dir=None)
+    declared = [str(e).partition(" -> ") for e in contract["ignore_imports"]]  # type: ignore[attr-defined]
+
+    def matches(pattern: str, module: str) -> bool:
+        return module == pattern or (pattern.endswith(".**") and module.startswith(pattern[:-3] + "."))
+
+    undeclared = []
+    for importer in names:
+        for imported in names - {importer}:
+            for module in graph.find_descendants(importer) | {importer}:
+                for target in graph.find_modules_directly_imported_by(module):
+                    if (target == imported or target.startswith(imported + ".")) and not any(
+                            matches(src, module) and (matches(dst, target) or dst == target)
+                            for src, _, dst in declared):
+                        undeclared.append(f"{module} -> {target}")
+    assert undeclared == []

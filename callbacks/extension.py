@@ -19,7 +19,7 @@ from sbagents.callbacks.fairness import FairnessEvalCallback
 from sbagents.callbacks.safety import SafetyViolationCallback
 from sbagents.callbacks.transparency import TransparencyCSVCallback
 from sbagents.errors import UsageError
-from sbagents.extensions import TrainingContext, TrainingExtension
+from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
 
 DEFAULT_TRANSPARENCY_FILE = "transparency.csv"
 #: Seed offsets of the attack and fairness evaluation envs (distinct from training and periodic evaluation).
@@ -105,9 +105,11 @@ def trust_callbacks(opts: TrustOptions, ctx: TrainingContext) -> list[BaseCallba
     callbacks: list[BaseCallback] = []
     if opts.transparency_log is not None:
         path = Path(opts.transparency_log) if opts.transparency_log else run_dir / DEFAULT_TRANSPARENCY_FILE
+        path = path.with_name(ctx.file_name(path.name))  # a group's model: transparency.<group>.csv
         callbacks.append(TransparencyCSVCallback(str(path), book_header=opts.book_header))
     if opts.count_violations:
-        callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(run_dir), verbose=0))
+        safety = run_dir if ctx.group is None else run_dir / ctx.file_name("safety.json")
+        callbacks.append(SafetyViolationCallback(opts.cost_limit, opts.max_violations, path=str(safety), verbose=0))
     freq = ctx.calls(ctx.eval_freq) if ctx.eval_freq > 0 else ctx.exp.n_timesteps
     if opts.adversarial:
         venv = ctx.make_eval_env(1, seed + ADVERSARIAL_SEED_OFFSET)
@@ -178,14 +180,13 @@ def trust_summary_lines(results: Mapping[str, Any]) -> list[str]:
 class TrustExtension(TrainingExtension[TrustOptions]):
     """``--transparency-log``, ``--safety``, ``--cost-limit``, ``--max-violations``, ``--adversarial-eval``,
     ``--fairness``: the trust callbacks of a run (their files in the run dir, their results on the console).
-    Runs of one model per group get the transparency and safety callbacks per group
-    (:mod:`sbagents.pipeline.team_training`)."""
+    Runs of one model per group get the transparency and safety callbacks per group (``transparency.<group>.csv``,
+    ``safety.<group>.json``); attacks and fairness evaluate one model and are refused there."""
 
     name = "trust"
     title = "trust (sbagents.callbacks)"
     flags = "the trust flags"
     spec_type = TrustOptions
-    group_runs = True
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--transparency-log", nargs="?", const="", default=None, metavar="PATH",
@@ -214,6 +215,12 @@ class TrustExtension(TrainingExtension[TrustOptions]):
 
     def unsupported_flags(self, spec: TrustOptions, backend: str) -> list[str]:
         return [] if backend in self.backends else spec.given_flags()
+
+    def prepare(self, spec: TrustOptions, plan: ExtensionPlan) -> TrustOptions:
+        if plan.n_models > 1 and (spec.adversarial or spec.fairness):
+            raise UsageError("--adversarial-eval and --fairness support policies: shared (one model); this run "
+                             "trains one model per group")
+        return spec
 
     def callbacks(self, spec: TrustOptions, ctx: TrainingContext) -> list[BaseCallback]:
         return trust_callbacks(spec, ctx)

@@ -5,9 +5,10 @@ of your own) is a :class:`TrainingExtension`. It declares its flags, parses them
 boundary, checks the spec against the backend and the experiment, and then takes part in a one-model SB3 run
 through the hooks below, which :func:`sbagents.pipeline.training.train_sb3` calls in this fixed order for every
 extension whose spec the run carries (in registration order: the built-in ones first, then yours). A run of one
-model per group (``policies: per_group|per_agent``) goes through its own path, which calls none of these hooks: an
-extension without :attr:`TrainingExtension.group_runs` is refused there in one line, one with it is accepted and
-wired by that path itself (the replay buffer and trust extensions)::
+model per group (``policies: per_group|per_agent``) calls the model hooks (``wrap_train_env`` to ``summary``) once
+per group's model, with a context whose ``group`` names it (``ctx.file_name("x.json")`` is ``x.<group>.json``;
+``summary.json`` keeps each group's items under ``by_group``); an extension that cannot serve such runs sets
+:attr:`TrainingExtension.group_runs` to False and is refused in one line before anything is written::
 
     add_arguments(group)                      the extension's flags, in an argument group of its own
     from_args(args) -> spec | None            the parsed flags as a frozen spec (None: not used by this run)
@@ -76,6 +77,12 @@ class TrainingContext(Protocol):
     save_freq: int
     #: per-run scratch space of the extensions (keyed by extension name): extensions are shared objects
     state: dict[str, Any]
+    #: the group of agents of this model in a run of one model per group (None: the run's one model)
+    group: str | None
+
+    def file_name(self, name: str) -> str:
+        """The name of a file this model writes (``safety.json`` -> ``safety.<group>.json`` for a group's model)."""
+        ...
 
     def calls(self, env_steps: int) -> int:
         """An env-step period as callback calls (one per vec step of ``train_env``), at least 1."""
@@ -130,9 +137,9 @@ class TrainingExtension(Generic[SpecT]):
     flags: ClassVar[str] = ""
     #: The frozen spec type this extension's hooks take (:func:`extension_for` finds the extension of a spec).
     spec_type: ClassVar[type]
-    #: Whether runs of one model per group (``policies: per_group``) accept the extension (else refused in one line);
-    #: that path calls none of the hooks, so an accepted extension must be wired there (the built-in ones are).
-    group_runs: ClassVar[bool] = False
+    #: Whether runs of one model per group (``policies: per_group``) take the extension: its model hooks then run
+    #: once per group's model (else the run is refused in one line before anything is written).
+    group_runs: ClassVar[bool] = True
     #: Backends the extension works with.
     backends: ClassVar[tuple[str, ...]] = ("sb3",)
     #: Zoo entry key whose mapping overrides hyperparameters when the spec is present (None: none).

@@ -46,6 +46,21 @@ def test_the_flag_reaches_the_model_and_the_run_files(example_on_path: None, tmp
     assert [e.name for e in registered_extensions()][-1] == "grad_clip"  # after the built-in ones
 
 
+def test_the_flag_reaches_every_model_of_a_per_group_run(example_on_path: None, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A run of one model per group calls the extension's hooks once per group's model: each model has the cap,
+    and summary.json keeps each group's item under by_group."""
+    code = run_main("train", "--gym-packages", "grad_clip_extension", "--algo", "ppo", "--env", "mpe2.simple_tag_v3",
+                    "-n", "256", "--seed", "0", "-f", str(tmp_path), "--eval-freq", "0", "--final-eval-episodes", "0",
+                    "--verbose", "0", "--grad-clip", "0.3", "-params", "policies:per_group", "n_envs:1", "n_steps:32",
+                    "batch_size:32", "n_epochs:1")
+    assert code == 0, capsys.readouterr().err
+    run_dir = next((tmp_path / "ppo").iterdir())
+    by_group = summary(run_dir)["by_group"]
+    assert set(by_group) == {"adversary", "agent"}
+    assert all(items["grad_clip"] == {"max_grad_norm": 0.3} for items in by_group.values())
+
+
 def test_backends_and_algorithms_it_cannot_serve_refuse_it_in_one_line(
         example_on_path: None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code = run_main("train", "--gym-packages", "grad_clip_extension", "--backend", "rllib", "--algo", "ppo",

@@ -53,6 +53,7 @@ class ConstraintExtension(TrainingExtension[ConstraintSpec]):
     title = "constrained training (sbagents.constrained)"
     flags = "--constraint"
     spec_type = ConstraintSpec
+    group_runs = False  # the multiplier is one model's
     config_keys = frozenset({CONFIG_KEY})
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:

@@ -129,6 +129,8 @@ class RunContext:
     :param trust_run: ``--trust-run``: files beside ``trained_agent`` may hold pickles.
     :param save_freq: env steps between checkpoints (<= 0: none).
     :param state: the extensions' per-run scratch space.
+    :param group: the group of agents this model acts for in a run of one model per group (None: the run's one
+        model); :meth:`file_name` suffixes the files it writes with it.
     """
 
     exp: Experiment
@@ -143,10 +145,25 @@ class RunContext:
     trust_run: bool = False
     save_freq: int = -1
     state: dict[str, Any] = field(default_factory=dict)
+    group: str | None = None
 
     def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:
-        """A fresh evaluation vec env of the run's env."""
+        """A fresh evaluation vec env of the run's env.
+
+        :raises UsageError: a model of one group (its agents step only with the other groups' models).
+        """
+        if self.group is not None:
+            raise UsageError(f"group {self.group}'s model acts only on a team with the other groups' models: an "
+                             "evaluation env of its own needs policies: shared (one model)")
         return make_eval_vec(self.exp, self.ref, n_envs, seed)
+
+    def file_name(self, name: str) -> str:
+        """``name`` of a file this model's run writes: ``safety.json`` -> ``safety.<group>.json`` for a group's
+        model (the suffix goes before the first extension), unchanged for the run's one model."""
+        if self.group is None:
+            return name
+        stem, dot, ext = name.partition(".")
+        return f"{stem}.{self.group}{dot}{ext}"
 
     def calls(self, env_steps: int) -> int:
         """An env-step period as callback calls (one call per vec step of ``train_env``), at least 1."""

@@ -335,8 +335,9 @@ def _train_groups(
     options: tuple[OutputOptions, EvalOptions, ExecOptions, Sb3Options], actives: Sequence[ActiveExtension],
     callbacks: Sequence[BaseCallback],
 ) -> TrainResult:
-    """The run of one model per group (:mod:`sbagents.pipeline.team_training`); of the extensions, the trust
-    callbacks' transparency log and safety counting apply per group (the others refuse group runs)."""
+    """The run of one model per group (:mod:`sbagents.pipeline.team_training`): every extension's model hooks run
+    once per group's model (``summary.json`` keeps their items per group under ``by_group``); extensions that
+    cannot serve such runs were refused in :func:`_plan`."""
     from sbagents.pipeline.evaluation import evaluate_groups
     from sbagents.pipeline.team_training import build_groups, learn_groups
 
@@ -344,12 +345,23 @@ def _train_groups(
     seed = int(args["seed"])
     with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
         set_random_seed(seed)
-        specs = {active.name: active.spec for active in actives}
-        setup = build_groups(exp, ref, run_dir, seed, options, specs.get("trust"), callbacks)
+        setup = build_groups(exp, ref, run_dir, seed, options, actives, callbacks)
     clock = LearningClock()
-    learn_groups(setup, clock, sb3.log_interval, run_dir, env_stem(ref.env_id))
+    learn_groups(setup, clock, sb3.log_interval, run_dir, env_stem(ref.env_id), actives)
     steps = sum(m.num_timesteps for m in setup.models.values())
     summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "groups": setup.groups}
+    by_group: dict[str, dict[str, Any]] = {}
+    results: dict[str, Any] = {}
+    for group, ctx in setup.contexts.items():
+        items: dict[str, Any] = {}
+        for active, cbs in zip(actives, setup.extension_callbacks[group], strict=True):
+            items.update(active.extension.summary(active.spec, ctx))
+            results.setdefault("by_group", {}).setdefault(group, {}).update(active.extension.results(active.spec,
+                                                                                                      cbs))
+        if items:
+            by_group[group] = items
+    if by_group:
+        summary["by_group"] = by_group
 
     def final_eval() -> dict[str, Any]:
         stats = {g: run_dir / group_stats_name(g) for g in setup.groups}
@@ -357,7 +369,7 @@ def _train_groups(
                                EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed), stats)
 
     finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
-    return TrainResult(run_dir, None, exp, summary, clock.interrupted, models=setup.models)
+    return TrainResult(run_dir, None, exp, summary, clock.interrupted, results, models=setup.models)
 
 
 def _save(model: BaseAlgorithm, ctx: RunContext) -> None:

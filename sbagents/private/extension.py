@@ -27,6 +27,7 @@ class PrivacyExtension(TrainingExtension[PrivacyOptions]):
     title = "privacy (DP-SGD with Opacus; ddpg, td3, sac, ppo, a2c; pip install 'sbagents[private]')"
     flags = "--dp-*"
     spec_type = PrivacyOptions
+    group_runs = False  # DP-SGD accounts for one model's data
     overrides_key = "dp_overrides"
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:

@@ -38,7 +38,6 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
     title = "replay buffer (off-policy algorithms)"
     flags = "--save-replay-buffer"
     spec_type = ReplayBufferOptions
-    group_runs = True
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--save-replay-buffer", action="store_true",

@@ -18,6 +18,7 @@ class RobustExtension(TrainingExtension[RobustSpec]):
     title = "robust training (sbagents.robust)"
     flags = "--robust"
     spec_type = RobustSpec
+    group_runs = False  # the adversary attacks one model's observations
     overrides_key = "robust_overrides"
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:

@@ -13,6 +13,7 @@ after installing the extra), where a missing EnvPool fails. The error-path tests
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -169,7 +170,7 @@ def test_training_vec_env_keeps_other_choices(monkeypatch: pytest.MonkeyPatch) -
     assert training_vec_env("auto", exp, ref) == "auto"
     with pytest.raises(UsageError, match=r"sbagents\[atari\]"):
         check_envpool(exp, ref)
-    exp.env_wrapper = []
+    exp = dataclasses.replace(exp, env_wrapper=[])
     with pytest.raises(UsageError, match="AtariWrapper alone"):
         check_envpool(exp, ref)
 

@@ -99,7 +99,7 @@ def import_object(path: str, what: str = "object", trusted_modules: tuple[str, .
     return obj
 
 
-@dataclass
+@dataclass(frozen=True)
 class Experiment:
     """A resolved experiment: what to build and how to train it.
 

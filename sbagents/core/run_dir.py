@@ -7,6 +7,7 @@ model imports them when asked.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import re
@@ -375,8 +376,9 @@ def with_env_kwargs(exp: Experiment, env_kwargs: dict[str, Any]) -> Experiment:
     """``exp`` building its envs with ``env_kwargs`` on top of its own (its ``eval_env_kwargs`` no longer override
     those keys)."""
     if env_kwargs:
-        exp.env_kwargs = {**exp.env_kwargs, **env_kwargs}
-        exp.eval_env_kwargs = {k: v for k, v in exp.eval_env_kwargs.items() if k not in env_kwargs}
+        return dataclasses.replace(exp, env_kwargs={**exp.env_kwargs, **env_kwargs},
+                                   eval_env_kwargs={k: v for k, v in exp.eval_env_kwargs.items()
+                                                    if k not in env_kwargs})
     return exp
 
 

@@ -9,6 +9,7 @@ config asks for it, which is refused, as are ``target_kl`` (early stopping on th
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -73,15 +74,15 @@ def private_experiment(exp: Experiment) -> Experiment:
     if exp.algo in OFF_POLICY_DP_ALGOS:
         from sbagents.private.replay import PoissonReplayBuffer
 
-        exp.algo_kwargs = {**exp.algo_kwargs, "replay_buffer_class": PoissonReplayBuffer}
-        return exp
+        return dataclasses.replace(exp, algo_kwargs={**exp.algo_kwargs, "replay_buffer_class": PoissonReplayBuffer})
     from sbagents.private.rollout import PoissonRolloutBuffer
 
-    exp.algo_kwargs = {**exp.algo_kwargs, "rollout_buffer_class": PoissonRolloutBuffer}
+    algo_kwargs = {**exp.algo_kwargs, "rollout_buffer_class": PoissonRolloutBuffer}
     if exp.algo == "ppo":  # SB3's default is True; recorded in config.yml
-        exp.algo_kwargs["normalize_advantage"] = False
-        exp.hyperparams = {**exp.hyperparams, "normalize_advantage": False}
-    return exp
+        algo_kwargs["normalize_advantage"] = False
+        return dataclasses.replace(exp, algo_kwargs=algo_kwargs,
+                                   hyperparams={**exp.hyperparams, "normalize_advantage": False})
+    return dataclasses.replace(exp, algo_kwargs=algo_kwargs)
 
 
 def freeze_normalization(venv: VecEnv) -> VecEnv:

@@ -5,8 +5,8 @@ SB3's periodic ``EvalCallback`` play its episodes with the runner."""
 from __future__ import annotations
 
 import copy
-import os
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -14,8 +14,10 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, sync_envs_normalization
 
+from sbagents.atomic import save_model
 from sbagents.callbacks.common import find_vec_normalize
 from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, stateless, summarize_records
+from sbagents.state_files import BEST_VECNORMALIZE_FILE, save_vecnormalize
 
 #: The former name of :class:`~sbagents.callbacks.episodes.EpisodeRecord`.
 EpisodeResult = EpisodeRecord
@@ -92,7 +94,8 @@ class EpisodeEvalCallback:
     """Mixin for SB3's ``EvalCallback`` and sb3-contrib's ``MaskableEvalCallback`` (put it before them): the
     periodic evaluation plays its episodes with :func:`~sbagents.callbacks.episodes.play_episodes` under
     ``evaluate_policy``'s rules (``monitor_episodes=True``; legal-action masks when the callback has
-    ``use_masking``), the rest (``evaluations.npz``, logged keys, best model, child callbacks) as SB3 does it.
+    ``use_masking``), the rest (``evaluations.npz``, logged keys, best model, child callbacks) as SB3 does it, and
+    the best model is kept with the ``VecNormalize`` statistics of its moment (``vecnormalize_best.npz``).
     With ``render=True`` the parent's own loop runs (it draws every step)."""
 
     eval_env: VecEnv
@@ -164,8 +167,11 @@ class EpisodeEvalCallback:
         if mean_reward > self.best_mean_reward:
             if self.verbose >= 1:
                 print("New best mean reward!")
-            if self.best_model_save_path is not None:
-                self.model.save(os.path.join(self.best_model_save_path, "best_model"))
+            if self.best_model_save_path is not None:  # the statistics of this moment first, then the model
+                venv = self.model.get_vec_normalize_env()
+                if venv is not None:
+                    save_vecnormalize(venv, Path(self.best_model_save_path) / BEST_VECNORMALIZE_FILE)
+                save_model(self.model, Path(self.best_model_save_path) / "best_model.zip")
             self.best_mean_reward = float(mean_reward)
             if self.callback_on_new_best is not None:
                 continue_training = self.callback_on_new_best.on_step()

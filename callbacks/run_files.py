@@ -20,7 +20,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from sbagents.atomic import save_model
 from sbagents.callbacks.rollout import EpisodeEvalCallback
-from sbagents.state_files import save_vecnormalize
+from sbagents.state_files import BEST_VECNORMALIZE_FILE, save_vecnormalize
 
 #: Hidden staging folders inside the run dir (never read by anything; removed when training ends), made by
 #: ``tempfile.mkdtemp``: their names are unpredictable, so a run dir shipped with symlinks cannot redirect a write.
@@ -72,6 +72,9 @@ class AtomicEvalOutputs:
             if staged.exists():
                 os.replace(staged, self._final_log)
         if self._final_best is not None and self._staged_best is not None:
+            stats = self._staged_best / BEST_VECNORMALIZE_FILE  # before the model: a best model has its statistics
+            if stats.exists():
+                os.replace(stats, self._final_best / BEST_VECNORMALIZE_FILE)
             staged = self._staged_best / "best_model.zip"
             if staged.exists():
                 os.replace(staged, self._final_best / "best_model.zip")

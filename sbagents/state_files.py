@@ -24,6 +24,8 @@ from sbagents.safe_load import load_pickle_file
 
 #: The statistics file of a run dir (of one model; ``vecnormalize.<group>.npz`` for a group's).
 VECNORMALIZE_FILE = "vecnormalize.npz"
+#: The ``VecNormalize`` statistics of the moment ``best_model.zip`` was kept (``evaluate --load-best`` uses them).
+BEST_VECNORMALIZE_FILE = "vecnormalize_best.npz"
 #: The replay buffer file of a run dir (``--save-replay-buffer``).
 REPLAY_BUFFER_FILE = "replay_buffer.npz"
 #: Format version written into the settings of both files.

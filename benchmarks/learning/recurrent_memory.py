@@ -131,7 +131,7 @@ def render(results: dict[str, Any]) -> str:
         "hyperparameters and budget but the LSTM; SmartHomePrefOnce: SmartHome's PPO entry, and the same with a "
         "64-unit LSTM), then `python -m sbagents.evaluate -n "
         f"{EVAL_EPISODES}` (deterministic, the LSTM state carried through each episode) of the final model and of "
-        "the best model the periodic evaluation kept (`--load-best`: 5 episodes every 10,000 steps). {m['cpu']}, "
+        f"the best model the periodic evaluation kept (`--load-best`: 5 episodes every 10,000 steps). {m['cpu']}, "
         f"{m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} after.",
         "",
         "| env | hidden | algo | seed | steps | return (20 ep) | best model's return | comfort share | train s |",

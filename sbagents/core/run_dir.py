@@ -19,7 +19,7 @@ import yaml
 
 from sbagents.atomic import write_text
 from sbagents.errors import UsageError
-from sbagents.state_files import VECNORMALIZE_FILE
+from sbagents.state_files import BEST_VECNORMALIZE_FILE, VECNORMALIZE_FILE
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -111,6 +111,13 @@ def checkpoint_path(run_dir: Path, steps: int) -> Path:
 def checkpoint_stats_path(run_dir: Path, steps: int) -> Path:
     """The ``VecNormalize`` statistics saved with the checkpoint of ``steps`` (the file may not exist)."""
     return run_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.npz"
+
+
+def best_stats_path(run_dir: Path) -> Path:
+    """The ``VecNormalize`` statistics of ``best_model.zip``: those saved with it, else (a run from before they
+    were kept) the final ones."""
+    best = run_dir / BEST_VECNORMALIZE_FILE
+    return best if best.is_file() else run_dir / VECNORMALIZE_FILE
 
 
 def model_path(run_dir: Path, env_id: str, load_best: bool = False, checkpoint: int | None = None) -> Path:
@@ -420,7 +427,7 @@ def load_run(ref: RunRef) -> LoadedRun:
     path = model_path(run_dir, env.env_id, ref.load_best, ref.checkpoint)
     model = load(path)
     stats_path = (checkpoint_stats_path(run_dir, ref.checkpoint) if ref.checkpoint is not None
-                  else run_dir / VECNORMALIZE_FILE)
+                  else best_stats_path(run_dir) if ref.load_best else run_dir / VECNORMALIZE_FILE)
     return LoadedRun(run_dir, path, exp, model, env, {"shared": model}, {"shared": _stats(stats_path, ref.trust)},
                      ref.trust)
 

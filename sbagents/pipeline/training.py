@@ -38,7 +38,9 @@ from sbagents.core.lifecycle import (
 from sbagents.core.options import EvalOptions, EvaluateOptions, ExecOptions, OutputOptions, Sb3Options, TrainSpec
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import (
+    BEST_MODEL_FILE,
     CHECKPOINT_PREFIX,
+    best_stats_path,
     check_model_file,
     checkpoint_stats_path,
     env_stem,
@@ -204,9 +206,12 @@ class _BuiltRun:
 
 def _resume_stats(model: Path) -> Path:
     """The VecNormalize statistics saved with the model ``-i`` continues: a checkpoint's own
-    (``rl_model_vecnormalize_<N>_steps.npz``), else the run dir's (those of its final model)."""
+    (``rl_model_vecnormalize_<N>_steps.npz``), ``best_model.zip``'s (``vecnormalize_best.npz``), else the run dir's
+    (those of its final model)."""
     steps = checkpoint_steps(model)
-    return checkpoint_stats_path(model.parent, steps) if steps is not None else model.parent / VECNORMALIZE_FILE
+    if steps is not None:
+        return checkpoint_stats_path(model.parent, steps)
+    return best_stats_path(model.parent) if model.name == BEST_MODEL_FILE else model.parent / VECNORMALIZE_FILE
 
 
 def _build(run: _RunPlan) -> _BuiltRun:

@@ -1,10 +1,10 @@
 """Memory where the observation hides the state: RecurrentPPO (``ppo_lstm``) beside PPO at the same budget.
 
 Each task trains ``ppo_lstm`` and ``ppo`` with the hyperparameters of ``zoo_configs/`` (for CartPoleNoVel: RL Zoo's
-entries, identical but for the LSTM) over seeds, each run in its own ``python -m sbagents.train`` process (two at a
-time), then evaluates the final model with ``python -m sbagents.evaluate -n 20`` (deterministic, the state carried
-through each episode). Finished runs are appended to ``--work DIR/runs.jsonl`` as they end, so a stopped
-measurement resumes with the same ``--work``.
+``ppo_lstm`` entry, and the same without the LSTM) over seeds, each run in its own ``python -m sbagents.train``
+process (two at a time), then evaluates the final and the best model with ``python -m sbagents.evaluate -n 20``
+(deterministic, the state carried through each episode). Finished runs are appended to ``--work DIR/runs.jsonl``
+as they end, so a stopped measurement resumes with the same ``--work``.
 
     python -m benchmarks run recurrent-memory [--seeds 0 1 2] [--work DIR] [--jobs 2]
 """
@@ -127,11 +127,12 @@ def render(results: dict[str, Any]) -> str:
         "## Memory: RecurrentPPO (`ppo_lstm`) beside PPO where the observation hides the state",
         "",
         f"Command: `{results['command']}`. Each run is `python -m sbagents.train --algo ALGO --env ENV --seed SEED` "
-        "with `zoo_configs/` (CartPoleNoVel: RL Zoo's `ppo_lstm` entry and RL Zoo's PPO CartPole entry, the same "
-        "hyperparameters and budget but the LSTM; SmartHomePrefOnce: SmartHome's PPO entry, and the same with a "
-        "64-unit LSTM), then `python -m sbagents.evaluate -n "
+        "with `zoo_configs/` (CartPoleNoVel: RL Zoo's `ppo_lstm` entry as it is, and for `ppo` the same entry "
+        "without the LSTM; SmartHomePrefOnce: SmartHome's PPO entry with `clip_obs: 100`, and the same with a "
+        "64-unit LSTM; the same budget and hyperparameters on both sides), then `python -m sbagents.evaluate -n "
         f"{EVAL_EPISODES}` (deterministic, the LSTM state carried through each episode) of the final model and of "
-        f"the best model the periodic evaluation kept (`--load-best`: 5 episodes every 10,000 steps). {m['cpu']}, "
+        "the best model the periodic evaluation kept (`--load-best`, with the normalization statistics of its "
+        f"moment; 5 episodes every 10,000 steps). {m['cpu']}, "
         f"{m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} after.",
         "",
         "| env | hidden | algo | seed | steps | return (20 ep) | best model's return | comfort share | train s |",

@@ -105,6 +105,19 @@ def _vec_wrappers(venv: VecEnv, exp: Experiment) -> VecEnv:
     return venv
 
 
+@kind_operation(GameKind)
+def _batchable_options(kind: EnvKind, exp: Experiment) -> bool:
+    """Whether the kind's options of ``exp`` leave it to a batched VecEnv (no options: yes)."""
+    return True
+
+
+@_batchable_options.register
+def _(kind: TeamKind, exp: Experiment) -> bool:
+    """A team: a plain ``policies: shared`` team (no agent id, a local critic)."""
+    assert exp.team is not None
+    return exp.team.policies == "shared" and not exp.team.agent_id and exp.team.critic == "local"
+
+
 def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[str, Any] | None = None) -> str:
     """Which VecEnv ``--vec-env`` means here: ``auto`` picks ``batched`` where a batched implementation exists
     (GridWorld, TreasureHunt, MPE simple spread with batchable ``env_kwargs``; no Gymnasium wrappers, Monitor
@@ -117,8 +130,7 @@ def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[st
 
     if vec_env not in VEC_ENV_TYPES:
         raise UsageError(f"--vec-env must be one of {', '.join(VEC_ENV_TYPES)}, got {vec_env!r}")
-    plain_team = exp.team is None or (exp.team.policies == "shared" and not exp.team.agent_id
-                                      and exp.team.critic == "local")
+    plain_team = _batchable_options(exp.env_kind, exp)
     batched_id = batched_env_id(ref.env_id, ref.kind.batched_source(ref))
     problems = [] if batched_id is None else unbatchable_kwargs(batched_id, env_kwargs or {})
     batchable = (batched_id is not None and not problems and not exp.env_wrapper and not exp.monitor_kwargs
@@ -233,8 +245,8 @@ def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int |
     """A team: the one VecEnv of a parameter-sharing team (:func:`make_team_vecs` for one model per group)."""
     venvs = _team_vecs(exp, ref, n_envs, seed, *how)
     if len(venvs) != 1:
-        raise UsageError(f"{exp.team.policies if exp.team else ''} experiments train one model per group: "
-                         "use make_team_vecs")
+        assert exp.team is not None
+        raise UsageError(f"{exp.team.policies} experiments train one model per group: use make_team_vecs")
     return next(iter(venvs.values()))
 
 

@@ -14,7 +14,7 @@ per group's model, with a context whose ``group`` names it (``ctx.file_name("x.j
     from_args(args) -> spec | None            the parsed flags as a frozen spec (None: not used by this run)
     unsupported_flags(spec, backend)          flags a backend cannot honour (refused in one line); default: SB3 only
     overrides_key                             zoo entry key of hyperparameters applied when the spec is present
-    prepare(spec, plan) -> spec               check against the experiment; may replace another extension's spec
+    prepare(spec, plan) -> spec               check against the experiment (after the declared checks below)
     adjust_experiment(spec, exp) -> exp       e.g. DP's smaller networks
     record(spec) -> dict                      entries of args.yml (command_args(spec): flags for command.txt)
     wrap_train_env(spec, env) -> env          the training vec env
@@ -31,6 +31,21 @@ and, for any run (the spec is no longer there): :meth:`~TrainingExtension.summar
 ``train`` from ``summary.json``) and :meth:`~TrainingExtension.load_class` (the SB3 class that loads a run whose
 ``args.yml`` says it used the extension).
 
+An extension also declares what it supports and what it needs, instead of checking it in its hooks::
+
+    algos (class variable)                    the --algo names it trains (None: any)
+    kinds (class variable)                    the env kinds it trains, by EnvKind.name (None: any)
+    capabilities() -> [Capability]            its capabilities, with algos: its columns of the capability table
+                                              (sbagents.algos.capability_rows); default: one named like the
+                                              extension, of algos and kinds, when either is declared
+    capability(spec) -> Capability | None     what a spec uses (default: the one capability; robust: its method's)
+    requires(spec) -> {extension: {field: value}}   settings it needs of other extensions' specs (TAKEN: a setting
+                                              it takes over)
+
+:func:`prepare_extensions` (the pipeline's checks before the run dir exists) applies every requirement, refuses an
+algorithm or env kind outside a spec's :meth:`~TrainingExtension.capability` in one line, then calls ``prepare``
+and ``adjust_experiment``, or ``check_unused``, of every registered extension in order.
+
 The built-in extensions are named in :data:`sbagents.registration.TRAINING_EXTENSIONS` and imported the first time
 extensions are consulted. Register one of your own with :func:`register_extension` (``sbagents.register_extension``)
 before building the ``train`` parser or calling :func:`sbagents.pipeline.backends.train` (``train --gym-packages
@@ -40,6 +55,7 @@ your_module`` imports it first); ``docs/extending.md`` has a worked example.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -54,6 +70,59 @@ if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
 
 SpecT = TypeVar("SpecT")
+
+
+@dataclass(frozen=True)
+class Capability:
+    """What a feature supports: one column of the capability table (:func:`sbagents.algos.capability_rows`, ``train
+    --list``), declared by the feature itself (a training extension, a backend, federated homes, the team kind's
+    centralized critic).
+
+    :param name: the column name (e.g. ``"dp"``, ``"robust:sa"``).
+    :param description: what the column means (the legend of ``train --list``).
+    :param algos: the ``--algo`` names it trains (None: any; such a capability adds no column).
+    :param kinds: the env kinds it trains, by :attr:`~sbagents.core.env_kinds.EnvKind.name` (None: any).
+    :param label: what its refusals call it (default: ``name``), e.g. ``"--robust sa"``.
+    :param refusal: the refusal of an algorithm outside ``algos``, a :meth:`str.format` template of ``{label}``,
+        ``{algos}`` (comma-separated) and ``{algo}``.
+    """
+
+    name: str
+    description: str
+    algos: tuple[str, ...] | None = None
+    kinds: tuple[str, ...] | None = None
+    label: str = ""
+    refusal: str = "{label} trains {algos}, not {algo}"
+
+    @property
+    def subject(self) -> str:
+        """What refusals call the capability."""
+        return self.label or self.name
+
+    def check_algo(self, algo: str) -> None:
+        """Raise :class:`UsageError` (one line naming the accepted algorithms) unless the capability takes ``algo``."""
+        if self.algos is not None and algo not in self.algos:
+            raise UsageError(self.refusal.format(label=self.subject, algos=", ".join(self.algos), algo=algo))
+
+    def check_kind(self, kind: str, env_id: str) -> None:
+        """Raise :class:`UsageError` (one line naming the accepted kinds) unless the capability takes an env of the
+        kind named ``kind`` (``env_id``: the env, for the message)."""
+        if self.kinds is not None and kind not in self.kinds:
+            raise UsageError(f"{self.subject} trains {' and '.join(self.kinds)} envs, not {kind} envs ({env_id})")
+
+
+class _Taken:
+    """The type of :data:`TAKEN`."""
+
+    def __repr__(self) -> str:
+        return "TAKEN"
+
+
+#: A value of :meth:`TrainingExtension.requires`: the requiring extension takes the setting over (its ``prepare`` reads
+#: the value the run gave from :attr:`ExtensionPlan.given`); the other extension gets the field's default, and a value
+#: the run gave it is no conflict. Constrained training takes the trust extension's ``cost_limit`` (``--cost-limit``
+#: is the limit it trains for, not a safety stop).
+TAKEN: Any = _Taken()
 
 
 class TrainingContext(Protocol):
@@ -104,8 +173,11 @@ class ExtensionPlan:
     :param team: a PettingZoo env (a team of agents) rather than one Gymnasium agent.
     :param resuming: ``-i`` continues a model.
     :param n_models: models the run trains (one per group of a team with ``policies: per_group``; else 1).
-    :param specs: every extension's spec of this run by extension name; :meth:`replace` swaps one.
+    :param specs: every extension's spec of this run by extension name (after the requirements of
+        :meth:`TrainingExtension.requires`, and each extension's own ``prepare`` once it ran).
     :param hyperparams: the ``-params`` overrides.
+    :param given: every extension's spec as the run gave it, before the requirements (filled by
+        :func:`prepare_extensions`).
     """
 
     algo: str
@@ -116,10 +188,7 @@ class ExtensionPlan:
     n_models: int = 1
     specs: dict[str, Any] = field(default_factory=dict)
     hyperparams: Mapping[str, Any] = field(default_factory=dict)
-
-    def replace(self, name: str, spec: Any) -> None:
-        """Replace the spec of the extension ``name`` (e.g. constrained training turns the safety stop off)."""
-        self.specs[name] = spec
+    given: Mapping[str, Any] = field(default_factory=dict)
 
 
 class TrainingExtension(Generic[SpecT]):
@@ -142,6 +211,11 @@ class TrainingExtension(Generic[SpecT]):
     group_runs: ClassVar[bool] = True
     #: Backends the extension works with.
     backends: ClassVar[tuple[str, ...]] = ("sb3",)
+    #: The ``--algo`` names the extension trains (None: any); :func:`prepare_extensions` refuses the others in one line.
+    algos: ClassVar[tuple[str, ...] | None] = None
+    #: The env kinds the extension trains, by :attr:`~sbagents.core.env_kinds.EnvKind.name` (``"single-agent"``,
+    #: ``"team"``, ``"turn-based game"``, or a kind of yours; None: any); the others are refused in one line.
+    kinds: ClassVar[tuple[str, ...] | None] = None
     #: Zoo entry key whose mapping overrides hyperparameters when the spec is present (None: none).
     overrides_key: ClassVar[str | None] = None
     #: Zoo entry keys the extension reads (accepted in config files besides RL Zoo's).
@@ -172,6 +246,35 @@ class TrainingExtension(Generic[SpecT]):
         if callable(check):
             check()
 
+    # --- what the extension supports and needs -----------------------------------------------------------------
+    def capabilities(self) -> list[Capability]:
+        """The extension's columns of the capability table (:func:`sbagents.algos.capability_rows`).
+
+        Default: one column named :attr:`name`, described by :attr:`title`, of :attr:`algos` and :attr:`kinds` (refusals
+        name :attr:`flags`), when either is declared; none otherwise. Override it to name the column otherwise, or to
+        declare several (methods that train different algorithms), with :meth:`capability` picking a spec's.
+        """
+        if self.algos is None and self.kinds is None:
+            return []
+        return [Capability(self.name, self.title, self.algos, self.kinds, label=self.flags)]
+
+    def capability(self, spec: SpecT) -> Capability | None:
+        """The capability ``spec`` uses, whose algorithms and env kinds :func:`prepare_extensions` checks before
+        :meth:`prepare` (None: nothing to check). Default: the one of :meth:`capabilities` (None when it declares
+        several)."""
+        declared = self.capabilities()
+        return declared[0] if len(declared) == 1 else None
+
+    def requires(self, spec: SpecT) -> Mapping[str, Mapping[str, Any]]:
+        """Settings the extension needs of other extensions' specs: extension name -> {spec field: value}.
+
+        :func:`prepare_extensions` applies them before any :meth:`prepare`, to the other extension's spec of the run
+        (or its :meth:`default_spec`, else its :attr:`spec_type` built with defaults, turning it on); specs are then
+        dataclasses. A value the run gave that is neither the field's default nor the required one is refused in one
+        line, unless the required value is :data:`TAKEN`. Default: nothing.
+        """
+        return {}
+
     # --- checks before the run dir exists ---------------------------------------------------------------------
     def unsupported_flags(self, spec: SpecT, backend: str) -> list[str]:
         """The flags of ``spec`` that ``backend`` cannot honour (default: :attr:`flags` unless the backend is one of
@@ -179,7 +282,8 @@ class TrainingExtension(Generic[SpecT]):
         return [] if backend in self.backends else [self.flags]
 
     def prepare(self, spec: SpecT, plan: ExtensionPlan) -> SpecT:
-        """Check ``spec`` against the experiment of ``plan`` and return the spec to train with.
+        """Check ``spec`` against the experiment of ``plan`` and return the spec to train with (the algorithm and env
+        kind are already checked against :meth:`capability`, and the requirements applied).
 
         :raises UsageError: what the extension cannot do with this algorithm, env or combination of features.
         """
@@ -361,3 +465,123 @@ def activate(specs: Sequence[Any]) -> list[ActiveExtension]:
         by_name[extension.name] = ActiveExtension(extension, spec)
     order = [ext.name for ext in registered_extensions()]
     return sorted(by_name.values(), key=lambda active: order.index(active.name))
+
+
+def extension_capabilities() -> list[Capability]:
+    """Every registered extension's :meth:`~TrainingExtension.capabilities`, in registration order."""
+    return [capability for extension in registered_extensions() for capability in extension.capabilities()]
+
+
+def prepare_extensions(plan: ExtensionPlan) -> list[ActiveExtension]:
+    """Check every registered extension against ``plan`` before the run dir exists; the run's extensions.
+
+    In this order: the specs as given are kept in ``plan.given``; the requirements of every spec
+    (:meth:`~TrainingExtension.requires`) are applied to ``plan.specs`` (:func:`apply_requirements`); then, for each
+    registered extension in registration order, one with a spec is checked against its
+    :meth:`~TrainingExtension.capability` (:func:`check_capability`), and its
+    :meth:`~TrainingExtension.prepare` replaces its spec in ``plan.specs`` and its
+    :meth:`~TrainingExtension.adjust_experiment` replaces ``plan.exp``; one without calls
+    :meth:`~TrainingExtension.check_unused`.
+
+    :param plan: the run's plan (``plan.ref.kind.name`` and ``plan.ref.env_id`` name its env); updated in place.
+    :returns: the extensions with their prepared specs, as :func:`activate` pairs them.
+    :raises UsageError: (one line) a requirement that conflicts with the run's specs, an algorithm or env kind a spec's
+        capability does not take, or whatever an extension's own checks refuse.
+    """
+    plan.given = dict(plan.specs)
+    apply_requirements(plan)
+    for extension in registered_extensions():
+        spec = plan.specs.get(extension.name)
+        if spec is None:
+            extension.check_unused(plan)
+            continue
+        check_capability(extension, spec, plan)
+        spec = extension.prepare(spec, plan)
+        plan.specs[extension.name] = spec
+        plan.exp = extension.adjust_experiment(spec, plan.exp)
+    return activate(list(plan.specs.values()))
+
+
+def check_capability(extension: TrainingExtension[Any], spec: Any, plan: ExtensionPlan) -> None:
+    """Refuse in one line the env kind (first) or the algorithm of ``plan`` when the capability ``spec`` uses
+    (:meth:`~TrainingExtension.capability`) does not take it."""
+    capability = extension.capability(spec)
+    if capability is not None:
+        capability.check_kind(plan.ref.kind.name, plan.ref.env_id)
+        capability.check_algo(plan.algo)
+
+
+def apply_requirements(plan: ExtensionPlan) -> None:
+    """Apply the :meth:`~TrainingExtension.requires` of every spec in ``plan.specs`` to the specs they name (a spec is
+    added for an extension the run does not use yet). The requirements of a spec added this way are not applied.
+
+    :raises UsageError: (one line) two extensions that require different values of one setting, a required setting
+        the run gave another value, or a required extension that is not registered.
+    """
+    wanted: dict[str, dict[str, tuple[Any, str]]] = {}  # extension -> field -> (value, the flags that need it)
+    for extension in registered_extensions():
+        spec = plan.specs.get(extension.name)
+        if spec is None:
+            continue
+        for target, settings in extension.requires(spec).items():
+            fields_wanted = wanted.setdefault(target, {})
+            for key, value in settings.items():
+                earlier = fields_wanted.get(key)
+                if earlier is not None and earlier[0] != value:
+                    raise UsageError(f"{earlier[1]} and {extension.flags} need different {target} settings: "
+                                     f"{key}={earlier[0]!r} and {key}={value!r} (drop one of them)")
+                fields_wanted[key] = (value, extension.flags)
+    for target, settings in wanted.items():
+        plan.specs[target] = _required_spec(target, plan.specs.get(target), settings)
+
+
+def _required_spec(target: str, given: Any, settings: Mapping[str, tuple[Any, str]]) -> Any:
+    """The spec of the extension ``target`` with the required ``settings`` (field -> (value, who needs it)), from
+    ``given`` (the run's spec; None: the extension's default)."""
+    needed_by = ", ".join(dict.fromkeys(by for _, by in settings.values()))
+    _load_builtins()
+    extension = _REGISTRY.get(target)
+    if extension is None:
+        raise UsageError(f"{needed_by} needs the {target} extension, which is not registered")
+    base = given if given is not None else _default_spec(extension, needed_by)
+    if not dataclasses.is_dataclass(base) or isinstance(base, type):
+        raise TypeError(f"{needed_by} requires settings of {target}, whose spec {type(base).__name__} is not a "
+                        "dataclass")
+    defaults = {f.name: _field_default(f) for f in dataclasses.fields(base)}
+    changes: dict[str, Any] = {}
+    for key, (value, by) in settings.items():
+        if key not in defaults:
+            raise TypeError(f"{by} requires {target} setting {key!r}, which {type(base).__name__} does not have")
+        current = getattr(base, key)
+        if value is TAKEN:
+            if defaults[key] is dataclasses.MISSING:
+                raise TypeError(f"{by} takes {target} setting {key!r} over, which has no default")
+            changes[key] = defaults[key]
+            continue
+        if given is not None and current != value and current != defaults[key]:
+            raise UsageError(f"{by} needs {target} {key}={value!r}, but the run asks {key}={current!r} (drop one of "
+                             "them)")
+        changes[key] = value
+    return dataclasses.replace(base, **changes)
+
+
+def _default_spec(extension: TrainingExtension[Any], needed_by: str) -> Any:
+    """The spec a requirement starts from for an extension the run does not use: its default spec, else its spec
+    type built with defaults."""
+    spec = extension.default_spec()
+    if spec is not None:
+        return spec
+    try:
+        return extension.spec_type()
+    except TypeError:
+        raise UsageError(f"{needed_by} needs the {extension.name} extension, whose spec "
+                         f"{extension.spec_type.__name__} has no defaults: give it one") from None
+
+
+def _field_default(spec_field: dataclasses.Field[Any]) -> Any:
+    """A dataclass field's default (:data:`dataclasses.MISSING`: none)."""
+    if spec_field.default is not dataclasses.MISSING:
+        return spec_field.default
+    if spec_field.default_factory is not dataclasses.MISSING:
+        return spec_field.default_factory()
+    return dataclasses.MISSING

@@ -58,6 +58,7 @@ KIND_OPERATION_MODULES: tuple[str, ...] = (
     "sbagents.env_construction",
     "sbagents.env_factory",
     "sbagents.pipeline.kinds",
+    "sbagents.pipeline.models",
     "sbagents.pipeline.evaluation",
     "sbagents.deploy.exporting",
     "sbagents.visualize.video",
@@ -69,6 +70,16 @@ BACKENDS: dict[str, str] = {
     "sb3": "sbagents.pipeline.sb3_backend:Sb3Backend",
     "rllib": "sbagents.rllib.backend:RllibBackend",
 }
+
+#: Where the capability table's columns come from besides the training extensions (whose own come first), in column
+#: order: ``module:function`` paths of functions returning :class:`sbagents.extensions.Capability` objects, imported
+#: by :mod:`sbagents.algos` when the table or ``algos_with`` needs them (by path: the federated package is of a
+#: higher layer, and the backends' registry imports ``sbagents.algos``).
+CAPABILITY_SOURCES: tuple[str, ...] = (
+    "sbagents.federated.settings:capabilities",
+    "sbagents.core.team_options:capabilities",
+    "sbagents.core.backends:backend_capabilities",
+)
 
 #: The built-in training extensions (:mod:`sbagents.extensions`), in hook order, as ``module:class`` paths like
 #: :data:`GYM_ENVS`: :func:`sbagents.extensions.registered_extensions` imports them the first time extensions are

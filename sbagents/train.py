@@ -11,7 +11,7 @@ import shlex
 import sys
 from typing import Any
 
-from sbagents.algos import ALGOS, capability_table
+from sbagents.algos import ALGOS, capability_legend, capability_table
 from sbagents.cli_common import ArgumentParser, run
 from sbagents.core.backends import DEFAULT_BACKEND, backend_names
 from sbagents.core.env_names import import_packages, sbagents_env_ids
@@ -113,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.list:
         print("envs:  " + "  ".join(sbagents_env_ids()))
         print("algos: " + "  ".join(ALGOS))
-        print("\nwhat each algorithm supports (sbagents.algos.FEATURES):\n" + capability_table())
+        print("\nwhat each algorithm supports (the capabilities each feature declares):\n" + capability_table())
+        print("\n" + "\n".join(capability_legend()))
         return 0
     command = "python -m sbagents.train " + shlex.join(argv)
     result = train(**options_from_args(args, command))

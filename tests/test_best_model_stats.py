@@ -37,3 +37,34 @@ def test_the_best_model_keeps_the_statistics_of_its_moment(tmp_path: Path,
     ref = RunRef(algo="ppo", env="CartPole-v1", log_folder=str(logs), load_best=True)
     assert load_run(ref).stats_path == best
     assert load_run(RunRef(algo="ppo", env="CartPole-v1", log_folder=str(logs))).stats_path == final
+
+
+def test_each_group_best_model_keeps_the_statistics_of_its_moment(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """A run of one model per group: ``best_model.<group>.zip`` with ``vecnormalize_best.<group>.npz`` of the same
+    evaluation, which ``--load-best`` reads."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "user_envs"))
+    try:
+        logs = tmp_path / "logs"
+        code = run_main("train", "--algo", "ppo", "--env", "tiny_marl_pkg.relay_v0", "-n", "3072", "--eval-freq",
+                        "384", "--eval-episodes", "2", "--final-eval-episodes", "0", "--verbose", "0", "--seed", "0",
+                        "-f", str(logs), "-params", "policies:per_group", "normalize:True", "n_envs:1", "n_steps:32",
+                        "batch_size:32", "n_epochs:1")
+        assert code == 0, capsys.readouterr().err
+        (run_dir,) = (logs / "ppo").iterdir()
+        for group in ("scout", "worker"):
+            assert (run_dir / f"best_model.{group}.zip").is_file()
+            assert (run_dir / f"vecnormalize_best.{group}.npz").is_file()
+        with np.load(run_dir / "evaluations.npz") as evaluations:
+            means = evaluations["results"].mean(axis=1)
+            best_team_step = int(evaluations["timesteps"][int(np.argmax(means))]) // 3  # 3 agents per team step
+        with np.load(run_dir / "vecnormalize_best.worker.npz") as b:
+            assert abs(float(b["ret_rms/count"]) - 2 * best_team_step) < 2 * 32 + 1  # the worker's slots then
+        loaded = load_run(RunRef(algo="ppo", env="tiny_marl_pkg.relay_v0", log_folder=str(logs), load_best=True))
+        assert loaded.stats_paths == {g: run_dir / f"vecnormalize_best.{g}.npz" for g in ("scout", "worker")}
+        final = load_run(RunRef(algo="ppo", env="tiny_marl_pkg.relay_v0", log_folder=str(logs)))
+        assert final.stats_paths == {g: run_dir / f"vecnormalize.{g}.npz" for g in ("scout", "worker")}
+    finally:
+        sys.path.remove(str(Path(__file__).resolve().parent / "user_envs"))

@@ -94,22 +94,28 @@ def test_what_the_pipeline_imports_of_the_training_extensions() -> None:
                      "trust.py": {"sbagents.callbacks.extension"}}
 
 
-def test_runs_of_one_model_per_group_call_the_model_hooks_per_group() -> None:
-    """The doc: build_groups runs wrap_train_env, setup and callbacks per group's model (model_class through
-    make_model), learn_groups runs after_learn, _train_groups keeps summary and results per group; no spec is read
-    by an extension's name."""
-    team = ast.parse((SBAGENTS / "pipeline" / "team_training.py").read_text())
+def test_one_training_path_for_one_model_or_one_per_group() -> None:
+    """The doc: every run takes the same steps (train_sb3: _plan, _build, _learn, _finish, no branch), each model's
+    hooks are called in a loop over the run's models, and no module holds a second sequence for group runs."""
     training = ast.parse((SBAGENTS / "pipeline" / "training.py").read_text())
-    groups = next(n for n in ast.walk(training) if isinstance(n, ast.FunctionDef) and n.name == "_train_groups")
+    functions = {n.name: n for n in ast.walk(training) if isinstance(n, ast.FunctionDef)}
+    assert not (SBAGENTS / "pipeline" / "team_training.py").exists()
+    assert "_train_groups" not in functions
+    train = functions["train_sb3"]
+    assert not any(isinstance(n, ast.If) for n in ast.walk(train))
+    called = [n.func.id for n in ast.walk(train) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)]
+    assert [name for name in called if name.startswith("_")] == ["_plan", "_build", "_learn", "_finish"]
 
     def hooks(tree: ast.AST) -> set[str]:
         return {n.func.attr for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)
                 and isinstance(n.func.value, ast.Attribute) and n.func.value.attr == "extension"}
 
-    assert hooks(team) == {"wrap_train_env", "setup", "callbacks", "after_learn"}
-    assert "extensions=actives" in ast.unparse(team)  # model_class, through make_model
-    assert hooks(groups) == {"summary", "results"}
-    assert "specs.get(" not in ast.unparse(team) + ast.unparse(groups)
+    model_hooks = {"wrap_train_env", "setup", "callbacks", "after_learn", "summary", "judge_evaluation", "results"}
+    assert model_hooks <= hooks(training)
+    for name in ("_build", "_learn", "_model_summary", "_finish"):  # each model's hooks sit in a loop over models
+        loops = [n for n in ast.walk(functions[name]) if isinstance(n, ast.For | ast.comprehension)]
+        assert any(hooks(loop) for loop in loops), name
+    assert "specs.get(\"" not in ast.unparse(training)  # no spec is read by an extension's name
 
 
 def test_the_extensions_that_refuse_group_runs() -> None:

@@ -31,7 +31,7 @@ def test_the_hook_table_is_the_extension_api() -> None:
 def test_ctx_and_plan_names_exist() -> None:
     text = PAGE.read_text()
     context = set(TrainingContext.__annotations__) | {n for n in vars(TrainingContext) if not n.startswith("_")}
-    plan = {f.name for f in dataclasses.fields(ExtensionPlan)} | {"replace"}
+    plan = {f.name for f in dataclasses.fields(ExtensionPlan)}
     assert {"exp", "model", "state", "make_eval_env"} <= context
     ctx_names = set(re.findall(r"\bctx\.(\w+)", text))
     plan_names = set(re.findall(r"\bplan\.(\w+)", text))

@@ -28,7 +28,7 @@ QUIET = ("--verbose", "0", "--eval-freq", "-1", "--final-eval-episodes", "0", "-
 
 @pytest.mark.parametrize("kind", builtin_kinds(), ids=lambda k: k.name)
 def test_every_builtin_kind_implements_every_operation(kind: EnvKind) -> None:
-    assert len(load_kind_operations()) >= 11
+    assert len(load_kind_operations()) >= 15
     assert missing_operations(kind) == []
 
 
@@ -69,3 +69,30 @@ def test_a_kind_from_outside_trains_evaluates_and_exports(tmp_path: Path, capsys
         assert (run_dir / "export" / "policy.onnx").is_file()
     finally:
         REGISTERED_KINDS.remove(kind_plugin.NOISY)
+
+
+CLAIMS = [("CartPole-v1", "single-agent", "CartPole-v1"), ("GridWorld-v0", "single-agent", "sbagents/GridWorld-v0"),
+          ("gymnasium.envs.classic_control:CartPole-v1", "single-agent", "CartPole-v1"),
+          ("treasure_hunt_v0", "team", "treasure_hunt_v0"), ("mpe2.simple_tag_v3", "team", "simple_tag_v3"),
+          ("pettingzoo.classic.tictactoe_v3", "turn-based game", "tictactoe_v3"),
+          ("pettingzoo.classic.tictactoe_v3:env", "turn-based game", "tictactoe_v3")]
+
+
+@pytest.mark.parametrize(("name", "kind", "env_id"), CLAIMS, ids=[c[0] for c in CLAIMS])
+def test_each_name_is_claimed_by_exactly_one_builtin_kind(name: str, kind: str, env_id: str) -> None:
+    claims = [(k.name, ref.env_id) for k in builtin_kinds() if (ref := k.claim(name, ())) is not None]
+    assert claims == [(kind, env_id)]
+    assert resolve_env(name).kind.name == kind
+
+
+def test_resolve_env_asks_the_kinds_and_names_none() -> None:
+    """No if/elif by kind: resolve_env loops over the kinds' claims and names no built-in kind."""
+    import ast
+    import inspect
+
+    import sbagents.core.env_names as env_names
+
+    tree = ast.parse(inspect.getsource(env_names.resolve_env))
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    assert not names & {"SINGLE_AGENT", "TEAM", "GAME"}
+    assert any(isinstance(n, ast.For) and "claim" in ast.unparse(n) for n in ast.walk(tree))

@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
+import signal
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +27,7 @@ import pytest
 from cli_helpers import check_error, run_main
 from gymnasium import spaces
 from stable_baselines3 import DQN, PPO
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.api import (
     EvalOptions,
@@ -38,6 +42,7 @@ from sbagents.api import (
 )
 from sbagents.callbacks.extension import TrustOptions
 from sbagents.core.team_options import TeamOptions
+from sbagents.extensions import TrainingExtension, register_extension, unregister_extension
 from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.masking import ActedMaskCallback, MaskedReplayBuffer, MaskedRolloutBuffer
@@ -259,3 +264,68 @@ def test_group_spaces_are_checked_before_a_run_dir_exists(tmp_path: Path, capsys
                     "tiny_marl_pkg.variants:steering_scout", "-params", "policies:per_group")
     check_error(code, capsys.readouterr().err, "dqn cannot learn group scout")
     assert not logs.exists()  # refused in the plan: not even the log folder was made
+
+
+class _SigintAt(BaseCallback):
+    """Sends this process a Ctrl-C at the ``at``-th step of the model it runs in."""
+
+    def __init__(self, at: int) -> None:
+        super().__init__()
+        self.at = at
+
+    def _on_step(self) -> bool:
+        if self.n_calls == self.at:
+            os.kill(os.getpid(), signal.SIGINT)
+        return True
+
+
+def test_a_per_group_run_stops_gracefully_and_saves_every_model(tmp_path: Path) -> None:
+    """The first Ctrl-C stops every group's model between two team steps (the graceful clock of every run), and
+    each model and its statistics are saved."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # a suite started with & ignores SIGINT
+    try:
+        result = train(TrainSpec("ppo", RELAY, 100_000, {**PPO_PARAMS, "policies": "per_group", "normalize": True}),
+                       *quiet(tmp_path), callbacks=[_SigintAt(40)])
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert result.interrupted
+    summary = json.loads((result.run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["eval"] is None
+    assert set(result.models) == {"scout", "worker"}
+    # the scout's model stops at its poll in the team step after the signal (step 41 of 4 copies), and the workers'
+    # (2 per copy) with it, before they take that step: not after some later Ctrl-C check
+    assert {g: m.num_timesteps for g, m in result.models.items()} == {"scout": 41 * 4, "worker": 40 * 8}
+    for group, model in result.models.items():
+        assert PPO.load(result.run_dir / f"relay_v0.{group}.zip").num_timesteps == model.num_timesteps
+        assert (result.run_dir / f"vecnormalize.{group}.npz").is_file()
+
+
+@dataclass(frozen=True)
+class _JudgeSpec:
+    """The spec of :class:`_Judge` (no settings)."""
+
+
+class _Judge(TrainingExtension[_JudgeSpec]):
+    """Records what the pipeline hands each model: its group in ``summary`` and the final evaluation it judges."""
+
+    name = "judge-test"
+    flags = "--judge-test"
+    spec_type = _JudgeSpec
+
+    def summary(self, spec: _JudgeSpec, ctx: Any) -> dict[str, Any]:
+        return {"judge": {"group": ctx.group}}
+
+    def judge_evaluation(self, spec: _JudgeSpec, summary: dict[str, Any], result: dict[str, Any]) -> None:
+        summary["judge"]["judged_episodes"] = result["n_episodes"]
+
+
+def test_every_group_model_judges_the_final_evaluation(tmp_path: Path) -> None:
+    register_extension(_Judge())
+    try:
+        result = train(TrainSpec("ppo", RELAY, 1024, {**PPO_PARAMS, "policies": "per_group"}),
+                       *quiet(tmp_path, episodes=3), features=[_JudgeSpec()])
+    finally:
+        unregister_extension(_Judge.name)
+    summary = json.loads((result.run_dir / "summary.json").read_text())
+    assert summary["by_group"] == {"scout": {"judge": {"group": "scout", "judged_episodes": 3}},
+                                   "worker": {"judge": {"group": "worker", "judged_episodes": 3}}}

@@ -8,7 +8,6 @@ on ``PYTHONPATH``), or from Python: ``register_extension(GradClipExtension())``,
 from __future__ import annotations
 
 import argparse
-import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any
 
 from sbagents import register_extension
 from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
+from sbagents.extensions import TrainingContext, TrainingExtension
 
 
 @dataclass(frozen=True)
@@ -34,6 +33,7 @@ class GradClipExtension(TrainingExtension[GradClip]):
     title = "gradient clipping (an example extension)"
     flags = "--grad-clip"
     spec_type = GradClip
+    algos = ("a2c", "ppo", "ppo_lstm", "ppo_mask", "dqn", "qrdqn")  # those with a max_grad_norm; others are refused
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--grad-clip", type=float, default=None, metavar="X",
@@ -45,13 +45,6 @@ class GradClipExtension(TrainingExtension[GradClip]):
         if not args.grad_clip > 0:
             raise UsageError(f"--grad-clip must be > 0, got {args.grad_clip}")
         return GradClip(args.grad_clip)
-
-    def prepare(self, spec: GradClip, plan: ExtensionPlan) -> GradClip:
-        from sbagents.algos import ALGOS
-
-        if "max_grad_norm" not in inspect.signature(ALGOS[plan.algo].cls).parameters:
-            raise UsageError(f"--grad-clip: {plan.algo} has no max_grad_norm")
-        return spec
 
     def record(self, spec: GradClip) -> dict[str, Any]:
         return {"grad_clip": spec.max_norm}

@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sbagents.callbacks.extension import TrustOptions
 from sbagents.constrained.options import (
     CONFIG_KEY,
+    CONSTRAINED_ALGOS,
     ConstraintSpec,
     check_unconstrained,
     constrained_class,
@@ -21,8 +20,9 @@ from sbagents.constrained.options import (
     judge_evaluation,
     record_constraint,
 )
+from sbagents.core.env_kinds import SINGLE_AGENT
 from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
+from sbagents.extensions import TAKEN, Capability, ExtensionPlan, TrainingContext, TrainingExtension
 
 
 def _verdict(held: bool | None, cost: float | None, where: str, measure: str) -> str:
@@ -55,6 +55,8 @@ class ConstraintExtension(TrainingExtension[ConstraintSpec]):
     spec_type = ConstraintSpec
     group_runs = False  # the multiplier is one model's
     config_keys = frozenset({CONFIG_KEY})
+    algos = CONSTRAINED_ALGOS
+    kinds = (SINGLE_AGENT.name,)
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--constraint", choices=["lagrangian", "pid"], default=None,
@@ -65,19 +67,21 @@ class ConstraintExtension(TrainingExtension[ConstraintSpec]):
     def from_args(self, args: argparse.Namespace) -> ConstraintSpec | None:
         return None if args.constraint is None else ConstraintSpec(args.constraint, args.cost_limit)
 
+    def capabilities(self) -> list[Capability]:
+        return [Capability("constrained", "--constraint (Lagrangian / PID multiplier)", self.algos, self.kinds,
+                           label=self.flags)]
+
+    def requires(self, spec: ConstraintSpec) -> Mapping[str, Mapping[str, Any]]:
+        # the multiplier holds the limit: count violations, never stop at it (--cost-limit is the limit trained for)
+        return {"trust": {"safety": True, "cost_limit": TAKEN}}
+
     def prepare(self, spec: ConstraintSpec, plan: ExtensionPlan) -> ConstraintSpec:
-        if plan.team:
-            raise UsageError("--constraint trains single-agent runs, not PettingZoo envs")
         if "robust" in plan.specs:
             raise UsageError("--constraint and --robust cannot be combined yet (one or the other)")
-        trust = plan.specs.get("trust")
-        limit = spec.cost_limit if spec.cost_limit is not None else getattr(trust, "cost_limit", None)
-        checked = constraint_spec(spec.method, plan.algo, limit, plan.exp.hyperparams.get(CONFIG_KEY),
-                                  f"entry for {plan.exp.env_id}")
-        # the multiplier holds the limit: count violations, never stop at the limit
-        plan.replace("trust", replace(trust if isinstance(trust, TrustOptions) else TrustOptions(), safety=True,
-                                      cost_limit=None))
-        return checked
+        given = getattr(plan.given.get("trust"), "cost_limit", None)  # a run from Python may give it there
+        limit = spec.cost_limit if spec.cost_limit is not None else given
+        return constraint_spec(spec.method, plan.algo, limit, plan.exp.hyperparams.get(CONFIG_KEY),
+                               f"entry for {plan.exp.env_id}")
 
     def check_unused(self, plan: ExtensionPlan) -> None:
         check_unconstrained(plan.algo, plan.exp.hyperparams, dict(plan.hyperparams))

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sbagents.algos import algos_with
 from sbagents.atomic import write_json
 from sbagents.constrained.lagrangian import MULTIPLIERS
 from sbagents.errors import UsageError
@@ -35,7 +34,9 @@ CONSTRAINTS = tuple(MULTIPLIERS)
 #: Algorithm -> its constrained class in :mod:`sbagents.constrained`, by name: imported when a run needs it, so the
 #: table holds algorithms whose class this install may not have yet.
 CONSTRAINED_CLASSES: dict[str, str] = {"ppo": "PPOLagrangian", "sac": "SACLagrangian"}
-CONSTRAINED_ALGOS = algos_with("constrained")  # the capability table; tests check CONSTRAINED_CLASSES covers it
+#: Algorithms ``--constraint`` trains: the declaration of :class:`~sbagents.constrained.extension.ConstraintExtension`
+#: (the capability table's ``constrained`` column); tests check that :data:`CONSTRAINED_CLASSES` covers it.
+CONSTRAINED_ALGOS: tuple[str, ...] = ("ppo", "sac")
 #: The zoo key holding the constrained class's keyword arguments.
 CONFIG_KEY = "constraint_kwargs"
 _CLI_KWARGS = frozenset({"cost_limit", "constraint"})  # --cost-limit and --constraint set these, never a config

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from sbagents.errors import UsageError
+from sbagents.extensions import Capability
 
 if TYPE_CHECKING:
     from sbagents.core.lifecycle import TrainResult
@@ -46,6 +47,17 @@ class Backend(ABC):
     name: ClassVar[str]
     #: One line for ``--help`` and the docs.
     summary: ClassVar[str] = ""
+    #: The ``--algo`` names the backend trains, a column of the capability table named like the backend (None: any
+    #: algorithm, no column). The env kinds declare the backends that train them (``EnvKind.backends``).
+    algos: ClassVar[tuple[str, ...] | None] = None
+
+    def capabilities(self) -> list[Capability]:
+        """The backend's columns of the capability table (:func:`sbagents.algos.capability_rows`): one named
+        :attr:`name` when :attr:`algos` is declared."""
+        if self.algos is None:
+            return []
+        return [Capability(self.name, f"--backend {self.name}: {self.summary}", self.algos,
+                           label=f"--backend {self.name}")]
 
     @abstractmethod
     def train(self, spec: TrainSpec, output: OutputOptions | None, evaluation: EvalOptions | None,
@@ -100,6 +112,12 @@ def get_backend(name: str) -> Backend:
     if name not in _REGISTERED:
         raise UsageError(f"unknown backend {name!r}; available: {', '.join(backend_names())}")
     return _REGISTERED[name]
+
+
+def backend_capabilities() -> list[Capability]:
+    """Every backend's :meth:`~Backend.capabilities` (the built-in ones imported), in registration order."""
+    _load_builtin()
+    return [capability for backend in _REGISTERED.values() for capability in backend.capabilities()]
 
 
 def backend_of_run(run_dir: Path) -> Backend:

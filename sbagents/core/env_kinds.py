@@ -92,8 +92,12 @@ class EnvKind:
 
     def claim(self, name: str, modules: tuple[str, ...]) -> EnvRef | None:
         """The :class:`~sbagents.core.env_names.EnvRef` of ``--env name`` when it names an env of this kind, else
-        None. Asked for kinds added with :func:`register_env_kind` (before the built-in names are looked up);
-        ``modules`` are the ``--gym-packages`` already imported."""
+        None. :func:`~sbagents.core.env_names.resolve_env` asks every kind: those added with
+        :func:`register_env_kind` first, then the built-in ones; ``modules`` are the ``--gym-packages`` already
+        imported.
+
+        :raises UsageError: a name of this kind's form that is wrong (e.g. a module that cannot be imported).
+        """
         return None
 
     def refuse_backend(self, ref: EnvRef, backend: str) -> None:
@@ -114,6 +118,11 @@ class SingleAgentKind(EnvKind):
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
         return (ref.env_id, "atari") if ref.is_atari else (ref.env_id,)
+
+    def claim(self, name: str, modules: tuple[str, ...]) -> EnvRef | None:
+        from sbagents.core.env_names import claim_gymnasium_id
+
+        return claim_gymnasium_id(name, modules)
 
     def refuse_backend(self, ref: EnvRef, backend: str) -> None:
         if backend not in self.backends:
@@ -137,6 +146,11 @@ class TeamKind(EnvKind):
 
     def batched_source(self, ref: EnvRef) -> str:
         return ref.source
+
+    def claim(self, name: str, modules: tuple[str, ...]) -> EnvRef | None:
+        from sbagents.core.env_names import claim_pettingzoo
+
+        return claim_pettingzoo(name, modules, self)
 
     def check_entry(self, entry: Mapping[str, Any], source: str) -> None:
         misplaced = sorted(set(entry) & {"monitor_kwargs", "eval_env_kwargs"})
@@ -167,6 +181,11 @@ class GameKind(EnvKind):
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:
         return tuple(dict.fromkeys((ref.source, ref.env_id)))
+
+    def claim(self, name: str, modules: tuple[str, ...]) -> EnvRef | None:
+        from sbagents.core.env_names import claim_pettingzoo
+
+        return claim_pettingzoo(name, modules, self)
 
     def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
         from sbagents.core.selfplay_options import SelfPlayOptions
@@ -248,5 +267,5 @@ def register_env_kind(kind: EnvKind) -> EnvKind:
 
 
 def builtin_kinds() -> tuple[EnvKind, ...]:
-    """The kinds sbagents ships."""
+    """The kinds sbagents ships, in the order :func:`~sbagents.core.env_names.resolve_env` asks them."""
     return (SINGLE_AGENT, TEAM, GAME)

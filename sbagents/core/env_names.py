@@ -22,7 +22,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from sbagents.core.env_kinds import GAME, REGISTERED_KINDS, SINGLE_AGENT, TEAM, EnvKind
+from sbagents.core.env_kinds import GAME, REGISTERED_KINDS, SINGLE_AGENT, TEAM, EnvKind, builtin_kinds
 from sbagents.errors import UsageError
 from sbagents.registration import ARRAY_IMPLEMENTATIONS, METRIC_OBSERVERS, PETTINGZOO_ENVS
 
@@ -197,19 +197,6 @@ def _import(module_name: str) -> ModuleType | None:
         raise UsageError(f"cannot import {module_name!r}: {exc}") from None
 
 
-def _pettingzoo_module_ref(name: str, modules: tuple[str, ...]) -> EnvRef | None:
-    """The ref of a dotted module path that is a PettingZoo env module, else None (or a clear error)."""
-    module = _import(name) if "." in name else None
-    if module is None:
-        return None
-    if callable(getattr(module, "parallel_env", None)):
-        return EnvRef(name.rpartition(".")[2], TEAM, modules=modules, source=name)
-    if callable(getattr(module, "env", None)):
-        return EnvRef(name.rpartition(".")[2], GAME, modules=modules, source=name)
-    raise UsageError(f"module {name} has no parallel_env(**kwargs); name a PettingZoo env module, or "
-                     f"'{name}:<function>' for a function that returns a ParallelEnv")
-
-
 def _returns_aec_env(fn: Callable[..., Any]) -> bool:
     """Whether ``fn()`` builds a turn-based (AEC) env rather than a ``ParallelEnv`` (one is built to see)."""
     try:
@@ -234,51 +221,93 @@ def callable_env_id(module_name: str, attr: str) -> str:
     return f"{module_name}:{attr}"
 
 
+def _module_and_name(name: str) -> tuple[str, str] | None:
+    """``module:name`` split in two (None for a name without ``:``).
+
+    :raises UsageError: a ``:`` name whose module part is not a module path, or with nothing after the ``:``.
+    """
+    if ":" not in name:
+        return None
+    module_name, _, attr = name.partition(":")
+    if not is_module_path(module_name) or not attr:
+        raise UsageError(f"--env {name!r:.120} is not an env id, a module path or module:name "
+                         "(e.g. sbagents/GridWorld-v0, mpe2.simple_spread_v3, my_pkg.envs:MyEnv-v0)")
+    return module_name, attr
+
+
+def _named_module(module_name: str, name: str) -> ModuleType:
+    module = _import(module_name)
+    if module is None:
+        raise UsageError(f"cannot import module {module_name!r} of --env {name}")
+    return module
+
+
+def claim_gymnasium_id(name: str, modules: tuple[str, ...]) -> EnvRef | None:
+    """The single-agent kind's claim: a Gymnasium ID (with or without the ``sbagents/`` namespace; an Atari id
+    registers ``ale_py``'s envs first), or ``module:EnvId`` registered by that module."""
+    split = _module_and_name(name)
+    if split is not None:
+        module_name, attr = split
+        _named_module(module_name, name)
+        found = next((c for c in (attr, f"sbagents/{attr}") if c in gym.registry), None)
+        return EnvRef(found, modules=(*modules, module_name)) if found is not None else None
+    if "NoFrameskip" in name or name.startswith("ALE/"):
+        _register_atari()
+        modules += ("ale_py",)
+    found = next((c for c in (name, f"sbagents/{name}") if c in gym.registry), None)
+    return EnvRef(found, modules=modules) if found is not None else None
+
+
+def claim_pettingzoo(name: str, modules: tuple[str, ...], kind: EnvKind) -> EnvRef | None:
+    """A PettingZoo kind's claim (``kind`` is :data:`TEAM` or :data:`GAME`): a short name of
+    :data:`~sbagents.registration.PETTINGZOO_ENVS` (a team), a module with ``parallel_env`` (a team) or only ``env``
+    (a turn-based game), or ``module:callable`` building a ``ParallelEnv`` (a team) or an AEC env (a game)."""
+    if kind is TEAM and name in PETTINGZOO_ENVS:
+        return EnvRef(name, TEAM, modules=modules, source=PETTINGZOO_ENVS[name])
+    split = _module_and_name(name)
+    if split is not None:
+        module_name, attr = split
+        factory = getattr(_named_module(module_name, name), attr, None)
+        if not callable(factory) or _returns_aec_env(factory) != (kind is GAME):
+            return None
+        return EnvRef(callable_env_id(module_name, attr), kind, modules=modules, source=name)
+    module = _import(name) if "." in name else None
+    if module is None:
+        return None
+    team_module = callable(getattr(module, "parallel_env", None))
+    if team_module if kind is TEAM else not team_module and callable(getattr(module, "env", None)):
+        return EnvRef(name.rpartition(".")[2], kind, modules=modules, source=name)
+    return None
+
+
 def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> EnvRef:
     """Resolve ``name`` to an env, or raise :class:`UsageError` suggesting close ids.
 
-    Accepts a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same without
-    the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make`` does), a
-    PettingZoo env module path, ``module:callable`` returning a ``ParallelEnv``, and the short names of
-    :data:`~sbagents.registration.PETTINGZOO_ENVS`; before any of them, the names that kinds added with
-    :func:`~sbagents.core.env_kinds.register_env_kind` claim.
+    Every kind is asked whether it claims the name (:meth:`~sbagents.core.env_kinds.EnvKind.claim`): first those
+    added with :func:`~sbagents.core.env_kinds.register_env_kind` (latest first), then the built-in ones. Between
+    them they accept a Gymnasium ID (``sbagents/GridWorld-v0``, ``Pendulum-v1``, ``PongNoFrameskip-v4``), the same
+    without the ``sbagents/`` namespace, ``module:EnvId`` (the module is imported first, as ``gym.make`` does), a
+    PettingZoo env module path, ``module:callable`` returning a ``ParallelEnv`` or an AEC game, and the short names of
+    :data:`~sbagents.registration.PETTINGZOO_ENVS`.
     """
     import_packages(gym_packages)
     modules = tuple(gym_packages)
-    for kind in REGISTERED_KINDS:  # kinds added from outside the package (register_env_kind) first
+    for kind in (*REGISTERED_KINDS, *builtin_kinds()):
         claimed = kind.claim(name, modules)
         if claimed is not None:
             return claimed
-    if name in PETTINGZOO_ENVS:
-        source = PETTINGZOO_ENVS[name]
-        return EnvRef(name, TEAM, modules=modules, source=source)
-    if ":" in name:
-        module_name, _, attr = name.partition(":")
-        if not is_module_path(module_name) or not attr:
-            raise UsageError(f"--env {name!r:.120} is not an env id, a module path or module:name "
-                             "(e.g. sbagents/GridWorld-v0, mpe2.simple_spread_v3, my_pkg.envs:MyEnv-v0)")
-        module = _import(module_name)
-        if module is None:
-            raise UsageError(f"cannot import module {module_name!r} of --env {name}")
-        for candidate in (attr, f"sbagents/{attr}"):
-            if candidate in gym.registry:
-                return EnvRef(candidate, modules=(*modules, module_name))
-        if callable(getattr(module, attr, None)):
-            env_id = callable_env_id(module_name, attr)
-            if _returns_aec_env(getattr(module, attr)):
-                return EnvRef(env_id, GAME, modules=modules, source=name)
-            return EnvRef(env_id, TEAM, modules=modules, source=name)
-        raise UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
-    atari = "NoFrameskip" in name or name.startswith("ALE/")
-    if atari:
-        _register_atari()
-        modules += ("ale_py",)
-    for candidate in (name, f"sbagents/{name}"):
-        if candidate in gym.registry:
-            return EnvRef(candidate, modules=modules)
-    ref = _pettingzoo_module_ref(name, modules)
-    if ref is not None:
-        return ref
+    raise _unclaimed(name)
+
+
+def _unclaimed(name: str) -> UsageError:
+    """The one-line error for a name no kind claims: what it is not, or close ids."""
+    split = _module_and_name(name)
+    if split is not None:
+        module_name, attr = split
+        return UsageError(f"{attr!r} is neither a Gymnasium ID registered by {module_name} nor a function in it")
+    if "." in name and _import(name) is not None:
+        return UsageError(f"module {name} has no parallel_env(**kwargs); name a PettingZoo env module, or "
+                          f"'{name}:<function>' for a function that returns a ParallelEnv")
     known = list(gym.registry) + list(PETTINGZOO_ENVS)
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else "; see python -m sbagents.train --list"
@@ -287,7 +316,7 @@ def resolve_env(name: str, gym_packages: list[str] | tuple[str, ...] = ()) -> En
     shadow = shadowing_folder()
     if shadow is not None:  # sbagents/__init__.py never ran: its ids are not registered
         hint = f"; {shadowing_hint(shadow)}"
-    raise UsageError(f"unknown env id {name!r}{hint}")
+    return UsageError(f"unknown env id {name!r}{hint}")
 
 
 def sbagents_env_ids() -> list[str]:

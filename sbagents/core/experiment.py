@@ -126,6 +126,7 @@ class Experiment:
     team: TeamOptions | None = None  # set for PettingZoo envs
     deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
     self_play: SelfPlayOptions | None = None  # set for turn-based games
+    env_kind: EnvKind = SINGLE_AGENT  # the env's kind (its operations dispatch on it)
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -267,6 +268,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, kind: En
         algo_kwargs=algo_kwargs,
         hyperparams=dict(entry),
         deterministic_eval=deterministic_eval,
+        env_kind=kind,
         **kind.experiment_settings(entry, source),
     )
 

@@ -113,11 +113,19 @@ def checkpoint_stats_path(run_dir: Path, steps: int) -> Path:
     return run_dir / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.npz"
 
 
-def best_stats_path(run_dir: Path) -> Path:
-    """The ``VecNormalize`` statistics of ``best_model.zip``: those saved with it, else (a run from before they
-    were kept) the final ones."""
-    best = run_dir / BEST_VECNORMALIZE_FILE
-    return best if best.is_file() else run_dir / VECNORMALIZE_FILE
+def best_stats_path(run_dir: Path, group: str = SHARED_GROUP) -> Path:
+    """The ``VecNormalize`` statistics of ``best_model.zip`` (of a group's ``best_model.<group>.zip``): those saved
+    with it (``vecnormalize_best.npz``, ``vecnormalize_best.<group>.npz``), else (a run from before they were kept)
+    the final ones."""
+    best = run_dir / best_stats_name(group)
+    return best if best.is_file() else run_dir / group_stats_name(group)
+
+
+def best_stats_name(group: str = SHARED_GROUP) -> str:
+    """The file of the ``VecNormalize`` statistics saved with a best model: ``vecnormalize_best.npz`` (the run's one
+    model, or ``shared``) or ``vecnormalize_best.<group>.npz``."""
+    stem, _, ext = BEST_VECNORMALIZE_FILE.rpartition(".")
+    return BEST_VECNORMALIZE_FILE if group == SHARED_GROUP else f"{stem}.{group}.{ext}"
 
 
 def model_path(run_dir: Path, env_id: str, load_best: bool = False, checkpoint: int | None = None) -> Path:
@@ -422,7 +430,8 @@ def load_run(ref: RunRef) -> LoadedRun:
         paths = {g: group_model_path(run_dir, env.env_id, g, ref.load_best) for g in groups}
         models = {g: load(path) for g, path in paths.items()}
         first = next(iter(models))
-        stats = {g: _stats(run_dir / group_stats_name(g), ref.trust) for g in groups}
+        stats = {g: _stats(best_stats_path(run_dir, g) if ref.load_best else run_dir / group_stats_name(g), ref.trust)
+                 for g in groups}
         return LoadedRun(run_dir, paths[first], exp, models[first], env, models, stats, ref.trust)
     path = model_path(run_dir, env.env_id, ref.load_best, ref.checkpoint)
     model = load(path)

@@ -6,10 +6,21 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from sbagents.core.env_kinds import TEAM
 from sbagents.errors import UsageError
+from sbagents.extensions import Capability
 
 POLICY_MODES = ("shared", "per_agent", "per_group")
 CRITICS = ("local", "centralized")
+#: ``critic: centralized``: the algorithms with a value function to centralize (the capability table's
+#: ``centralized_critic`` column; :data:`sbagents.registration.CAPABILITY_SOURCES` names :func:`capabilities`).
+CENTRALIZED_CRITIC = Capability("centralized_critic", "critic: centralized (PettingZoo teams)", ("a2c", "ppo"),
+                                (TEAM.name,), label="critic: centralized")
+
+
+def capabilities() -> list[Capability]:
+    """What the team settings declare for the capability table: :data:`CENTRALIZED_CRITIC`."""
+    return [CENTRALIZED_CRITIC]
 
 
 @dataclass

@@ -7,16 +7,25 @@ import shlex
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from sbagents.algos import algos_with
 from sbagents.core.zoo_config import parse_overrides
 from sbagents.errors import UsageError
+from sbagents.extensions import Capability
 
 #: The aggregation strategies (:mod:`sbagents.federated.strategies`).
 STRATEGIES = ("fedavg", "fedprox", "dp-fedavg")
 #: Envs with a population of homes (:mod:`sbagents.federated.homes`).
 FEDERATED_ENVS = ("sbagents/SmartHome-v0",)
 #: Algorithms a home can train (SB3 actor-critics for SmartHome's Box actions).
-FEDERATED_ALGOS = algos_with("federated")
+FEDERATED_ALGOS: tuple[str, ...] = ("a2c", "ppo", "ddpg", "td3", "sac")
+#: Federated homes' column of the capability table (:data:`sbagents.registration.CAPABILITY_SOURCES` names
+#: :func:`capabilities`).
+FEDERATED_HOMES = Capability("federated", "federated homes (python -m sbagents.federated)", FEDERATED_ALGOS,
+                             label="federated homes")
+
+
+def capabilities() -> list[Capability]:
+    """What federated homes declare for the capability table: :data:`FEDERATED_HOMES`."""
+    return [FEDERATED_HOMES]
 
 
 @dataclass

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,7 +23,9 @@ from stable_baselines3.common.vec_env import VecEnv, sync_envs_normalization
 from sbagents.atomic import save_model, write_npz
 from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, stateless, summarize_records
 from sbagents.callbacks.episodes import slot_agents as episode_slot_agents
+from sbagents.core.run_dir import best_stats_name
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP, ParameterSharingVecEnv
+from sbagents.state_files import save_vecnormalize
 
 #: ``obs batch -> actions`` (a stateless actor; :func:`~sbagents.callbacks.episodes.stateless` makes it a ``Policy``).
 Actor = Callable[[Any], np.ndarray]
@@ -171,7 +174,10 @@ class TeamEvalCallback(EvalCallback):
         if mean_reward > self.best_mean_reward:
             self.best_mean_reward = mean_reward
             if self.best_model_save_path is not None:
-                for group, model in models.items():
+                for group, model in models.items():  # statistics first: a best model has its own beside it
+                    stats = model.get_vec_normalize_env()
+                    if stats is not None:
+                        save_vecnormalize(stats, Path(self.best_model_save_path) / best_stats_name(group))
                     name = "best_model.zip" if group == SHARED_GROUP else f"best_model.{group}.zip"
                     save_model(model, os.path.join(self.best_model_save_path, name))
         return self._on_event() if self.callback is not None else True

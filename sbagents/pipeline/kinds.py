@@ -1,33 +1,78 @@
-"""What each env kind (:mod:`sbagents.core.env_kinds`) means for an SB3 training run: its periodic evaluation and the
-extra keyword arguments of its training envs, registered per kind with :func:`functools.singledispatch`."""
+"""What each env kind (:mod:`sbagents.core.env_kinds`) means for an SB3 training run: the groups of models it trains,
+its periodic evaluation, the callbacks each model gets and the extra keyword arguments of its training envs, each a
+:func:`~sbagents.core.env_kinds.kind_operation`."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
 from sbagents.callbacks.run_files import AtomicEvalCallback
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
-from sbagents.env_factory import make_eval_vec
+from sbagents.env_construction import check_env_kwargs
+from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval
+from sbagents.errors import UsageError
 from sbagents.pipeline.models import RunContext
 
 #: Seed offsets of the evaluation envs (distinct from the training envs' seeds).
 EVAL_SEED_OFFSET = 10_000
 
 
+@kind_operation(GameKind)
+def model_groups(kind: EnvKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | None:
+    """The groups of agents a run trains one model each for (group -> agents; one group ``shared`` for a shared
+    policy), or None: the env has one learner (a Gymnasium env; a game's learning seat)."""
+    return None
+
+
+@model_groups.register
+def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | None:
+    """A team: its groups, read from one env built with the experiment's kwargs."""
+    from sbagents.multiagent.groups import team_groups
+
+    assert exp.team is not None
+    check_env_kwargs(ref, exp.env_kwargs)
+    try:
+        probe = ref.parallel_env(**exp.env_kwargs)
+    except (TypeError, ValueError, AssertionError) as exc:
+        given = ", ".join(f"{k}={v!r}" for k, v in exp.env_kwargs.items())
+        raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {exc}") from None
+    agents = [str(a) for a in probe.possible_agents]
+    probe.close()
+    return team_groups(exp.team, agents)
+
+
+@kind_operation(GameKind)
+def model_callbacks(kind: EnvKind, ctx: RunContext) -> list[BaseCallback]:
+    """Callbacks the kind adds to each model of a run (none for most kinds)."""
+    return []
+
+
+@model_callbacks.register
+def _(kind: TeamKind, ctx: RunContext) -> list[BaseCallback]:
+    """A team, on-policy: absent agents' transitions stay out of the rollout's minibatches."""
+    from sbagents.multiagent.masking import ActedMaskCallback
+
+    return [ActedMaskCallback()] if isinstance(ctx.model, OnPolicyAlgorithm) else []
+
+
 @kind_operation()
-def periodic_evaluation(kind: EnvKind, ctx: RunContext, n_eval_envs: int, after_eval: BaseCallback,
+def periodic_evaluation(kind: EnvKind, contexts: Sequence[RunContext], n_eval_envs: int, after_eval: BaseCallback,
                         vec_env: str = "auto") -> list[BaseCallback]:
-    """The callbacks that evaluate a run every ``ctx.eval_freq`` env steps (``best_model.zip``, ``evaluations.npz``)
-    and call ``after_eval`` after each evaluation; none when ``ctx.eval_freq <= 0``.
+    """The callbacks (of the first model, ``contexts[0]``) that evaluate a run every ``eval_freq`` env steps
+    (``best_model.zip``, ``evaluations.npz``) and call ``after_eval`` after each evaluation; none when
+    ``eval_freq <= 0``.
 
     A Gymnasium env: SB3's EvalCallback (written atomically) on ``n_eval_envs`` envs (EnvPool's when the training
     envs are EnvPool's).
     """
+    ctx = contexts[0]
     if ctx.eval_freq <= 0:
         return []
     eval_env = make_eval_vec(ctx.exp, ctx.ref, n_eval_envs, ctx.seed + EVAL_SEED_OFFSET,
@@ -36,24 +81,33 @@ def periodic_evaluation(kind: EnvKind, ctx: RunContext, n_eval_envs: int, after_
 
 
 @periodic_evaluation.register
-def _(kind: TeamKind, ctx: RunContext, n_eval_envs: int, after_eval: BaseCallback,
+def _(kind: TeamKind, contexts: Sequence[RunContext], n_eval_envs: int, after_eval: BaseCallback,
       vec_env: str = "auto") -> list[BaseCallback]:
-    """A team: whole-team episodes on one env (team return, per-agent returns)."""
+    """A team: whole-team episodes on one env (team return, per-agent returns), every group's model acting; the best
+    team's models are kept (``best_model.zip``, or ``best_model.<group>.zip`` per group)."""
+    ctx = contexts[0]
     if ctx.eval_freq <= 0:
         return []
     from sbagents.multiagent.team_eval import TeamEvalCallback
 
-    team_env = make_eval_vec(ctx.exp, ctx.ref, 1, None, vec_env="dummy")
+    if ctx.group is None:
+        team_env: Any = make_eval_vec(ctx.exp, ctx.ref, 1, None, vec_env="dummy")
+        models = None
+    else:
+        team_env = {g: normalize_for_eval(v, ctx.exp)
+                    for g, v in make_team_vecs(ctx.exp, ctx.ref, 1, None, vec_env="dummy").items()}
+        models = {str(c.group): c.model for c in contexts}
     return [TeamEvalCallback(team_env, seed=ctx.seed + EVAL_SEED_OFFSET, deterministic=ctx.exp.deterministic_eval,
-                             **_eval_settings(ctx, after_eval))]
+                             models=models, timestep_scale=ctx.timestep_scale, **_eval_settings(ctx, after_eval))]
 
 
 @periodic_evaluation.register
-def _(kind: GameKind, ctx: RunContext, n_eval_envs: int, after_eval: BaseCallback,
+def _(kind: GameKind, contexts: Sequence[RunContext], n_eval_envs: int, after_eval: BaseCallback,
       vec_env: str = "auto") -> list[BaseCallback]:
     """A turn-based game: matches against the evaluation opponent, snapshots into the self-play pool, Elo."""
     from sbagents.games.training import game_callbacks
 
+    ctx = contexts[0]
     eval_calls = ctx.eval_calls() if ctx.eval_freq > 0 else 0
     return game_callbacks(ctx.exp, ctx.ref, ctx.run_dir, ctx.seed, ctx.train_env.num_envs, eval_calls,
                           ctx.eval_episodes, after_eval, make_eval_env=make_eval_vec)

@@ -14,6 +14,7 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.algos import ALGOS, algos_for, algos_with
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.env_factory import make_eval_vec, make_vec
@@ -76,9 +77,7 @@ def make_model(
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
-    policy: Any = exp.policy
-    if exp.team is not None:
-        policy = _team_model_kwargs(exp, kwargs, isinstance(env.observation_space, spaces.Dict))
+    policy = model_policy(exp.env_kind, exp, kwargs, isinstance(env.observation_space, spaces.Dict))
     if resume is not None:
         common: dict[str, Any] = dict(env=env, device=device, trust=resume.trust, tensorboard_log=tensorboard_log,
                                       verbose=verbose, hyperparams={**kwargs, "policy": policy})
@@ -95,8 +94,19 @@ def make_model(
     return model
 
 
-def _team_model_kwargs(exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
-    """Death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
+@kind_operation(GameKind)
+def model_policy(kind: EnvKind, exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
+    """The policy the model of ``exp`` is built with; may complete the model's keyword arguments ``kwargs``
+    (default: the experiment's policy).
+
+    :param dict_obs: the model's observations are a ``Dict`` space.
+    """
+    return exp.policy
+
+
+@model_policy.register
+def _team_model_kwargs(kind: TeamKind, exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
+    """A team: death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
     experiment; returns the policy to use and completes ``kwargs``. A recurrent algorithm (``ppo_lstm``) keeps
     sb3-contrib's sequence buffer: an agent that leaves before its team's episode ends adds its padded steps.
 
@@ -131,6 +141,9 @@ class RunContext:
     :param state: the extensions' per-run scratch space.
     :param group: the group of agents this model acts for in a run of one model per group (None: the run's one
         model); :meth:`file_name` suffixes the files it writes with it.
+    :param steps_per_call: the run's timesteps per call of this model's callbacks, where that is not
+        ``train_env.num_envs``: a group's model is called once per step of the whole team, whose agents in every
+        group count (None: ``train_env.num_envs``).
     """
 
     exp: Experiment
@@ -146,6 +159,13 @@ class RunContext:
     save_freq: int = -1
     state: dict[str, Any] = field(default_factory=dict)
     group: str | None = None
+    steps_per_call: int | None = None
+
+    @property
+    def timestep_scale(self) -> float:
+        """The run's timesteps per timestep of this model (the team's agents per agent of a group's model; 1 for the
+        run's one model)."""
+        return (self.steps_per_call or self.train_env.num_envs) / self.train_env.num_envs
 
     def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:
         """A fresh evaluation vec env of the run's env.
@@ -166,8 +186,9 @@ class RunContext:
         return f"{stem}.{self.group}{dot}{ext}"
 
     def calls(self, env_steps: int) -> int:
-        """An env-step period as callback calls (one call per vec step of ``train_env``), at least 1."""
-        return max(env_steps // self.train_env.num_envs, 1)
+        """An env-step period as callback calls (one call per vec step of ``train_env``: :attr:`steps_per_call`
+        timesteps), at least 1."""
+        return max(env_steps // (self.steps_per_call or self.train_env.num_envs), 1)
 
     def eval_calls(self) -> int:
         """The evaluation period as callback calls: :meth:`calls` of ``eval_freq``, and at least one rollout

@@ -3,24 +3,26 @@
 Flow (docs/architecture.md): :class:`TrainSpec` + zoo config -> :class:`Experiment` -> env factory -> SB3 model +
 callbacks -> run directory. Every run checks what it can before the run dir is created (a run of one model per group
 builds one team copy to check its groups' spaces); a setup failure removes the half-made run dir; an interrupted run
-(Ctrl-C, SIGTERM) still saves its model and logs.
+(Ctrl-C, SIGTERM) still saves its models and logs. One model or one per group of a team's agents, it is the same
+sequence: the models of a run of one model per group learn in lockstep on one team
+(:func:`sbagents.multiagent.lockstep.learn_in_lockstep`), and every step of the sequence runs for each of them.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
-from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.utils import set_random_seed
-from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sbagents.algos import ALGOS, algos_for
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback
@@ -40,22 +42,22 @@ from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import (
     BEST_MODEL_FILE,
     CHECKPOINT_PREFIX,
+    SHARED_GROUP,
     best_stats_path,
     check_model_file,
     checkpoint_stats_path,
     env_stem,
+    group_model_name,
     group_stats_name,
 )
-from sbagents.env_construction import check_env_kwargs
-from sbagents.env_factory import make_vec, normalize_for_training
+from sbagents.env_factory import make_team_vecs, make_vec, normalize_for_training
 from sbagents.errors import UsageError
-from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, registered_extensions
-from sbagents.multiagent.groups import team_groups
-from sbagents.multiagent.masking import ActedMaskCallback
+from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, prepare_extensions
+from sbagents.multiagent.lockstep import learn_in_lockstep
 from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
-from sbagents.pipeline.evaluation import evaluate_model
-from sbagents.pipeline.kinds import periodic_evaluation, training_env_kwargs
+from sbagents.pipeline.evaluation import evaluate_groups, evaluate_model
+from sbagents.pipeline.kinds import model_callbacks, model_groups, periodic_evaluation, training_env_kwargs
 from sbagents.pipeline.models import Resume, RunContext, check_spaces, make_model
 from sbagents.replay.buffer_files import checkpoint_steps
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
@@ -73,20 +75,6 @@ class StopOnRequestCallback(BaseCallback):
         return not self.clock.stop_requested
 
 
-def _callbacks(ctx: RunContext, n_eval_envs: int, save_freq: int, reporter: ProgressReporter,
-               vec_env: str = "auto") -> list[BaseCallback]:
-    """Progress, periodic evaluation (``best_model.zip``, ``evaluations.npz``; its env of kind ``vec_env`` where
-    that is ``envpool``), checkpoints, config callbacks."""
-    exp, ref, run_dir = ctx.exp, ctx.ref, ctx.run_dir
-    callbacks: list[BaseCallback] = [ProgressCallback(reporter)]
-    callbacks += periodic_evaluation(ref.kind, ctx, n_eval_envs, EvalReportCallback(reporter), vec_env)
-    if save_freq > 0:
-        callbacks.append(AtomicCheckpointCallback(ctx.calls(save_freq), str(run_dir), name_prefix=CHECKPOINT_PREFIX,
-                                                  save_vecnormalize=True))
-    callbacks.extend(cb(**kw) for cb, kw in exp.callbacks)
-    return callbacks
-
-
 def train_sb3(
     spec: TrainSpec,
     output: OutputOptions | None = None,
@@ -98,11 +86,12 @@ def train_sb3(
 ) -> TrainResult:
     """Train ``spec.algo`` on ``spec.env`` with SB3 and its zoo config, and write a run directory.
 
-    A fixed sequence: :func:`_plan` (every check, before a run dir exists), then for one model :func:`_build`
-    (run dir, envs, model, callbacks), :func:`_learn` and :func:`_finish` (summary, final evaluation); the training
-    extensions take part through their hooks at each step.
+    One fixed sequence for every run: :func:`_plan` (every check, before a run dir exists), then :func:`_build`
+    (run dir, envs, models, callbacks), :func:`_learn` and :func:`_finish` (summary, final evaluation). A run trains
+    one model, or one model per group of a team's agents (``policies: per_group | per_agent``), which learn in
+    lockstep on one team; the training extensions take part through their hooks at each step, for each model.
 
-    :param callbacks: extra SB3 callbacks, after sbagents' own.
+    :param callbacks: extra SB3 callbacks, after sbagents' own (in the first group's model when there are several).
     :param features: the specs of the training extensions this run uses (:mod:`sbagents.extensions`: e.g.
         ``TrustOptions``, ``PrivacyOptions``, a ``RobustSpec``), each checked by its extension.
     :param sb3: the vec env and the log interval.
@@ -110,9 +99,6 @@ def train_sb3(
     """
     run = _plan(spec, output or OutputOptions(), evaluation or EvalOptions(), execution or ExecOptions(),
                 sb3 or Sb3Options(), features)
-    if run.groups is not None and len(run.groups) > 1:
-        return _train_groups(spec, run.exp, run.ref, run.args, run.command,
-                             (run.output, run.evaluation, run.execution, run.sb3), run.actives, callbacks)
     built = _build(run)
     clock = _learn(run, built, callbacks)
     return _finish(run, built, clock)
@@ -139,6 +125,16 @@ class _RunPlan:
     args: dict[str, Any]
     command: str
 
+    @property
+    def per_group(self) -> bool:
+        """Whether the run trains one model per group (several groups)."""
+        return self.groups is not None and len(self.groups) > 1
+
+    @property
+    def n_agents(self) -> int:
+        """The team's agents (1 for a Gymnasium env)."""
+        return sum(len(a) for a in self.groups.values()) if self.groups is not None else 1
+
 
 def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execution: ExecOptions,
           sb3: Sb3Options, features: Sequence[Any]) -> _RunPlan:
@@ -154,22 +150,23 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     exp = build_experiment(spec, ref, tuple(a.extension.overrides_key for a in actives if a.extension.overrides_key))
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
-    groups = team_agents(exp, ref) if exp.team is not None else None
+    groups = model_groups(ref.kind, exp, ref)
     plan = ExtensionPlan(spec.algo, exp, ref, team=groups is not None, resuming=spec.trained_agent is not None,
                          n_models=1 if groups is None else len(groups), specs={a.name: a.spec for a in actives},
                          hyperparams=spec.hyperparams)
-    actives = _prepare(plan)
+    actives = prepare_extensions(plan)
     exp = plan.exp
-    if groups is not None and len(groups) > 1:
+    per_group = groups is not None and len(groups) > 1
+    if per_group:
         if spec.trained_agent is not None:
             raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
         refused = [a.extension.flags for a in actives if not a.extension.group_runs]
         if refused:
             raise UsageError(f"{', '.join(refused)} not supported for runs of one model per group ({ref.env_id})")
-    if groups is None or len(groups) == 1:
-        check_spaces(exp, ref)
-    else:
+    if per_group:
         _check_group_spaces(exp, ref)
+    else:
+        check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
     seed = draw_seed(execution.seed)
     vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
@@ -188,20 +185,35 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
 
 
 @dataclass
-class _BuiltRun:
-    """An SB3 run ready to learn: its context (run dir, envs, model), reporter and callbacks."""
+class _Model:
+    """One model of a run: its context (what the extensions' hooks see), sbagents' own callbacks and each
+    extension's callbacks (in extension order)."""
 
     ctx: RunContext
-    reporter: ProgressReporter
-    steps_before: int
     own: list[BaseCallback]
     per_extension: list[list[BaseCallback]]
-    warnings: list[str]
 
     @property
     def extension_callbacks(self) -> list[BaseCallback]:
         """The extensions' callbacks, in extension order."""
         return [cb for cbs in self.per_extension for cb in cbs]
+
+
+@dataclass
+class _BuiltRun:
+    """An SB3 run ready to learn: its models (one, or one per group in the team's order), reporter and the team
+    coordinator that steps the models of a run of one model per group together.
+
+    :param joint: the team coordinator (None: the run's one model learns alone).
+    :param env_steps: team steps of the run's models in lockstep (0: one model).
+    """
+
+    models: list[_Model]
+    reporter: ProgressReporter
+    steps_before: int
+    warnings: list[str]
+    joint: Any = None
+    env_steps: int = 0
 
 
 def _resume_stats(model: Path) -> Path:
@@ -214,174 +226,195 @@ def _resume_stats(model: Path) -> Path:
     return best_stats_path(model.parent) if model.name == BEST_MODEL_FILE else model.parent / VECNORMALIZE_FILE
 
 
+def _train_envs(run: _RunPlan, run_dir: Path) -> tuple[dict[str | None, VecEnv], Any]:
+    """The training VecEnv of each model (``None``: the run's one model; else each group's, stepping one team) with
+    its normalization, and the team coordinator of the groups (None for one model)."""
+    exp, ref = run.exp, run.ref
+    if not run.per_group:
+        stats = _resume_stats(run.resume.path) if run.resume is not None else None
+        venv = make_vec(exp, ref, exp.n_envs, run.seed, run_dir, run.vec_env,
+                        env_kwargs=training_env_kwargs(ref.kind, exp, ref, run_dir))
+        return {None: normalize_for_training(venv, exp, stats, run.spec.trust_run)}, None
+    venvs = make_team_vecs(exp, ref, exp.n_envs, run.seed, run_dir, run.vec_env)
+    joint = next(iter(venvs.values())).unwrapped.joint  # type: ignore[attr-defined]
+    return {g: normalize_for_training(v, exp) for g, v in venvs.items()}, joint
+
+
+def _callbacks(contexts: Sequence[RunContext], run: _RunPlan, reporter: ProgressReporter) -> list[list[BaseCallback]]:
+    """sbagents' own callbacks of each model: progress and periodic evaluation (``best_model.zip``,
+    ``evaluations.npz``; for one model per group, of the whole team) on the first model, then each model's
+    checkpoints, its kind's callbacks and the config's callbacks."""
+    lead = contexts[0]
+    scale = lead.timestep_scale
+    first: list[BaseCallback] = [ProgressCallback(reporter, scale)]
+    first += periodic_evaluation(run.ref.kind, contexts, run.evaluation.n_eval_envs,
+                                 EvalReportCallback(reporter, scale), run.vec_env)
+    each = []
+    for ctx in contexts:
+        own = first if ctx is lead else []
+        if run.output.save_freq > 0:
+            own.append(AtomicCheckpointCallback(ctx.calls(run.output.save_freq), str(ctx.run_dir),
+                                                name_prefix=ctx.file_name(CHECKPOINT_PREFIX), save_vecnormalize=True))
+        own += model_callbacks(run.ref.kind, ctx)
+        own += [cb(**kw) for cb, kw in run.exp.callbacks]
+        each.append(own)
+    return each
+
+
 def _build(run: _RunPlan) -> _BuiltRun:
-    """Create the run dir (removed again if anything here fails), the training envs, the model and the callbacks."""
+    """Create the run dir (removed again if anything here fails), then for each model (one, or one per group) its
+    training env, the model, its context and callbacks; every extension's model hooks run for each model."""
     exp, ref, seed, resume = run.exp, run.ref, run.seed, run.resume
     with new_run_dir(run.output.log_folder, run.spec.algo, ref.env_id, exp.hyperparams, run.args,
                      run.command) as run_dir:
         set_random_seed(seed)
-        stats = _resume_stats(resume.path) if resume is not None else None
-        venv = make_vec(exp, ref, exp.n_envs, seed, run_dir, run.vec_env,
-                        env_kwargs=training_env_kwargs(ref.kind, exp, ref, run_dir))
-        train_env = normalize_for_training(venv, exp, stats, run.spec.trust_run)
-        for active in run.actives:
-            train_env = active.extension.wrap_train_env(active.spec, train_env)
-        model = make_model(exp, train_env, seed, run.execution.device, tensorboard_log=run.output.tensorboard_log,
-                           verbose=max(run.execution.verbose - 1, 0), resume=resume, extensions=run.actives)
-        ctx = RunContext(exp, ref, run_dir, train_env, model, seed, run.eval_freq, run.evaluation.eval_episodes,
-                         trained_agent=resume.path if resume else None, trust_run=run.spec.trust_run,
-                         save_freq=run.output.save_freq)
-        for active in run.actives:
-            active.extension.setup(active.spec, ctx)
-        steps_before = model.num_timesteps if resume is not None else 0
+        envs, joint = _train_envs(run, run_dir)
+        # one call of a group's callbacks is one step of the whole team: its agents' steps in all groups
+        steps_per_call = exp.n_envs * run.n_agents if joint is not None else None
+        contexts = []
+        for group, train_env in envs.items():
+            for active in run.actives:
+                train_env = active.extension.wrap_train_env(active.spec, train_env)
+            model = make_model(exp, train_env, seed, run.execution.device,
+                               tensorboard_log=run.output.tensorboard_log, verbose=max(run.execution.verbose - 1, 0),
+                               resume=resume, extensions=run.actives)
+            contexts.append(RunContext(exp, ref, run_dir, train_env, model, seed, run.eval_freq,
+                                       run.evaluation.eval_episodes, trained_agent=resume.path if resume else None,
+                                       trust_run=run.spec.trust_run, save_freq=run.output.save_freq, group=group,
+                                       steps_per_call=steps_per_call))
+        for ctx in contexts:
+            for active in run.actives:
+                active.extension.setup(active.spec, ctx)
+        lead = contexts[0]
+        steps_before = lead.model.num_timesteps if resume is not None else 0
         reporter = ProgressReporter(exp.n_timesteps, bar=run.execution.progress, quiet=run.execution.verbose <= 0,
                                     start=steps_before)
-        own = _callbacks(ctx, run.evaluation.n_eval_envs, run.output.save_freq, reporter, run.vec_env)
-        if exp.team is not None and isinstance(model, OnPolicyAlgorithm):
-            own.append(ActedMaskCallback())  # absent agents' transitions stay out of the rollout's minibatches
-        per_extension = [active.extension.callbacks(active.spec, ctx) for active in run.actives]
-    warnings = budget_warnings(model, run.spec.algo, exp.n_timesteps, steps_before)
+        own = _callbacks(contexts, run, reporter)
+        models = [_Model(ctx, own[i], [active.extension.callbacks(active.spec, ctx) for active in run.actives])
+                  for i, ctx in enumerate(contexts)]
+    env_steps = math.ceil(exp.n_timesteps / steps_per_call) if steps_per_call else 0
+    warnings = budget_warnings(lead.model, run.spec.algo, round(exp.n_timesteps / lead.timestep_scale),
+                               round(steps_before / lead.timestep_scale))
     for warning in warnings:
         reporter.warn(warning)
-    return _BuiltRun(ctx, reporter, steps_before, own, per_extension, warnings)
+    return _BuiltRun(models, reporter, steps_before, warnings, joint, env_steps)
 
 
 def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -> LearningClock:
-    """``model.learn`` inside a graceful clock; the model and the extensions' files are saved however it ends."""
-    model, ctx = built.ctx.model, built.ctx
+    """Learn inside a graceful clock (the first Ctrl-C / SIGTERM stops every model between two steps): the one
+    model's ``learn``, or every group's model in lockstep on one team; the models and the extensions' files are
+    saved however it ends. ``callbacks`` (the caller's) run in the first model."""
+    lead = built.models[0].ctx.model
     log_interval = run.sb3.log_interval
     if log_interval < 0:
-        log_interval = 1 if hasattr(model, "n_steps") else 100
+        log_interval = 1 if hasattr(lead, "n_steps") else 100
     clock = LearningClock(graceful=True)
+    each = {str(m.ctx.group): [StopOnRequestCallback(clock), *m.own, *m.extension_callbacks,
+                               *(callbacks if i == 0 else ())] for i, m in enumerate(built.models)}
     try:
         with clock:
-            model.learn(run.exp.n_timesteps, callback=[StopOnRequestCallback(clock), *built.own,
-                                                       *built.extension_callbacks, *callbacks],
-                        reset_num_timesteps=run.resume is None, log_interval=log_interval)
+            if built.joint is None:
+                lead.learn(run.exp.n_timesteps, callback=each["None"], reset_num_timesteps=run.resume is None,
+                           log_interval=log_interval)
+            else:
+                learn_in_lockstep(built.joint, {str(m.ctx.group): m.ctx.model for m in built.models},
+                                  built.env_steps, each, log_interval)
     finally:
         built.reporter.close()
-        _save(model, ctx)
-        for active in run.actives:
-            active.extension.after_learn(active.spec, ctx)
+        for m in built.models:  # every model saved before any extension's after_learn
+            _save(m.ctx)
+        for m in built.models:
+            for active in run.actives:
+                active.extension.after_learn(active.spec, m.ctx)
     return clock
 
 
+def _model_summary(run: _RunPlan, model: _Model) -> dict[str, Any]:
+    """One model's ``summary.json`` items: its extensions' and its callbacks' (e.g. a game's learner's illegal moves
+    in training)."""
+    items: dict[str, Any] = {}
+    for active in run.actives:
+        items.update(active.extension.summary(active.spec, model.ctx))
+    for callback in [*model.own, *model.extension_callbacks]:
+        items.update(getattr(callback, "summary_items", dict)())
+    return items
+
+
 def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResult:
-    """``summary.json`` (with the extensions' keys and the final evaluation) and the run's result."""
-    ctx, model, exp, ref = built.ctx, built.ctx.model, run.exp, run.ref
-    summary = base_summary(run.spec.algo, ref.env_id, run.seed, model.num_timesteps,
-                           model.num_timesteps - built.steps_before, clock)
+    """``summary.json`` (each model's extension items: at the top for one model, under ``by_group`` per group's
+    model), the final evaluation (of the whole team for one model per group) judged by every extension for each
+    model, and the run's result."""
+    exp, ref, run_dir = run.exp, run.ref, built.models[0].ctx.run_dir
+    steps = sum(m.ctx.model.num_timesteps for m in built.models)
+    summary = base_summary(run.spec.algo, ref.env_id, run.seed, steps, steps - built.steps_before, clock)
     if built.warnings:
         summary["warnings"] = built.warnings
-    for active in run.actives:
-        summary.update(active.extension.summary(active.spec, ctx))
-    for callback in [*built.own, *built.extension_callbacks]:  # e.g. a game's learner's illegal moves in training
-        summary.update(getattr(callback, "summary_items", dict)())
-    episodes = run.evaluation.final_eval_episodes
+    if built.joint is not None:
+        summary["groups"] = run.groups
+    items = [_model_summary(run, m) for m in built.models]
+
+    def place_items() -> None:
+        if built.joint is None:
+            summary.update(items[0])
+            return
+        by_group = {m.ctx.group: part for m, part in zip(built.models, items, strict=True) if part}
+        if by_group:
+            summary["by_group"] = by_group
+
+    place_items()
+    options = EvaluateOptions(n_episodes=run.evaluation.final_eval_episodes, seed=run.seed)
 
     def final_eval() -> dict[str, Any]:
-        result = evaluate_model(model, exp, ref, EvaluateOptions(n_episodes=episodes, seed=run.seed),
-                                ctx.run_dir / VECNORMALIZE_FILE)
-        for active in run.actives:
-            active.extension.judge_evaluation(active.spec, summary, result)
+        if built.joint is None:
+            result = evaluate_model(built.models[0].ctx.model, exp, ref, options, run_dir / VECNORMALIZE_FILE)
+        else:
+            groups = [str(m.ctx.group) for m in built.models]
+            result = evaluate_groups({g: m.ctx.model for g, m in zip(groups, built.models, strict=True)}, exp, ref,
+                                     options, {g: run_dir / group_stats_name(g) for g in groups})
+        for part in items:
+            for active in run.actives:
+                active.extension.judge_evaluation(active.spec, summary if built.joint is None else part, result)
+        place_items()
         return result
 
-    finish_run(ctx.run_dir, summary, final_eval if episodes > 0 else None)
+    finish_run(run_dir, summary, final_eval if options.n_episodes > 0 else None)
     results: dict[str, Any] = {}
-    for active, cbs in zip(run.actives, built.per_extension, strict=True):
-        results.update(active.extension.results(active.spec, cbs))
-    return TrainResult(ctx.run_dir, model, exp, summary, clock.interrupted, results)
-
-
-def _prepare(plan: ExtensionPlan) -> list[ActiveExtension]:
-    """Let every registered extension check the plan: :meth:`~sbagents.extensions.TrainingExtension.prepare` for
-    those the run uses (in order; each may adjust the experiment and replace a later one's spec),
-    :meth:`~sbagents.extensions.TrainingExtension.check_unused` for the others; the run's extensions."""
-    for extension in registered_extensions():
-        spec = plan.specs.get(extension.name)
-        if spec is None:
-            extension.check_unused(plan)
-            continue
-        spec = extension.prepare(spec, plan)
-        plan.replace(extension.name, spec)
-        plan.exp = extension.adjust_experiment(spec, plan.exp)
-    return activate(list(plan.specs.values()))
-
-
-def team_agents(exp: Experiment, ref: EnvRef) -> dict[str, list[str]]:
-    """The groups of a PettingZoo experiment (group -> agents), read from one env built with its kwargs."""
-    assert exp.team is not None
-    check_env_kwargs(ref, exp.env_kwargs)
-    try:
-        probe = ref.parallel_env(**exp.env_kwargs)
-    except (TypeError, ValueError, AssertionError) as exc:
-        given = ", ".join(f"{k}={v!r}" for k, v in exp.env_kwargs.items())
-        raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {exc}") from None
-    agents = [str(a) for a in probe.possible_agents]
-    probe.close()
-    return team_groups(exp.team, agents)
+    for m in built.models:
+        found: dict[str, Any] = {}
+        for active, cbs in zip(run.actives, m.per_extension, strict=True):
+            found.update(active.extension.results(active.spec, cbs))
+        if built.joint is None:
+            results.update(found)
+        else:
+            results.setdefault("by_group", {})[m.ctx.group] = found
+    if built.joint is None:
+        return TrainResult(run_dir, built.models[0].ctx.model, exp, summary, clock.interrupted, results)
+    return TrainResult(run_dir, None, exp, summary, clock.interrupted, results,
+                       models={str(m.ctx.group): m.ctx.model for m in built.models})
 
 
 def _check_group_spaces(exp: Experiment, ref: EnvRef) -> None:
     """Refuse, before a run dir exists, a group whose spaces the algorithm cannot act in (one team copy is built
     and closed)."""
-    from sbagents.env_factory import make_team_vecs
-    from sbagents.pipeline.team_training import check_group_spaces
-
     venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy")
     try:
-        check_group_spaces(exp, venvs)
+        for group, venv in venvs.items():
+            if not ALGOS[exp.algo].supports(venv.observation_space, venv.action_space):
+                able = ", ".join(algos_for(venv.observation_space, venv.action_space)) or "none"
+                raise UsageError(f"{exp.algo} cannot learn group {group} of {exp.env_id} (observation "
+                                 f"{type(venv.observation_space).__name__}, action "
+                                 f"{type(venv.action_space).__name__}); algos that can: {able}")
     finally:
         next(iter(venvs.values())).close()
 
 
-def _train_groups(
-    spec: TrainSpec, exp: Experiment, ref: EnvRef, args: dict[str, Any], command: str,
-    options: tuple[OutputOptions, EvalOptions, ExecOptions, Sb3Options], actives: Sequence[ActiveExtension],
-    callbacks: Sequence[BaseCallback],
-) -> TrainResult:
-    """The run of one model per group (:mod:`sbagents.pipeline.team_training`): every extension's model hooks run
-    once per group's model (``summary.json`` keeps their items per group under ``by_group``); extensions that
-    cannot serve such runs were refused in :func:`_plan`."""
-    from sbagents.pipeline.evaluation import evaluate_groups
-    from sbagents.pipeline.team_training import build_groups, learn_groups
-
-    output, evaluation, _, sb3 = options
-    seed = int(args["seed"])
-    with new_run_dir(output.log_folder, spec.algo, ref.env_id, exp.hyperparams, args, command) as run_dir:
-        set_random_seed(seed)
-        setup = build_groups(exp, ref, run_dir, seed, options, actives, callbacks)
-    clock = LearningClock()
-    learn_groups(setup, clock, sb3.log_interval, run_dir, env_stem(ref.env_id), actives)
-    steps = sum(m.num_timesteps for m in setup.models.values())
-    summary = {**base_summary(spec.algo, ref.env_id, seed, steps, steps, clock), "groups": setup.groups}
-    by_group: dict[str, dict[str, Any]] = {}
-    results: dict[str, Any] = {}
-    for group, ctx in setup.contexts.items():
-        items: dict[str, Any] = {}
-        for active, cbs in zip(actives, setup.extension_callbacks[group], strict=True):
-            items.update(active.extension.summary(active.spec, ctx))
-            results.setdefault("by_group", {}).setdefault(group, {}).update(active.extension.results(active.spec,
-                                                                                                      cbs))
-        if items:
-            by_group[group] = items
-    if by_group:
-        summary["by_group"] = by_group
-
-    def final_eval() -> dict[str, Any]:
-        stats = {g: run_dir / group_stats_name(g) for g in setup.groups}
-        return evaluate_groups(setup.models, exp, ref,
-                               EvaluateOptions(n_episodes=evaluation.final_eval_episodes, seed=seed), stats)
-
-    finish_run(run_dir, summary, final_eval if evaluation.final_eval_episodes > 0 else None)
-    return TrainResult(run_dir, None, exp, summary, clock.interrupted, results, models=setup.models)
-
-
-def _save(model: BaseAlgorithm, ctx: RunContext) -> None:
-    """The VecNormalize statistics, then the final model into the run dir (each atomically: a model file that
-    exists is complete and has its statistics beside it); the training env is closed."""
+def _save(ctx: RunContext) -> None:
+    """The VecNormalize statistics, then the model into the run dir (each atomically: a model file that exists is
+    complete and has its statistics beside it; ``<EnvStem>.zip`` and ``vecnormalize.npz`` for the run's one model,
+    ``<EnvStem>.<group>.zip`` and ``vecnormalize.<group>.npz`` for a group's); the training env is closed."""
+    group = ctx.group or SHARED_GROUP
     if isinstance(ctx.train_env, VecNormalize):
-        save_vecnormalize(ctx.train_env, ctx.run_dir / VECNORMALIZE_FILE)
-    save_model(model, ctx.run_dir / f"{env_stem(ctx.ref.env_id)}.zip")
+        save_vecnormalize(ctx.train_env, ctx.run_dir / group_stats_name(group))
+    save_model(ctx.model, ctx.run_dir / group_model_name(env_stem(ctx.ref.env_id), group))
     with contextlib.suppress(EOFError, BrokenPipeError, ConnectionResetError):
         ctx.train_env.close()  # SubprocVecEnv workers may already be gone after Ctrl-C

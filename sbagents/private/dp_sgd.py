@@ -28,14 +28,14 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
-from sbagents.algos import ALGOS, algos_with
+from sbagents.algos import ALGOS
 from sbagents.private.accounting import PrivacyLedger, RolloutLedger, epsilon_of, noise_for_epsilon, planned_draws
+from sbagents.private.options import DP_ALGOS
 from sbagents.private.replay import PoissonReplayBuffer
 
-#: Off-policy algorithms DP-SGD is wired for.
-OFF_POLICY_DP_ALGOS = tuple(name for name in algos_with("dp") if ALGOS[name].off_policy)
-#: Algorithms DP-SGD is wired for (the class names accepted by :func:`make_private`).
-DP_ALGOS = (*OFF_POLICY_DP_ALGOS, *(name for name in algos_with("dp") if name not in OFF_POLICY_DP_ALGOS))
+#: Off-policy algorithms DP-SGD is wired for (of :data:`~sbagents.private.options.DP_ALGOS`, the algorithms whose
+#: class names :func:`make_private` accepts).
+OFF_POLICY_DP_ALGOS = tuple(name for name in DP_ALGOS if ALGOS[name].off_policy)
 
 
 @dataclass

@@ -14,8 +14,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
-from sbagents.private.options import PrivacyOptions
+from sbagents.extensions import Capability, ExtensionPlan, TrainingContext, TrainingExtension
+from sbagents.private.options import DP_ALGOS, DP_TRAINING, PrivacyOptions
 
 
 class PrivacyExtension(TrainingExtension[PrivacyOptions]):
@@ -29,6 +29,8 @@ class PrivacyExtension(TrainingExtension[PrivacyOptions]):
     spec_type = PrivacyOptions
     group_runs = False  # DP-SGD accounts for one model's data
     overrides_key = "dp_overrides"
+    algos = DP_ALGOS
+    kinds = DP_TRAINING.kinds
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--dp-epsilon", type=float, default=None, metavar="E",
@@ -56,6 +58,8 @@ class PrivacyExtension(TrainingExtension[PrivacyOptions]):
     def is_active(self, spec: PrivacyOptions) -> bool:
         return spec.enabled
 
+    def capabilities(self) -> list[Capability]:
+        return [DP_TRAINING]
 
     def prepare(self, spec: PrivacyOptions, plan: ExtensionPlan) -> PrivacyOptions:
         try:

@@ -5,7 +5,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sbagents.core.env_kinds import SINGLE_AGENT
 from sbagents.errors import UsageError
+from sbagents.extensions import Capability
+
+#: Algorithms DP-SGD is wired for (off-policy first; :func:`sbagents.private.dp_sgd.make_private` takes their classes):
+#: the declaration of :class:`~sbagents.private.extension.PrivacyExtension`.
+DP_ALGOS: tuple[str, ...] = ("ddpg", "td3", "sac", "a2c", "ppo")
+#: DP-SGD training: single-agent envs (one model's data) and :data:`DP_ALGOS`; the capability table's ``dp`` column.
+DP_TRAINING = Capability("dp", "DP-SGD training (--dp-*)", DP_ALGOS, (SINGLE_AGENT.name,), label="DP training (--dp-*)",
+                         refusal="{label} is for {algos}, whose networks Opacus privatizes; not {algo}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -19,15 +19,13 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
-from sbagents.private.dp_sgd import DP_ALGOS, OFF_POLICY_DP_ALGOS
-from sbagents.private.options import PrivacyOptions
+from sbagents.private.dp_sgd import OFF_POLICY_DP_ALGOS
+from sbagents.private.options import DP_TRAINING, PrivacyOptions
 
 
 def check_dp_experiment(options: PrivacyOptions, exp: Experiment, resuming: bool) -> None:
     """Refuse, in one line, what DP training cannot do here (before a run dir exists)."""
-    if exp.algo not in DP_ALGOS:
-        raise UsageError(f"DP training (--dp-*) is for {', '.join(DP_ALGOS)}, whose networks Opacus privatizes; "
-                         f"not {exp.algo}")
+    DP_TRAINING.check_algo(exp.algo)
     if exp.team is not None or exp.self_play is not None:
         raise UsageError("DP training is for single-agent envs")
     if resuming:

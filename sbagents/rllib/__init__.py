@@ -20,12 +20,15 @@ from typing import Any
 
 from sbagents.errors import UsageError
 
+#: Algorithms the RLlib backend trains (names as in ``--algo``): its declaration
+#: (:attr:`sbagents.rllib.backend.RllibBackend.algos`, the capability table's ``rllib`` column).
+RLLIB_ALGOS: tuple[str, ...] = ("ppo",)
+
 
 def rllib_algos() -> tuple[str, ...]:
-    """Algorithms the RLlib backend trains (names as in ``--algo``; the capability table's ``rllib`` column)."""
-    from sbagents.algos import algos_with  # imports SB3: only when asked
+    """Algorithms the RLlib backend trains (:data:`RLLIB_ALGOS`)."""
+    return RLLIB_ALGOS
 
-    return algos_with("rllib")
 
 #: The RLlib checkpoint inside a run dir; its presence marks an RLlib run.
 CHECKPOINT_DIR = "rllib_checkpoint"
@@ -122,6 +125,7 @@ __all__ = [
     "WEIGHTS_FILE",
     "NEEDS_RAY",
     "PROGRESS_FILE",
+    "RLLIB_ALGOS",
     "rllib_algos",
     "SHARED_MODULE",
     "check_address",

@@ -25,7 +25,7 @@ from sbagents.core.options import (
 from sbagents.core.run_dir import RunRef
 from sbagents.errors import UsageError
 from sbagents.extensions import activate
-from sbagents.rllib import check_options, is_rllib_run, require_ray
+from sbagents.rllib import RLLIB_ALGOS, check_options, is_rllib_run, require_ray
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.
 UNSUPPORTED_EVALUATE = {"attacks": "--attack", "fairness": "--fairness", "opponent": "--opponent"}
@@ -47,6 +47,7 @@ class RllibBackend(Backend):
 
     name: ClassVar[str] = "rllib"
     summary: ClassVar[str] = "Ray RLlib (PettingZoo envs; --address reaches a Ray cluster)"
+    algos: ClassVar[tuple[str, ...] | None] = RLLIB_ALGOS
 
     def train(self, spec: TrainSpec, output: OutputOptions | None, evaluation: EvalOptions | None,
               execution: ExecOptions, callbacks: Sequence[Any], features: Sequence[Any], sb3: Sb3Options,

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingExtension
-from sbagents.robust.options import RobustSpec, parse_robust
+from sbagents.extensions import Capability, TrainingExtension
+from sbagents.robust.options import ROBUST_ALGOS, ROBUST_KINDS, ROBUST_METHODS, RobustSpec, parse_robust
 
 
 class RobustExtension(TrainingExtension[RobustSpec]):
@@ -20,6 +19,8 @@ class RobustExtension(TrainingExtension[RobustSpec]):
     spec_type = RobustSpec
     group_runs = False  # the adversary attacks one model's observations
     overrides_key = "robust_overrides"
+    algos = tuple(dict.fromkeys(algo for algos in ROBUST_ALGOS.values() for algo in algos))  # with some method
+    kinds = ROBUST_KINDS
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--robust", default=None, metavar="SPEC",
@@ -30,11 +31,11 @@ class RobustExtension(TrainingExtension[RobustSpec]):
     def from_args(self, args: argparse.Namespace) -> RobustSpec | None:
         return None if args.robust is None else parse_robust(args.robust, args.algo)
 
-    def prepare(self, spec: RobustSpec, plan: ExtensionPlan) -> RobustSpec:
-        if plan.team:
-            raise UsageError("--robust trains single-agent ddpg/td3/sac runs, not PettingZoo envs")
-        spec.check_algo(plan.algo)
-        return spec
+    def capabilities(self) -> list[Capability]:
+        return list(ROBUST_METHODS.values())
+
+    def capability(self, spec: RobustSpec) -> Capability:
+        return ROBUST_METHODS[spec.method]
 
     def record(self, spec: RobustSpec) -> dict[str, Any]:
         return {"robust": spec.flag_value()}

@@ -25,12 +25,23 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from sbagents.algos import algos_with
+from sbagents.core.env_kinds import SINGLE_AGENT
 from sbagents.errors import UsageError
+from sbagents.extensions import Capability
 
-#: Algorithms each robust method trains, by name.
-ROBUST_ALGOS: dict[str, tuple[str, ...]] = {
-    method: algos_with(f"robust:{method}") for method in ("sa", "adv", "sa+adv")}
+#: Algorithms each robust method trains, by name (the declaration of
+#: :class:`~sbagents.robust.extension.RobustExtension`: one column of the capability table per method).
+ROBUST_ALGOS: dict[str, tuple[str, ...]] = {"sa": ("ddpg", "td3"), "adv": ("ddpg", "td3", "sac"),
+                                            "sa+adv": ("ddpg", "td3")}
+#: The env kinds robust training takes: single-agent envs (the adversary attacks one model's observations).
+ROBUST_KINDS: tuple[str, ...] = (SINGLE_AGENT.name,)
+_METHODS = {"sa": "state-adversarial regularizer", "adv": "adversarial rollouts", "sa+adv": "both"}
+#: What each robust method supports (:data:`ROBUST_ALGOS`, :data:`ROBUST_KINDS`): the capability table's
+#: ``robust:<method>`` columns.
+ROBUST_METHODS: dict[str, Capability] = {
+    method: Capability(f"robust:{method}", f"--robust {method} ({_METHODS[method]})", algos, ROBUST_KINDS,
+                       label=f"--robust {method}")
+    for method, algos in ROBUST_ALGOS.items()}
 _ATTACKS = ("pgd", "fgsm", "critic", "uniform", "gaussian")
 _SA_KEYS = {"kappa": "sa_kappa", "steps": "sa_pgd_steps", "qdrop": "sa_critic_weight"}
 #: ``sa`` settings a spec that does not name them gets: the recipe docs/robust.md measures.
@@ -82,8 +93,7 @@ class RobustSpec:
 
     def check_algo(self, algo: str) -> None:
         """Raise :class:`UsageError` (one line) when the method does not train ``algo``."""
-        if algo not in ROBUST_ALGOS[self.method]:
-            raise UsageError(f"--robust {self.method} trains {', '.join(ROBUST_ALGOS[self.method])}, not {algo}")
+        ROBUST_METHODS[self.method].check_algo(algo)
 
     def model_class(self, algo: str) -> Any:
         """The SB3 class that trains ``algo`` with this method (imports torch)."""

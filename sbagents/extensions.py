@@ -5,9 +5,10 @@ of your own) is a :class:`TrainingExtension`. It declares its flags, parses them
 boundary, checks the spec against the backend and the experiment, and then takes part in a one-model SB3 run
 through the hooks below, which :func:`sbagents.pipeline.training.train_sb3` calls in this fixed order for every
 extension whose spec the run carries (in registration order: the built-in ones first, then yours). A run of one
-model per group (``policies: per_group|per_agent``) calls the model hooks (``wrap_train_env`` to ``summary``) once
-per group's model, with a context whose ``group`` names it (``ctx.file_name("x.json")`` is ``x.<group>.json``;
-``summary.json`` keeps each group's items under ``by_group``); an extension that cannot serve such runs sets
+model per group (``policies: per_group|per_agent``) takes the same steps and calls the model hooks
+(``wrap_train_env`` to ``results``) once per group's model, with a context whose ``group`` names it
+(``ctx.file_name("x.json")`` is ``x.<group>.json``; ``summary.json`` keeps each group's items under ``by_group``);
+an extension that cannot serve such runs sets
 :attr:`TrainingExtension.group_runs` to False and is refused in one line before anything is written::
 
     add_arguments(group)                      the extension's flags, in an argument group of its own
@@ -154,7 +155,8 @@ class TrainingContext(Protocol):
         ...
 
     def calls(self, env_steps: int) -> int:
-        """An env-step period as callback calls (one per vec step of ``train_env``), at least 1."""
+        """An env-step period as callback calls, at least 1 (one call per vec step of ``train_env``; for a group's
+        model, one per step of the whole team, whose agents in every group count as env steps)."""
         ...
 
     def make_eval_env(self, n_envs: int, seed: int | None) -> VecEnv:

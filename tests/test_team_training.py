@@ -16,6 +16,7 @@ import json
 import os
 import shutil
 import signal
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -267,7 +268,9 @@ def test_group_spaces_are_checked_before_a_run_dir_exists(tmp_path: Path, capsys
 
 
 class _SigintAt(BaseCallback):
-    """Sends this process a Ctrl-C at the ``at``-th step of the model it runs in."""
+    """Sends this process a Ctrl-C at the ``at``-th step of the model it runs in, and waits until the main thread
+    has handled it (the run's clock has a stop requested), so the step it stops at does not depend on when the main
+    thread gets to run."""
 
     def __init__(self, at: int) -> None:
         super().__init__()
@@ -275,7 +278,13 @@ class _SigintAt(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.n_calls == self.at:
+            clock = signal.getsignal(signal.SIGINT).__self__  # type: ignore[union-attr]  # the run's LearningClock
             os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(3000):  # at most 30 s
+                if clock.stop_requested:
+                    break
+                time.sleep(0.01)
+            assert clock.stop_requested
         return True
 
 

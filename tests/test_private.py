@@ -206,6 +206,8 @@ def test_train_with_a_given_noise_stops_before_the_budget(tmp_path: Path) -> Non
 @pytest.mark.parametrize(("args", "message"), [
     (["--algo", "dqn", "--env", "CartPole-v1", "--dp-epsilon", "8"],
      "DP training (--dp-*) is for ddpg, td3, sac, a2c, ppo"),
+    (["--algo", "ppo", "--env", "treasure_hunt_v0", "--dp-noise", "1"],
+     "DP training (--dp-*) trains single-agent envs, not team envs (treasure_hunt_v0)"),
     (["--algo", "ddpg", "--dp-epsilon", "0"], "--dp-epsilon must be a finite number > 0"),
     (["--algo", "ddpg", "--dp-epsilon", "-1"], "--dp-epsilon must be a finite number > 0"),
     (["--algo", "ddpg", "--dp-epsilon", "8", "--dp-delta", "0.001"], "--dp-delta 0.001 must be below 1 / 40,000"),

@@ -197,8 +197,10 @@ def _import(module_name: str) -> ModuleType | None:
         raise UsageError(f"cannot import {module_name!r}: {exc}") from None
 
 
+@functools.cache
 def _returns_aec_env(fn: Callable[..., Any]) -> bool:
-    """Whether ``fn()`` builds a turn-based (AEC) env rather than a ``ParallelEnv`` (one is built to see)."""
+    """Whether ``fn()`` builds a turn-based (AEC) env rather than a ``ParallelEnv`` (one is built to see, once per
+    function: the team and the game kind both ask)."""
     try:
         env = fn()
     except Exception:  # noqa: BLE001 - a function that needs arguments: treated as a ParallelEnv source

@@ -17,7 +17,7 @@ from sbagents.algos import ALGOS, algos_for, algos_with
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
-from sbagents.env_factory import make_eval_vec, make_vec
+from sbagents.env_factory import make_eval_vec, make_team_vecs, make_vec
 from sbagents.errors import UsageError
 from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
@@ -38,13 +38,29 @@ def check_spaces(exp: Experiment, ref: EnvRef) -> tuple[spaces.Space, spaces.Spa
                              f"drive every move), not {exp.algo}")
         raise UsageError(f"{exp.algo} acts with action masks and {ref.env_id} has none (turn-based PettingZoo "
                          f"games with {{observation, action_mask}} observations do); algos that fit: {able}")
+    _check_supported(exp, ref.env_id, obs_space, act_space, masks)
+    return obs_space, act_space
+
+
+def check_group_spaces(exp: Experiment, ref: EnvRef) -> None:
+    """:func:`check_spaces` for a run of one model per group: one team copy is built to read each group's spaces;
+    :class:`UsageError` names the group whose spaces the algorithm cannot act in."""
+    venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy")
+    try:
+        for group, venv in venvs.items():
+            _check_supported(exp, f"group {group} of {exp.env_id}", venv.observation_space, venv.action_space)
+    finally:
+        next(iter(venvs.values())).close()
+
+
+def _check_supported(exp: Experiment, what: str, obs_space: spaces.Space, act_space: spaces.Space,
+                     masks: bool = False) -> None:
+    """Raise :class:`UsageError` naming ``what`` and the algorithms that can, unless ``exp.algo`` acts in these
+    spaces."""
     if not ALGOS[exp.algo].supports(obs_space, act_space):
         able = ", ".join(algos_for(obs_space, act_space, masks)) or "none"
-        raise UsageError(
-            f"{exp.algo} cannot learn {ref.env_id} (observation {type(obs_space).__name__}, "
-            f"action {type(act_space).__name__}); algos that can: {able}"
-        )
-    return obs_space, act_space
+        raise UsageError(f"{exp.algo} cannot learn {what} (observation {type(obs_space).__name__}, "
+                         f"action {type(act_space).__name__}); algos that can: {able}")
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import set_random_seed
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sbagents.algos import ALGOS, algos_for
 from sbagents.atari.envpool_support import training_vec_env
 from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback
@@ -58,7 +57,7 @@ from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
 from sbagents.pipeline.evaluation import evaluate_groups, evaluate_model
 from sbagents.pipeline.kinds import model_callbacks, model_groups, periodic_evaluation, training_env_kwargs
-from sbagents.pipeline.models import Resume, RunContext, check_spaces, make_model
+from sbagents.pipeline.models import Resume, RunContext, check_group_spaces, check_spaces, make_model
 from sbagents.replay.buffer_files import checkpoint_steps
 from sbagents.state_files import VECNORMALIZE_FILE, save_vecnormalize
 
@@ -164,7 +163,7 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
         if refused:
             raise UsageError(f"{', '.join(refused)} not supported for runs of one model per group ({ref.env_id})")
     if per_group:
-        _check_group_spaces(exp, ref)
+        check_group_spaces(exp, ref)
     else:
         check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
@@ -309,16 +308,17 @@ def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -
     if log_interval < 0:
         log_interval = 1 if hasattr(lead, "n_steps") else 100
     clock = LearningClock(graceful=True)
-    each = {str(m.ctx.group): [StopOnRequestCallback(clock), *m.own, *m.extension_callbacks,
-                               *(callbacks if i == 0 else ())] for i, m in enumerate(built.models)}
+    each = [[StopOnRequestCallback(clock), *m.own, *m.extension_callbacks, *(callbacks if i == 0 else ())]
+            for i, m in enumerate(built.models)]
     try:
         with clock:
             if built.joint is None:
-                lead.learn(run.exp.n_timesteps, callback=each["None"], reset_num_timesteps=run.resume is None,
+                lead.learn(run.exp.n_timesteps, callback=each[0], reset_num_timesteps=run.resume is None,
                            log_interval=log_interval)
             else:
-                learn_in_lockstep(built.joint, {str(m.ctx.group): m.ctx.model for m in built.models},
-                                  built.env_steps, each, log_interval)
+                groups = [str(m.ctx.group) for m in built.models]
+                learn_in_lockstep(built.joint, {g: m.ctx.model for g, m in zip(groups, built.models, strict=True)},
+                                  built.env_steps, dict(zip(groups, each, strict=True)), log_interval)
     finally:
         built.reporter.close()
         for m in built.models:  # every model saved before any extension's after_learn
@@ -352,29 +352,31 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
     if built.joint is not None:
         summary["groups"] = run.groups
     items = [_model_summary(run, m) for m in built.models]
+    groups = [str(m.ctx.group) for m in built.models]
 
-    def place_items() -> None:
-        if built.joint is None:
-            summary.update(items[0])
-            return
-        by_group = {m.ctx.group: part for m, part in zip(built.models, items, strict=True) if part}
+    def place_by_group() -> None:  # each group's items, where it has any
+        by_group = {g: part for g, part in zip(groups, items, strict=True) if part}
         if by_group:
             summary["by_group"] = by_group
 
-    place_items()
+    if built.joint is None:
+        summary.update(items[0])
+        items = [summary]  # the one model's extensions judge the run's summary itself
+    else:
+        place_by_group()
     options = EvaluateOptions(n_episodes=run.evaluation.final_eval_episodes, seed=run.seed)
 
     def final_eval() -> dict[str, Any]:
         if built.joint is None:
             result = evaluate_model(built.models[0].ctx.model, exp, ref, options, run_dir / VECNORMALIZE_FILE)
         else:
-            groups = [str(m.ctx.group) for m in built.models]
             result = evaluate_groups({g: m.ctx.model for g, m in zip(groups, built.models, strict=True)}, exp, ref,
                                      options, {g: run_dir / group_stats_name(g) for g in groups})
         for part in items:
             for active in run.actives:
-                active.extension.judge_evaluation(active.spec, summary if built.joint is None else part, result)
-        place_items()
+                active.extension.judge_evaluation(active.spec, part, result)
+        if built.joint is not None:
+            place_by_group()  # a group whose items were empty may have some now
         return result
 
     finish_run(run_dir, summary, final_eval if options.n_episodes > 0 else None)
@@ -391,21 +393,6 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
         return TrainResult(run_dir, built.models[0].ctx.model, exp, summary, clock.interrupted, results)
     return TrainResult(run_dir, None, exp, summary, clock.interrupted, results,
                        models={str(m.ctx.group): m.ctx.model for m in built.models})
-
-
-def _check_group_spaces(exp: Experiment, ref: EnvRef) -> None:
-    """Refuse, before a run dir exists, a group whose spaces the algorithm cannot act in (one team copy is built
-    and closed)."""
-    venvs = make_team_vecs(exp, ref, 1, None, vec_env="dummy")
-    try:
-        for group, venv in venvs.items():
-            if not ALGOS[exp.algo].supports(venv.observation_space, venv.action_space):
-                able = ", ".join(algos_for(venv.observation_space, venv.action_space)) or "none"
-                raise UsageError(f"{exp.algo} cannot learn group {group} of {exp.env_id} (observation "
-                                 f"{type(venv.observation_space).__name__}, action "
-                                 f"{type(venv.action_space).__name__}); algos that can: {able}")
-    finally:
-        next(iter(venvs.values())).close()
 
 
 def _save(ctx: RunContext) -> None:

@@ -20,14 +20,13 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from sbagents.core.experiment import Experiment
 from sbagents.errors import UsageError
 from sbagents.private.dp_sgd import OFF_POLICY_DP_ALGOS
-from sbagents.private.options import DP_TRAINING, PrivacyOptions
+from sbagents.private.options import PrivacyOptions
 
 
 def check_dp_experiment(options: PrivacyOptions, exp: Experiment, resuming: bool) -> None:
-    """Refuse, in one line, what DP training cannot do here (before a run dir exists)."""
-    DP_TRAINING.check_algo(exp.algo)
-    if exp.team is not None or exp.self_play is not None:
-        raise UsageError("DP training is for single-agent envs")
+    """Refuse, in one line, what DP training cannot do with this experiment (before a run dir exists), beyond the
+    algorithms and env kinds of :data:`~sbagents.private.options.DP_TRAINING`, which
+    :func:`sbagents.extensions.prepare_extensions` checked first."""
     if resuming:
         raise UsageError("-i with DP training: the privacy already spent is not in the model file; train anew")
     if exp.algo not in OFF_POLICY_DP_ALGOS:

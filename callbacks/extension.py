@@ -18,8 +18,8 @@ from sbagents.callbacks.attacks import AttackSpec, ObservationAttacker, parse_at
 from sbagents.callbacks.fairness import FairnessEvalCallback
 from sbagents.callbacks.safety import SafetyViolationCallback
 from sbagents.callbacks.transparency import TransparencyCSVCallback
+from sbagents.core.extensions import ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension, finite
 from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
 
 DEFAULT_TRANSPARENCY_FILE = "transparency.csv"
 #: Seed offsets of the attack and fairness evaluation envs (distinct from training and periodic evaluation).
@@ -88,6 +88,22 @@ class TrustOptions:
         """The flags of the fields that differ from their defaults."""
         default = TrustOptions()
         return [TRUST_FLAGS[f.name] for f in fields(self) if getattr(self, f.name) != getattr(default, f.name)]
+
+    def command_args(self) -> list[str]:
+        """The ``train`` arguments that ask for these options (the fields that differ from their defaults)."""
+        args: list[str] = []
+        default = TrustOptions()
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value == getattr(default, f.name):
+                continue
+            if f.name == "book_header":
+                args += [TRUST_FLAGS[f.name], "book"]
+            elif isinstance(value, bool) or value == "":  # --safety; --transparency-log without a path
+                args.append(TRUST_FLAGS[f.name])
+            else:
+                args += [TRUST_FLAGS[f.name], str(value)]
+        return args
 
 
 def check_attacks(model: BaseAlgorithm, venv: VecEnv, specs: list[AttackSpec], flag: str) -> None:
@@ -213,20 +229,22 @@ class TrustExtension(TrainingExtension[TrustOptions]):
     def is_active(self, spec: TrustOptions) -> bool:
         return bool(spec.given_flags())
 
-    def unsupported_flags(self, spec: TrustOptions, backend: str) -> list[str]:
-        return [] if backend in self.backends else spec.given_flags()
-
-    def prepare(self, spec: TrustOptions, plan: ExtensionPlan) -> TrustOptions:
-        if plan.n_models > 1 and (spec.adversarial or spec.fairness):
+    def configure(self, spec: TrustOptions | None, plan: ExtensionPlan) -> TrustOptions | None:
+        if spec is not None and plan.n_models > 1 and (spec.adversarial or spec.fairness):
             raise UsageError("--adversarial-eval and --fairness support policies: shared (one model); this run "
                              "trains one model per group")
         return spec
 
+    def record(self, spec: TrustOptions) -> SpecRecord:
+        return SpecRecord(flags=spec.command_args())
+
     def callbacks(self, spec: TrustOptions, ctx: TrainingContext) -> list[BaseCallback]:
-        return trust_callbacks(spec, ctx)
+        callbacks = trust_callbacks(spec, ctx)
+        ctx.state[self.name] = callbacks
+        return callbacks
 
-    def results(self, spec: TrustOptions, callbacks: Sequence[BaseCallback]) -> dict[str, Any]:
-        return trust_results(callbacks)
+    def finish(self, spec: TrustOptions, ctx: TrainingContext) -> dict[str, Any]:
+        return finite(trust_results(ctx.state.get(self.name, [])))
 
-    def result_lines(self, results: Mapping[str, Any]) -> list[str]:
-        return trust_summary_lines(results)
+    def describe(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+        return trust_summary_lines(summary)

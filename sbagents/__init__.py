@@ -6,7 +6,7 @@ PettingZoo env of your package a short name for ``--env``; :func:`register_exten
 to ``train`` (:mod:`sbagents.extensions`).
 """
 
-from sbagents.extensions import register_extension
+from sbagents.core.extensions import register_extension
 from sbagents.registration import GYM_ENVS, register_envs, register_pettingzoo_env
 
 __version__ = "0.1.0"

@@ -8,6 +8,7 @@
 
 from sbagents.callbacks.extension import TrustOptions
 from sbagents.constrained.options import ConstraintSpec
+from sbagents.core.extensions import TrainingExtension, register_extension
 from sbagents.core.lifecycle import TrainResult
 from sbagents.core.options import (
     EvalOptions,
@@ -21,7 +22,6 @@ from sbagents.core.options import (
 )
 from sbagents.core.run_dir import RunRef
 from sbagents.deploy.exporting import export, export_groups
-from sbagents.extensions import TrainingExtension, register_extension
 from sbagents.federated.personal import personalize
 from sbagents.federated.runner import federate
 from sbagents.federated.settings import FederatedSettings

@@ -71,11 +71,12 @@ BACKENDS: dict[str, str] = {
     "rllib": "sbagents.rllib.backend:RllibBackend",
 }
 
-#: Where the capability table's columns come from besides the training extensions (whose own come first), in column
-#: order: ``module:function`` paths of functions returning :class:`sbagents.extensions.Capability` objects, imported
-#: by :mod:`sbagents.algos` when the table or ``algos_with`` needs them (by path: the federated package is of a
-#: higher layer, and the backends' registry imports ``sbagents.algos``).
+#: Where the capability table's columns come from, in column order (the training extensions' first): ``module:function``
+#: paths of functions returning :class:`sbagents.capabilities.Capability` objects, imported by :mod:`sbagents.algos`
+#: when the table or ``algos_with`` needs them (by path: the federated package is of a higher layer, and the
+#: extensions' and backends' registries are in :mod:`sbagents.core`, which imports ``sbagents.algos``).
 CAPABILITY_SOURCES: tuple[str, ...] = (
+    "sbagents.core.extensions:extension_capabilities",
     "sbagents.federated.settings:capabilities",
     "sbagents.core.team_options:capabilities",
     "sbagents.core.backends:backend_capabilities",

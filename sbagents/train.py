@@ -15,9 +15,9 @@ from sbagents.algos import ALGOS, capability_legend, capability_table
 from sbagents.cli_common import ArgumentParser, run
 from sbagents.core.backends import DEFAULT_BACKEND, backend_names
 from sbagents.core.env_names import import_packages, sbagents_env_ids
+from sbagents.core.extensions import registered_extensions, specs_from_args
 from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, RllibOptions, Sb3Options, TrainSpec
 from sbagents.core.zoo_config import parse_overrides
-from sbagents.extensions import registered_extensions, specs_from_args
 from sbagents.pipeline.backends import train
 from sbagents.pipeline.console import train_summary_lines
 from sbagents.visualize.showcase import describe_policy
@@ -122,7 +122,6 @@ def main(argv: list[str] | None = None) -> int:
     if result.model is not None and not result.interrupted:
         text = describe_policy(result.model, result.experiment)
         lines[1:1] = [text] if text else []
-    lines += [line for extension in registered_extensions() for line in extension.result_lines(result.results)]
     print("\n".join(lines))
     return 130 if result.interrupted else 0
 

@@ -110,9 +110,9 @@ def test_one_training_path_for_one_model_or_one_per_group() -> None:
         return {n.func.attr for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)
                 and isinstance(n.func.value, ast.Attribute) and n.func.value.attr == "extension"}
 
-    model_hooks = {"wrap_train_env", "setup", "callbacks", "after_learn", "summary", "judge_evaluation", "results"}
+    model_hooks = {"callbacks", "finish", "judge"}
     assert model_hooks <= hooks(training)
-    for name in ("_build", "_learn", "_model_summary", "_finish"):  # each model's hooks sit in a loop over models
+    for name in ("_build", "_learn", "_finish"):  # each model's hooks sit in a loop over models
         loops = [n for n in ast.walk(functions[name]) if isinstance(n, ast.For | ast.comprehension)]
         assert any(hooks(loop) for loop in loops), name
     assert "specs.get(\"" not in ast.unparse(training)  # no spec is read by an extension's name

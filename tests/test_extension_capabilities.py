@@ -97,10 +97,10 @@ def cap() -> Iterator[CapExtension]:
 def plan(algo: str, specs: list[Any], kind: str = "single-agent", env_id: str = "sbagents/SmartHome-v0"
          ) -> ExtensionPlan:
     """The plan of a run of ``algo`` on an env of ``kind`` with these specs, paired as the pipeline pairs them
-    (:func:`~sbagents.extensions.activate`: the replay buffer's default spec added)."""
+    (:func:`~sbagents.extensions.activate`; the replay buffer's ``configure`` adds its spec)."""
     exp = SimpleNamespace(algo=algo, env_id=env_id, hyperparams={})
     ref = SimpleNamespace(env_id=env_id, kind=SimpleNamespace(name=kind))
-    return ExtensionPlan(algo, exp, ref, team=kind == "team", resuming=False,
+    return ExtensionPlan(algo, exp, ref, resuming=False,
                          specs={active.name: active.spec for active in activate(specs)})
 
 
@@ -214,3 +214,14 @@ def test_a_taken_setting_gets_its_default_and_the_specs_stay_dataclasses() -> No
     trust = {a.name: a.spec for a in prepare_extensions(run)}["trust"]
     assert dataclasses.replace(trust, safety=False, max_violations=None) == TrustOptions()
     assert trust.max_violations == 7  # not required: as the run gave it
+
+
+def test_two_extensions_that_each_pick_the_model_class_are_refused_in_one_line() -> None:
+    """Robust and constrained training each train a class of their own (their contributions' model_class): the run is
+    refused before anything is written, whichever of the two the user named first."""
+    for specs in ([parse_robust("adv:0.2"), ConstraintSpec("lagrangian", 0.1)],
+                  [ConstraintSpec("lagrangian", 0.1), parse_robust("adv:0.2")]):
+        with pytest.raises(UsageError) as err:
+            prepare_extensions(plan("sac", specs))
+        assert str(err.value) == ("--robust and --constraint each train a model class of their own: they cannot be "
+                                  "combined yet (one or the other)")

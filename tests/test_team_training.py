@@ -17,7 +17,7 @@ import os
 import shutil
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -315,17 +315,17 @@ class _JudgeSpec:
 
 
 class _Judge(TrainingExtension[_JudgeSpec]):
-    """Records what the pipeline hands each model: its group in ``summary`` and the final evaluation it judges."""
+    """Records what the pipeline hands each model: its group in ``finish`` and the final evaluation it judges."""
 
     name = "judge-test"
     flags = "--judge-test"
     spec_type = _JudgeSpec
 
-    def summary(self, spec: _JudgeSpec, ctx: Any) -> dict[str, Any]:
+    def finish(self, spec: _JudgeSpec, ctx: Any) -> dict[str, Any]:
         return {"judge": {"group": ctx.group}}
 
-    def judge_evaluation(self, spec: _JudgeSpec, summary: dict[str, Any], result: dict[str, Any]) -> None:
-        summary["judge"]["judged_episodes"] = result["n_episodes"]
+    def judge(self, spec: _JudgeSpec, summary: dict[str, Any], evaluation: Mapping[str, Any]) -> None:
+        summary["judge"]["judged_episodes"] = evaluation["n_episodes"]
 
 
 def test_every_group_model_judges_the_final_evaluation(tmp_path: Path) -> None:

@@ -15,7 +15,7 @@ from typing import Any
 
 from sbagents import register_extension
 from sbagents.errors import UsageError
-from sbagents.extensions import TrainingContext, TrainingExtension
+from sbagents.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 
 
 @dataclass(frozen=True)
@@ -46,19 +46,18 @@ class GradClipExtension(TrainingExtension[GradClip]):
             raise UsageError(f"--grad-clip must be > 0, got {args.grad_clip}")
         return GradClip(args.grad_clip)
 
-    def record(self, spec: GradClip) -> dict[str, Any]:
-        return {"grad_clip": spec.max_norm}
+    def contribute(self, spec: GradClip, plan: ExtensionPlan) -> Contribution:
+        return Contribution(model_kwargs={"max_grad_norm": spec.max_norm})
 
-    def model_class(self, spec: GradClip, algo: str, cls: type,
-                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
-        return cls, {**kwargs, "max_grad_norm": spec.max_norm}
-
-    def summary(self, spec: GradClip, ctx: TrainingContext) -> dict[str, Any]:
+    def finish(self, spec: GradClip, ctx: TrainingContext) -> dict[str, Any]:
         return {"grad_clip": {"max_grad_norm": float(vars(ctx.model)["max_grad_norm"])}}
 
-    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+    def describe(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
         clip = summary.get("grad_clip")
         return [f"gradient norm capped at {clip['max_grad_norm']:g}"] if clip else []
+
+    def record(self, spec: GradClip) -> SpecRecord:
+        return SpecRecord(args={"grad_clip": spec.max_norm}, flags=["--grad-clip", str(spec.max_norm)])
 
 
 register_extension(GradClipExtension())

@@ -1,10 +1,10 @@
 """The algorithm table: every name the CLIs accept, with the spaces each algorithm can handle, and the capability
 table built from it and from what each feature declares it supports (``train --list`` and the docs table).
 
-A feature declares its algorithms itself, as :class:`~sbagents.extensions.Capability` objects: every registered
-training extension (:meth:`~sbagents.extensions.TrainingExtension.capabilities`), then the sources named in
-:data:`sbagents.registration.CAPABILITY_SOURCES` (federated homes, the team kind's centralized critic, the backends),
-imported by path when the table or :func:`algos_with` needs them, so that this module imports none of them.
+A feature declares its algorithms itself, as :class:`~sbagents.capabilities.Capability` objects, found through the
+sources named in :data:`sbagents.registration.CAPABILITY_SOURCES` (every registered training extension's
+:meth:`~sbagents.extensions.TrainingExtension.capabilities`, federated homes, the team kind's centralized critic, the
+backends), imported by path when the table or :func:`algos_with` needs them, so that this module imports none of them.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sbagents.algos.tabular import SARSA, QLearning
-from sbagents.extensions import Capability, extension_capabilities
+from sbagents.capabilities import Capability
 from sbagents.registration import CAPABILITY_SOURCES
 
 _ANY_ACTION = (spaces.Box, spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary)
@@ -87,9 +87,9 @@ _ROW_KEYS = ("algo", "actions", "observations", "kind")
 
 
 def _declared() -> Iterator[Capability]:
-    """Every declared capability, in column order: the registered extensions' first, then those of each source of
-    :data:`~sbagents.registration.CAPABILITY_SOURCES` (each imported only when reached)."""
-    yield from extension_capabilities()
+    """Every declared capability, in column order: those of each source of
+    :data:`~sbagents.registration.CAPABILITY_SOURCES` (the registered extensions' first; each imported only when
+    reached)."""
     for path in CAPABILITY_SOURCES:
         module, _, name = path.partition(":")
         yield from getattr(importlib.import_module(module), name)()

@@ -10,6 +10,7 @@ from typing import Any
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sbagents.capabilities import Capability
 from sbagents.constrained.options import (
     CONFIG_KEY,
     CONSTRAINED_ALGOS,
@@ -21,8 +22,14 @@ from sbagents.constrained.options import (
     record_constraint,
 )
 from sbagents.core.env_kinds import SINGLE_AGENT
-from sbagents.errors import UsageError
-from sbagents.extensions import TAKEN, Capability, ExtensionPlan, TrainingContext, TrainingExtension
+from sbagents.core.extensions import (
+    TAKEN,
+    Contribution,
+    ExtensionPlan,
+    SpecRecord,
+    TrainingContext,
+    TrainingExtension,
+)
 
 
 def _verdict(held: bool | None, cost: float | None, where: str, measure: str) -> str:
@@ -75,41 +82,35 @@ class ConstraintExtension(TrainingExtension[ConstraintSpec]):
         # the multiplier holds the limit: count violations, never stop at it (--cost-limit is the limit trained for)
         return {"trust": {"safety": True, "cost_limit": TAKEN}}
 
-    def prepare(self, spec: ConstraintSpec, plan: ExtensionPlan) -> ConstraintSpec:
-        if "robust" in plan.specs:
-            raise UsageError("--constraint and --robust cannot be combined yet (one or the other)")
+    def configure(self, spec: ConstraintSpec | None, plan: ExtensionPlan) -> ConstraintSpec | None:
+        if spec is None:
+            check_unconstrained(plan.algo, plan.exp.hyperparams, dict(plan.hyperparams))
+            return None
         given = getattr(plan.given.get("trust"), "cost_limit", None)  # a run from Python may give it there
         limit = spec.cost_limit if spec.cost_limit is not None else given
         return constraint_spec(spec.method, plan.algo, limit, plan.exp.hyperparams.get(CONFIG_KEY),
                                f"entry for {plan.exp.env_id}")
 
-    def check_unused(self, plan: ExtensionPlan) -> None:
-        check_unconstrained(plan.algo, plan.exp.hyperparams, dict(plan.hyperparams))
+    def contribute(self, spec: ConstraintSpec, plan: ExtensionPlan) -> Contribution:
+        def load(cls: type, path: Path, **kwargs: Any) -> BaseAlgorithm:
+            # the saved multiplier and its state continue (under the new cost limit); the constructor's keywords
+            # are not passed again
+            for key in spec.model_kwargs():
+                kwargs.pop(key, None)
+            return spec.load_model(cls, path, **kwargs)
 
-    def record(self, spec: ConstraintSpec) -> dict[str, Any]:
-        return spec.record()
+        return Contribution(model_class=spec.model_class(plan.algo), model_kwargs=spec.model_kwargs(), load=load)
 
-    def command_args(self, spec: ConstraintSpec) -> list[str]:
-        return ["--constraint", spec.method]
+    def record(self, spec: ConstraintSpec) -> SpecRecord:
+        return SpecRecord(args=spec.record(), flags=["--constraint", spec.method])
 
-    def model_class(self, spec: ConstraintSpec, algo: str, cls: type,
-                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
-        return spec.model_class(algo), {**kwargs, **spec.model_kwargs()}
-
-    def load_model(self, spec: ConstraintSpec, cls: type, path: Path, **kwargs: Any) -> BaseAlgorithm | None:
-        # the saved multiplier and its state continue (under the new cost limit); the constructor's keywords are not
-        # passed again
-        for key in spec.model_kwargs():
-            kwargs.pop(key, None)
-        return spec.load_model(cls, path, **kwargs)
-
-    def summary(self, spec: ConstraintSpec, ctx: TrainingContext) -> dict[str, Any]:
+    def finish(self, spec: ConstraintSpec, ctx: TrainingContext) -> dict[str, Any]:
         return record_constraint(ctx.run_dir, ctx.model)
 
-    def judge_evaluation(self, spec: ConstraintSpec, summary: dict[str, Any], result: dict[str, Any]) -> None:
-        judge_evaluation(summary["constraint"], result)  # did the limit hold for the greedy policy too
+    def judge(self, spec: ConstraintSpec, summary: dict[str, Any], evaluation: Mapping[str, Any]) -> None:
+        judge_evaluation(summary["constraint"], evaluation)  # did the limit hold for the greedy policy too
 
-    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+    def describe(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
         constraint = summary.get("constraint")
         return [constraint_line(constraint)] if constraint else []
 

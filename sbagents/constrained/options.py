@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -220,7 +221,7 @@ def record_constraint(run_dir: Path, model: Any) -> dict[str, Any]:
     return {"constraint": item}
 
 
-def judge_evaluation(constraint: dict[str, Any], evaluation: dict[str, Any]) -> None:
+def judge_evaluation(constraint: dict[str, Any], evaluation: Mapping[str, Any]) -> None:
     """Add to a summary's ``constraint`` item whether the limit held in the final evaluation: ``eval_ep_cost`` (its
     mean episode cost) and ``held_in_evaluation`` (None when the evaluation reported no cost)."""
     cost = evaluation.get("mean_cost")

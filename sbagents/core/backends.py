@@ -16,8 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
+from sbagents.capabilities import Capability
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability
 
 if TYPE_CHECKING:
     from sbagents.core.lifecycle import TrainResult

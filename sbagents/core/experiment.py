@@ -18,12 +18,12 @@ from stable_baselines3.common.utils import LinearSchedule
 from sbagents.algos import ALGOS
 from sbagents.core.env_kinds import SINGLE_AGENT, EnvKind
 from sbagents.core.env_names import EnvRef
+from sbagents.core.extensions import config_keys
 from sbagents.core.options import TrainSpec
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.core.team_options import TeamOptions
 from sbagents.core.zoo_config import ZOO_KEYS, expression_values, spec_entry
 from sbagents.errors import UsageError
-from sbagents.extensions import config_keys
 from sbagents.import_paths import resolve_path
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {

@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from sbagents.core.run_dir import SUMMARY_FILE, create_run_dir, save_run_config
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-    from sbagents.extensions import ActiveExtension
+    from sbagents.core.extensions import ActiveExtension
 
 
 def draw_seed(seed: int) -> int:
@@ -121,6 +121,16 @@ def base_summary(algo: str, env_id: str, seed: int, n_timesteps: int, steps_done
     }
 
 
+@runtime_checkable
+class SummaryItems(Protocol):
+    """A callback whose model reports items of ``summary.json`` (a game's learner: its illegal moves in training; the
+    DP callback: its privacy spent)."""
+
+    def summary_items(self) -> dict[str, Any]:
+        """The callback's ``summary.json`` items (JSON values)."""
+        ...
+
+
 def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
     """Write ``<run dir>/summary.json`` (atomically)."""
     write_json(run_dir / SUMMARY_FILE, summary)
@@ -145,8 +155,9 @@ class TrainResult:
     :param model: the trained SB3 model (None for RLlib runs, whose policy is in ``rllib_checkpoint/``, and for runs
         of one model per group, which are in :attr:`models`).
     :param experiment: the resolved experiment (an SB3 :class:`Experiment` or an RLlib experiment).
-    :param results: what the run's extensions report of their callbacks
-        (:meth:`sbagents.extensions.TrainingExtension.results`; e.g. ``safety``, ``adversarial``, ``fairness``).
+    :param results: the items of ``summary.json`` that the run's extensions report
+        (:meth:`sbagents.extensions.TrainingExtension.finish`; e.g. ``safety``, ``adversarial``, ``fairness``,
+        ``constraint``), under ``by_group`` for a run of one model per group.
     """
 
     run_dir: Path
@@ -160,10 +171,10 @@ class TrainResult:
 
 def default_command(spec: TrainSpec, execution: ExecOptions, extensions: Sequence[ActiveExtension] = ()) -> str:
     """The command line recorded when the caller gave none (the Python API): the spec's, the extensions' flags
-    (:meth:`~sbagents.extensions.TrainingExtension.command_args`) and the backend."""
+    (:meth:`~sbagents.extensions.TrainingExtension.record`) and the backend."""
     args = ["--algo", spec.algo, "--env", spec.env]
     for active in extensions:
-        args += active.extension.command_args(active.spec)
+        args += active.extension.record(active.spec).flags
     if execution.backend != DEFAULT_BACKEND:
         args += ["--backend", execution.backend]
     return "python -m sbagents.train " + shlex.join(args)

@@ -411,7 +411,7 @@ def load_run(ref: RunRef) -> LoadedRun:
     trusted = env.trusted_modules()
     exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.kind, trusted),
                           ref.env_kwargs)
-    from sbagents.extensions import registered_extensions  # (registered by load_experiment's import)
+    from sbagents.core.extensions import registered_extensions  # (registered by load_experiment's import)
 
     cls: Any = ALGOS[ref.algo].cls
     args = run_args(run_dir, env.env_id)

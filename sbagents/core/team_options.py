@@ -6,9 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from sbagents.capabilities import Capability
 from sbagents.core.env_kinds import TEAM
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability
 
 POLICY_MODES = ("shared", "per_agent", "per_group")
 CRITICS = ("local", "centralized")

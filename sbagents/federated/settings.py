@@ -7,9 +7,9 @@ import shlex
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from sbagents.capabilities import Capability
 from sbagents.core.zoo_config import parse_overrides
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability
 
 #: The aggregation strategies (:mod:`sbagents.federated.strategies`).
 STRATEGIES = ("fedavg", "fedprox", "dp-fedavg")

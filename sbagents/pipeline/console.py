@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sbagents.core.extensions import registered_extensions
 from sbagents.core.progress import ProgressReporter
-from sbagents.extensions import registered_extensions
 
 
 class ProgressCallback(BaseCallback):
@@ -97,22 +97,29 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
 
 
 def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: bool) -> list[str]:
-    """The lines ``train`` ends with: where the run went, its speed and its final evaluation."""
+    """The lines ``train`` ends with: where the run went, its speed and its final evaluation, then every extension's
+    lines of its ``summary.json`` items (:meth:`~sbagents.extensions.TrainingExtension.describe`)."""
     if interrupted:
-        return [f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {run_dir}"]
-    lines = [f"run dir: {run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)"]
-    ev = summary.get("eval")
+        lines = [f"interrupted after {summary['n_timesteps']} steps; model and logs saved in {run_dir}"]
+    else:
+        lines = [f"run dir: {run_dir}  ({summary['train_seconds']:.1f} s, {summary['fps']:.0f} steps/s)"]
+        lines += _evaluation_lines(summary.get("eval"))
+    for extension in registered_extensions():  # e.g. the replay buffer, a constraint's verdicts, DP's epsilon
+        lines += extension.describe(summary, Path(run_dir))
+    return lines
+
+
+def _evaluation_lines(ev: Mapping[str, Any] | None) -> list[str]:
+    """The final evaluation's line (none without one)."""
     if ev and "win_rate" in ev:
-        lines.append(f"evaluation against {ev['opponent']}: win {ev['win_rate']:.2f}, draw {ev['draw_rate']:.2f}, "
-                     f"loss {ev['loss_rate']:.2f} over {ev['n_games']} games (seats alternating), "
-                     f"mean reward {ev['mean_reward']:.3f}")
-    elif ev:
+        return [f"evaluation against {ev['opponent']}: win {ev['win_rate']:.2f}, draw {ev['draw_rate']:.2f}, "
+                f"loss {ev['loss_rate']:.2f} over {ev['n_games']} games (seats alternating), "
+                f"mean reward {ev['mean_reward']:.3f}"]
+    if ev:
         success = "" if ev["success_rate"] is None else f", success rate {ev['success_rate']:.2f}"
         metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
         cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
-        lines.append(f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
-                     f"{ev['n_episodes']} episodes{success}{cost}{metrics}")
-    for extension in registered_extensions():  # e.g. the replay buffer, a constraint's verdicts, DP's epsilon
-        lines += extension.summary_lines(summary, Path(run_dir))
-    return lines
+        return [f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
+                f"{ev['n_episodes']} episodes{success}{cost}{metrics}"]
+    return []
 

@@ -17,9 +17,9 @@ from sbagents.algos import ALGOS, algos_for, algos_with
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
+from sbagents.core.extensions import ActiveExtension
 from sbagents.env_factory import make_eval_vec, make_team_vecs, make_vec
 from sbagents.errors import UsageError
-from sbagents.extensions import ActiveExtension
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
 from sbagents.multiagent.masking import MaskedDictRolloutBuffer, MaskedReplayBuffer, MaskedRolloutBuffer
 from sbagents.safe_load import load_model, record_spaces
@@ -82,14 +82,15 @@ def make_model(
     """The SB3 model of ``exp`` on ``env`` (with its action noise), or the model ``resume`` names, loaded to continue.
 
     :param verbose: SB3's own verbosity (1 prints its log tables).
-    :param extensions: the run's training extensions, which may pick the class and add keyword arguments
-        (:meth:`~sbagents.extensions.TrainingExtension.model_class`) and load the resumed model their own way.
+    :param extensions: the run's training extensions, whose contributions may pick the class, add keyword arguments
+        and load the resumed model their own way (:class:`~sbagents.extensions.Contribution`).
     :raises UsageError: hyperparameters the algorithm rejects.
     """
     cls: Any = ALGOS[exp.algo].cls
     extra: dict[str, Any] = {}
-    for active in extensions:
-        cls, extra = active.extension.model_class(active.spec, exp.algo, cls, extra)
+    for contribution in (active.contribution for active in extensions):
+        cls = contribution.model_class or cls
+        extra.update(contribution.model_kwargs)
     kwargs = {**exp.algo_kwargs, **extra}
     if exp.noise_type is not None and isinstance(env.action_space, spaces.Box):
         kwargs["action_noise"] = exp.action_noise(int(np.prod(env.action_space.shape)))
@@ -97,11 +98,8 @@ def make_model(
     if resume is not None:
         common: dict[str, Any] = dict(env=env, device=device, trust=resume.trust, tensorboard_log=tensorboard_log,
                                       verbose=verbose, hyperparams={**kwargs, "policy": policy})
-        for active in extensions:
-            model = active.extension.load_model(active.spec, cls, resume.path, **common, **extra)
-            if model is not None:
-                return model
-        return load_model(cls, resume.path, **common, **extra)
+        load = next((a.contribution.load for a in extensions if a.contribution.load is not None), load_model)
+        return load(cls, resume.path, **common, **extra)
     try:
         model = cls(policy, env, seed=seed, device=device, tensorboard_log=tensorboard_log, verbose=verbose, **kwargs)
     except (TypeError, ValueError, AssertionError, KeyError) as exc:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +27,10 @@ from sbagents.atomic import save_model
 from sbagents.callbacks.run_files import AtomicCheckpointCallback
 from sbagents.core.env_names import EnvRef, resolve_env
 from sbagents.core.experiment import Experiment, build_experiment
+from sbagents.core.extensions import ActiveExtension, ExtensionPlan, activate, prepare_extensions
 from sbagents.core.lifecycle import (
     LearningClock,
+    SummaryItems,
     TrainResult,
     base_summary,
     default_command,
@@ -51,7 +53,6 @@ from sbagents.core.run_dir import (
 )
 from sbagents.env_factory import make_team_vecs, make_vec, normalize_for_training
 from sbagents.errors import UsageError
-from sbagents.extensions import ActiveExtension, ExtensionPlan, activate, prepare_extensions
 from sbagents.multiagent.lockstep import learn_in_lockstep
 from sbagents.pipeline.budget import budget_warnings
 from sbagents.pipeline.console import EvalReportCallback, ProgressCallback
@@ -105,8 +106,8 @@ def train_sb3(
 
 @dataclass
 class _RunPlan:
-    """A checked run, before its run dir exists: the options, the env, the experiment, the run's extensions (after
-    :meth:`~sbagents.extensions.TrainingExtension.prepare`), and what ``args.yml`` records."""
+    """A checked run, before its run dir exists: the options, the env, the experiment, the run's extensions (configured,
+    with their contributions: :func:`~sbagents.extensions.prepare_extensions`), and what ``args.yml`` records."""
 
     spec: TrainSpec
     output: OutputOptions
@@ -140,9 +141,7 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     """Check everything that can be checked before a run dir exists (one-line :class:`UsageError` otherwise)."""
     for group in (spec, evaluation, execution, sb3):
         group.validate()
-    actives = activate(features)
-    for active in actives:
-        active.extension.validate(active.spec)
+    actives = activate(features)  # each spec's own values checked
     if execution.num_threads > 0:
         torch.set_num_threads(execution.num_threads)
     ref = resolve_env(spec.env, spec.gym_packages)
@@ -150,7 +149,7 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     if exp.n_timesteps == 0:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     groups = model_groups(ref.kind, exp, ref)
-    plan = ExtensionPlan(spec.algo, exp, ref, team=groups is not None, resuming=spec.trained_agent is not None,
+    plan = ExtensionPlan(spec.algo, exp, ref, resuming=spec.trained_agent is not None,
                          n_models=1 if groups is None else len(groups), specs={a.name: a.spec for a in actives},
                          hyperparams=spec.hyperparams)
     actives = prepare_extensions(plan)
@@ -175,7 +174,7 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
             "eval_episodes": evaluation.eval_episodes, "vec_env": vec_env, "device": execution.device,
             "trained_agent": str(agent_path) if agent_path else None}
     for active in actives:
-        args.update(active.extension.record(active.spec))
+        args.update(active.extension.record(active.spec).args)
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
     return _RunPlan(spec, output, evaluation, execution, sb3, ref, exp, groups, actives, seed, eval_freq, vec_env,
@@ -185,17 +184,14 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
 
 @dataclass
 class _Model:
-    """One model of a run: its context (what the extensions' hooks see), sbagents' own callbacks and each
-    extension's callbacks (in extension order)."""
+    """One model of a run: its context (what the extensions' hooks see), sbagents' own callbacks, the extensions'
+    callbacks (in extension order) and, once learning stopped, each extension's ``summary.json`` items (in extension
+    order)."""
 
     ctx: RunContext
     own: list[BaseCallback]
-    per_extension: list[list[BaseCallback]]
-
-    @property
-    def extension_callbacks(self) -> list[BaseCallback]:
-        """The extensions' callbacks, in extension order."""
-        return [cb for cbs in self.per_extension for cb in cbs]
+    extension_callbacks: list[BaseCallback]
+    items: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass
@@ -272,8 +268,8 @@ def _build(run: _RunPlan) -> _BuiltRun:
         steps_per_call = exp.n_envs * run.n_agents if joint is not None else None
         contexts = []
         for group, train_env in envs.items():
-            for active in run.actives:
-                train_env = active.extension.wrap_train_env(active.spec, train_env)
+            for wrap in (a.contribution.wrap_env for a in run.actives if a.contribution.wrap_env is not None):
+                train_env = wrap(train_env)
             model = make_model(exp, train_env, seed, run.execution.device,
                                tensorboard_log=run.output.tensorboard_log, verbose=max(run.execution.verbose - 1, 0),
                                resume=resume, extensions=run.actives)
@@ -281,16 +277,15 @@ def _build(run: _RunPlan) -> _BuiltRun:
                                        run.evaluation.eval_episodes, trained_agent=resume.path if resume else None,
                                        trust_run=run.spec.trust_run, save_freq=run.output.save_freq, group=group,
                                        steps_per_call=steps_per_call))
-        for ctx in contexts:
-            for active in run.actives:
-                active.extension.setup(active.spec, ctx)
+        # the extensions' callbacks first: what they print comes before the progress bar
+        extension_callbacks = [[cb for active in run.actives for cb in active.extension.callbacks(active.spec, ctx)]
+                               for ctx in contexts]
         lead = contexts[0]
         steps_before = lead.model.num_timesteps if resume is not None else 0
         reporter = ProgressReporter(exp.n_timesteps, bar=run.execution.progress, quiet=run.execution.verbose <= 0,
                                     start=steps_before)
         own = _callbacks(contexts, run, reporter)
-        models = [_Model(ctx, own[i], [active.extension.callbacks(active.spec, ctx) for active in run.actives])
-                  for i, ctx in enumerate(contexts)]
+        models = [_Model(ctx, own[i], extension_callbacks[i]) for i, ctx in enumerate(contexts)]
     env_steps = math.ceil(exp.n_timesteps / steps_per_call) if steps_per_call else 0
     warnings = budget_warnings(lead.model, run.spec.algo, round(exp.n_timesteps / lead.timestep_scale),
                                round(steps_before / lead.timestep_scale))
@@ -321,22 +316,22 @@ def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -
                                   built.env_steps, dict(zip(groups, each, strict=True)), log_interval)
     finally:
         built.reporter.close()
-        for m in built.models:  # every model saved before any extension's after_learn
+        for m in built.models:  # every model saved before any extension's finish
             _save(m.ctx)
         for m in built.models:
-            for active in run.actives:
-                active.extension.after_learn(active.spec, m.ctx)
+            m.items = [active.extension.finish(active.spec, m.ctx) for active in run.actives]
     return clock
 
 
-def _model_summary(run: _RunPlan, model: _Model) -> dict[str, Any]:
+def _model_summary(model: _Model) -> dict[str, Any]:
     """One model's ``summary.json`` items: its extensions' and its callbacks' (e.g. a game's learner's illegal moves
-    in training)."""
+    in training: :class:`~sbagents.core.lifecycle.SummaryItems`)."""
     items: dict[str, Any] = {}
-    for active in run.actives:
-        items.update(active.extension.summary(active.spec, model.ctx))
+    for part in model.items:
+        items.update(part)
     for callback in [*model.own, *model.extension_callbacks]:
-        items.update(getattr(callback, "summary_items", dict)())
+        if isinstance(callback, SummaryItems):
+            items.update(callback.summary_items())
     return items
 
 
@@ -351,7 +346,7 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
         summary["warnings"] = built.warnings
     if built.joint is not None:
         summary["groups"] = run.groups
-    items = [_model_summary(run, m) for m in built.models]
+    items = [_model_summary(m) for m in built.models]
     groups = [str(m.ctx.group) for m in built.models]
 
     def place_by_group() -> None:  # each group's items, where it has any
@@ -374,7 +369,7 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
                                      options, {g: run_dir / group_stats_name(g) for g in groups})
         for part in items:
             for active in run.actives:
-                active.extension.judge_evaluation(active.spec, part, result)
+                active.extension.judge(active.spec, part, result)
         if built.joint is not None:
             place_by_group()  # a group whose items were empty may have some now
         return result
@@ -382,9 +377,7 @@ def _finish(run: _RunPlan, built: _BuiltRun, clock: LearningClock) -> TrainResul
     finish_run(run_dir, summary, final_eval if options.n_episodes > 0 else None)
     results: dict[str, Any] = {}
     for m in built.models:
-        found: dict[str, Any] = {}
-        for active, cbs in zip(run.actives, m.per_extension, strict=True):
-            found.update(active.extension.results(active.spec, cbs))
+        found = {key: value for part in m.items for key, value in part.items()}
         if built.joint is None:
             results.update(found)
         else:

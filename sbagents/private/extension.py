@@ -11,10 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.vec_env import VecEnv
 
+from sbagents.capabilities import Capability
+from sbagents.core.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability, ExtensionPlan, TrainingContext, TrainingExtension
 from sbagents.private.options import DP_ALGOS, DP_TRAINING, PrivacyOptions
 
 
@@ -61,30 +61,36 @@ class PrivacyExtension(TrainingExtension[PrivacyOptions]):
     def capabilities(self) -> list[Capability]:
         return [DP_TRAINING]
 
-    def prepare(self, spec: PrivacyOptions, plan: ExtensionPlan) -> PrivacyOptions:
+    def configure(self, spec: PrivacyOptions | None, plan: ExtensionPlan) -> PrivacyOptions | None:
+        if spec is None:
+            return None
         try:
-            from sbagents.private.training import check_dp_experiment
+            from sbagents.private.training import check_dp_experiment, private_experiment
         except ImportError as exc:
             raise UsageError(f"DP training needs Opacus: pip install 'sbagents[private]' ({exc})") from None
         check_dp_experiment(spec, plan.exp, plan.resuming)
+        plan.exp = private_experiment(plan.exp)
         return spec
 
-    def adjust_experiment(self, spec: PrivacyOptions, exp: Any) -> Any:
-        from sbagents.private.training import private_experiment
-
-        return private_experiment(exp)
-
-    def wrap_train_env(self, spec: PrivacyOptions, env: VecEnv) -> VecEnv:
+    def contribute(self, spec: PrivacyOptions, plan: ExtensionPlan) -> Contribution:
         from sbagents.private.training import freeze_normalization
 
-        return freeze_normalization(env)
+        return Contribution(wrap_env=freeze_normalization)
+
+    def record(self, spec: PrivacyOptions) -> SpecRecord:
+        defaults = PrivacyOptions()
+        given = {"--dp-epsilon": spec.epsilon, "--dp-noise": spec.noise,
+                 "--dp-delta": None if spec.delta == defaults.delta else spec.delta,
+                 "--dp-clip": None if spec.clip == defaults.clip else spec.clip}
+        return SpecRecord(flags=[arg for flag, value in given.items() if value is not None
+                                 for arg in (flag, str(value))])
 
     def callbacks(self, spec: PrivacyOptions, ctx: TrainingContext) -> list[BaseCallback]:
         from sbagents.private.training import make_dp_callback
 
         return [make_dp_callback(ctx.model, spec, ctx.exp.n_timesteps)]
 
-    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+    def describe(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
         dp = summary.get("dp")
         if not dp:
             return []

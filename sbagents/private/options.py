@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sbagents.capabilities import Capability
 from sbagents.core.env_kinds import SINGLE_AGENT
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability
 
 #: Algorithms DP-SGD is wired for (off-policy first; :func:`sbagents.private.dp_sgd.make_private` takes their classes):
 #: the declaration of :class:`~sbagents.private.extension.PrivacyExtension`.

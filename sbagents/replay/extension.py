@@ -12,8 +12,8 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sbagents.algos import ALGOS
+from sbagents.core.extensions import ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 from sbagents.errors import UsageError
-from sbagents.extensions import ExtensionPlan, TrainingContext, TrainingExtension
 from sbagents.replay.buffer_files import ReplayBufferCheckpoint, buffer_for, load_replay_buffer, save_replay_buffer
 
 
@@ -44,42 +44,36 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
                            help="off-policy: keep the replay buffer in the run dir (replay_buffer.npz, replaced at "
                                 "each checkpoint and at the end, also after Ctrl-C) so that -i continues with it")
 
-    def from_args(self, args: argparse.Namespace) -> ReplayBufferOptions:
-        return ReplayBufferOptions(save=args.save_replay_buffer)
+    def from_args(self, args: argparse.Namespace) -> ReplayBufferOptions | None:
+        return ReplayBufferOptions(save=True) if args.save_replay_buffer else None
 
-    def default_spec(self) -> ReplayBufferOptions:
-        return ReplayBufferOptions()
-
-    def unsupported_flags(self, spec: ReplayBufferOptions, backend: str) -> list[str]:
-        return [self.flags] if spec.save and backend not in self.backends else []
-
-    def prepare(self, spec: ReplayBufferOptions, plan: ExtensionPlan) -> ReplayBufferOptions:
+    def configure(self, spec: ReplayBufferOptions | None, plan: ExtensionPlan) -> ReplayBufferOptions:
+        # every SB3 run takes part: -i continues with the buffer saved beside its model
+        spec = spec or ReplayBufferOptions()
         if spec.save and (not ALGOS[plan.algo].off_policy or plan.n_models > 1):
             raise UsageError("--save-replay-buffer keeps the buffer of one off-policy model (dqn, ddpg, td3, sac, "
                              f"tqc, ...); {plan.algo} on {plan.ref.env_id} has none or trains one model per group")
         return spec
 
-    def setup(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> None:
+    def record(self, spec: ReplayBufferOptions) -> SpecRecord:
+        return SpecRecord(flags=["--save-replay-buffer"] if spec.save else [])
+
+    def callbacks(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> list[BaseCallback]:
         loaded, reason = None, None
         if ctx.trained_agent is not None:
             _, reason = buffer_for(ctx.model, ctx.trained_agent)
-            if reason is not None:  # before the progress bar exists: one plain line
+            if reason is not None:  # before the progress bar draws: one plain line
                 print(f"warning: {reason}", file=sys.stderr, flush=True)
             loaded = load_replay_buffer(ctx.model, ctx.trained_agent, ctx.trust_run)
-        ctx.state[self.name] = loaded
-        ctx.state[f"{self.name}.not_loaded"] = reason
-
-    def callbacks(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> list[BaseCallback]:
+        ctx.state[self.name] = (loaded, reason)
         if spec.save and ctx.save_freq > 0:
             return [ReplayBufferCheckpoint(ctx.run_dir, ctx.calls(ctx.save_freq))]
         return []
 
-    def after_learn(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> None:
+    def finish(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> dict[str, Any]:
         if spec.save:
             save_replay_buffer(ctx.model, ctx.run_dir)
-
-    def summary(self, spec: ReplayBufferOptions, ctx: TrainingContext) -> dict[str, Any]:
-        loaded, reason = ctx.state.get(self.name), ctx.state.get(f"{self.name}.not_loaded")
+        loaded, reason = ctx.state.get(self.name, (None, None))
         if loaded is None and not spec.save and reason is None:
             return {}
         item: dict[str, Any] = {"loaded_transitions": loaded, "saved": spec.save}
@@ -87,7 +81,7 @@ class ReplayBufferExtension(TrainingExtension[ReplayBufferOptions]):
             item["not_loaded"] = reason
         return {"replay_buffer": item}
 
-    def summary_lines(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
+    def describe(self, summary: Mapping[str, Any], run_dir: Path) -> list[str]:
         buffer = summary.get("replay_buffer")
         if not buffer:
             return []

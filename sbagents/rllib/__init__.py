@@ -99,7 +99,7 @@ def check_options(groups: dict[str, Any], refused: list[str] | None = None) -> N
     :param groups: the option groups of a run by name (``spec``, ``output``, ``evaluation``, ``execution``, ``sb3``,
         ``rllib``); a field that differs from its dataclass default counts as given.
     :param refused: flags of training extensions that refuse this backend
-        (:meth:`sbagents.extensions.TrainingExtension.unsupported_flags`), named in the same line.
+        (:func:`sbagents.extensions.refused_flags`), named in the same line.
     """
     given = []
     for (group, name), flag in UNSUPPORTED_OPTIONS.items():

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from sbagents.core.backends import Backend
+from sbagents.core.extensions import refused_flags
 from sbagents.core.lifecycle import TrainResult
 from sbagents.core.options import (
     EvalOptions,
@@ -24,7 +25,6 @@ from sbagents.core.options import (
 )
 from sbagents.core.run_dir import RunRef
 from sbagents.errors import UsageError
-from sbagents.extensions import activate
 from sbagents.rllib import RLLIB_ALGOS, check_options, is_rllib_run, require_ray
 
 #: ``evaluate`` options RLlib runs do not support -> their flag.
@@ -56,7 +56,7 @@ class RllibBackend(Backend):
 
         ref = resolve_env(spec.env, spec.gym_packages)
         ref.kind.refuse_backend(ref, self.name)
-        refused = [flag for a in activate(features) for flag in a.extension.unsupported_flags(a.spec, self.name)]
+        refused = refused_flags(features, self.name)
         check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution, "sb3": sb3,
                        "rllib": rllib}, refused)
         if callbacks:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
-from sbagents.extensions import Capability, TrainingExtension
+from sbagents.capabilities import Capability
+from sbagents.core.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingExtension
 from sbagents.robust.options import ROBUST_ALGOS, ROBUST_KINDS, ROBUST_METHODS, RobustSpec, parse_robust
 
 
@@ -37,12 +37,8 @@ class RobustExtension(TrainingExtension[RobustSpec]):
     def capability(self, spec: RobustSpec) -> Capability:
         return ROBUST_METHODS[spec.method]
 
-    def record(self, spec: RobustSpec) -> dict[str, Any]:
-        return {"robust": spec.flag_value()}
+    def contribute(self, spec: RobustSpec, plan: ExtensionPlan) -> Contribution:
+        return Contribution(model_class=spec.model_class(plan.algo), model_kwargs=spec.model_kwargs())
 
-    def command_args(self, spec: RobustSpec) -> list[str]:
-        return ["--robust", spec.flag_value()]
-
-    def model_class(self, spec: RobustSpec, algo: str, cls: type,
-                    kwargs: dict[str, Any]) -> tuple[type, dict[str, Any]]:
-        return spec.model_class(algo), {**kwargs, **spec.model_kwargs()}
+    def record(self, spec: RobustSpec) -> SpecRecord:
+        return SpecRecord(args={"robust": spec.flag_value()}, flags=["--robust", spec.flag_value()])

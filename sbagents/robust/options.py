@@ -25,9 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from sbagents.capabilities import Capability
 from sbagents.core.env_kinds import SINGLE_AGENT
 from sbagents.errors import UsageError
-from sbagents.extensions import Capability
 
 #: Algorithms each robust method trains, by name (the declaration of
 #: :class:`~sbagents.robust.extension.RobustExtension`: one column of the capability table per method).

@@ -27,6 +27,7 @@ from stable_baselines3.common.vec_env import (
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
+from sbagents.core.team_options import TeamOptions
 from sbagents.env_construction import check_env_kwargs, env_fn, env_kwargs_error, missing_dependency_error
 from sbagents.errors import UsageError
 from sbagents.state_files import existing, load_vecnormalize
@@ -72,8 +73,8 @@ def _team_vecs(
 
     wrappers = [*exp.env_wrapper, *([(wrapper, {})] if wrapper is not None else [])]
     factory = ParallelEnvFactory(ref.source, ref.modules, kwargs, wrappers)
-    assert exp.team is not None
-    return dict(team_vec_envs(factory, n_envs, exp.team, seed=seed, monitor_dir=monitor, subproc=kind == "subproc"))
+    return dict(team_vec_envs(factory, n_envs, TeamOptions.of(exp), seed=seed, monitor_dir=monitor,
+                              subproc=kind == "subproc"))
 
 
 def make_team_vecs(
@@ -114,8 +115,8 @@ def _batchable_options(kind: EnvKind, exp: Experiment) -> bool:
 @_batchable_options.register
 def _(kind: TeamKind, exp: Experiment) -> bool:
     """A team: a plain ``policies: shared`` team (no agent id, a local critic)."""
-    assert exp.team is not None
-    return exp.team.policies == "shared" and not exp.team.agent_id and exp.team.critic == "local"
+    team = TeamOptions.of(exp)
+    return team.policies == "shared" and not team.agent_id and team.critic == "local"
 
 
 def vec_env_kind(vec_env: str, exp: Experiment, ref: EnvRef, env_kwargs: dict[str, Any] | None = None) -> str:
@@ -245,8 +246,7 @@ def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int |
     """A team: the one VecEnv of a parameter-sharing team (:func:`make_team_vecs` for one model per group)."""
     venvs = _team_vecs(exp, ref, n_envs, seed, *how)
     if len(venvs) != 1:
-        assert exp.team is not None
-        raise UsageError(f"{exp.team.policies} experiments train one model per group: use make_team_vecs")
+        raise UsageError(f"{TeamOptions.of(exp).policies} experiments train one model per group: use make_team_vecs")
     return next(iter(venvs.values()))
 
 

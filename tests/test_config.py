@@ -12,6 +12,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from sbagents.core.env_kinds import GAME, PETTINGZOO_DEFAULT_ENTRY, SINGLE_AGENT, TEAM, EnvKind
 from sbagents.core.env_names import resolve_env
 from sbagents.core.experiment import resolve
+from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.core.zoo_config import lookup_entry, parse_overrides
 from sbagents.errors import UsageError
 
@@ -137,7 +138,7 @@ def test_shipped_configs_parse() -> None:
             kind = GAME if game else TEAM if _is_pettingzoo_entry(env_id) else SINGLE_AGENT
             exp = resolve(algo, env_id, dict(entry), str(path), kind)
             assert exp.n_timesteps > 0, (path, env_id)
-            assert (exp.self_play is not None) == game, (path, env_id)
+            assert isinstance(exp.kind_options, SelfPlayOptions) == game, (path, env_id)
 
 
 def _is_pettingzoo_entry(key: str) -> bool:

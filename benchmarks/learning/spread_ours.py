@@ -84,14 +84,15 @@ def ours_exact_episodes(log_folder: Path, exp_id: int, checkpoint: int | None, n
     import numpy as np
 
     from sbagents.core.run_dir import RunRef, load_run
+    from sbagents.core.team_options import TeamOptions
     from sbagents.env_factory import make_team_vecs, normalize_for_eval
     from sbagents.multiagent.team_eval import model_actor, run_team_episodes
 
     run = load_run(RunRef("ppo", ENV, log_folder, exp_id=exp_id, checkpoint=checkpoint))
     exp = run.experiment
-    team = exp.team
+    team = TeamOptions.of(exp)
     if (not exp.normalize and not exp.env_wrapper and not exp.vec_env_wrapper and not exp.frame_stack
-            and team is not None and team.policies == "shared" and not team.agent_id and len(run.models) == 1):
+            and team.policies == "shared" and not team.agent_id and len(run.models) == 1):
         # the policy sees mpe2's own observations: play 100 episodes side by side, one predict per step
         from benchmarks.learning.benchmarl_venv import spread_episodes
 
@@ -205,10 +206,11 @@ def ours_entry() -> dict[str, Any]:
     from sbagents.core.env_names import resolve_env
     from sbagents.core.experiment import build_experiment
     from sbagents.core.options import TrainSpec
+    from sbagents.core.team_options import TeamOptions
 
     exp = build_experiment(TrainSpec("ppo", ENV), resolve_env(ENV))
     return {"n_envs": exp.n_envs, "normalize": jsonable(exp.normalize), "hyperparams": jsonable(exp.hyperparams),
-            "team": jsonable(vars(exp.team)) if exp.team is not None else None}
+            "team": jsonable(vars(TeamOptions.of(exp)))}
 
 
 def jsonable(value: Any) -> Any:

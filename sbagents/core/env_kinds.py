@@ -77,9 +77,10 @@ class EnvKind:
             if misplaced:
                 raise UsageError(f"{', '.join(misplaced)} {owner} ({source})")
 
-    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
-        """The :class:`~sbagents.core.experiment.Experiment` fields this kind reads from its own zoo keys."""
-        return {}
+    def options(self, entry: Mapping[str, Any], source: str) -> Any:
+        """The kind's own settings, read from its zoo keys (:attr:`own_keys`) of ``entry``: the experiment's
+        :attr:`~sbagents.core.experiment.Experiment.kind_options` (default: None)."""
+        return None
 
     def observation_spaces(self, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any]:
         """The observation space of every agent (one for a Gymnasium env) of one env built with ``env_kwargs``."""
@@ -159,10 +160,10 @@ class TeamKind(EnvKind):
                              f"monitor and evaluate with env_kwargs) ({source})")
         super().check_entry(entry, source)
 
-    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
+    def options(self, entry: Mapping[str, Any], source: str) -> Any:
         from sbagents.core.team_options import team_options
 
-        return {"team": team_options(entry, source)}
+        return team_options(entry, source)
 
     def observation_spaces(self, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[Any]:
         env = ref.parallel_env(**env_kwargs)
@@ -187,10 +188,10 @@ class GameKind(EnvKind):
 
         return claim_pettingzoo(name, modules, self)
 
-    def experiment_settings(self, entry: Mapping[str, Any], source: str) -> dict[str, Any]:
+    def options(self, entry: Mapping[str, Any], source: str) -> Any:
         from sbagents.core.selfplay_options import SelfPlayOptions
 
-        return {"self_play": SelfPlayOptions.from_mapping(entry.get("self_play"), source)}
+        return SelfPlayOptions.from_mapping(entry.get("self_play"), source)
 
     def refuse_backend(self, ref: EnvRef, backend: str) -> None:
         if backend not in self.backends:

@@ -20,8 +20,6 @@ from sbagents.core.env_kinds import SINGLE_AGENT, EnvKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.extensions import config_keys
 from sbagents.core.options import TrainSpec
-from sbagents.core.selfplay_options import SelfPlayOptions
-from sbagents.core.team_options import TeamOptions
 from sbagents.core.zoo_config import ZOO_KEYS, expression_values, spec_entry
 from sbagents.errors import UsageError
 from sbagents.import_paths import resolve_path
@@ -123,10 +121,13 @@ class Experiment:
     noise_std: float = 0.1
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     hyperparams: dict[str, Any] = field(default_factory=dict)
-    team: TeamOptions | None = None  # set for PettingZoo envs
     deterministic_eval: bool = True  # greedy evaluations (False: sample, for policies that must stay stochastic)
-    self_play: SelfPlayOptions | None = None  # set for turn-based games
     env_kind: EnvKind = SINGLE_AGENT  # the env's kind (its operations dispatch on it)
+    #: the env kind's own settings, read from its zoo keys (:meth:`~sbagents.core.env_kinds.EnvKind.options`): a
+    #: team's :class:`~sbagents.core.team_options.TeamOptions`, a game's
+    #: :class:`~sbagents.core.selfplay_options.SelfPlayOptions`; None for one Gymnasium agent. Read them with the
+    #: options type's ``of(exp)``.
+    kind_options: Any = None
 
     def action_noise(self, n_actions: int) -> NormalActionNoise | OrnsteinUhlenbeckActionNoise | None:
         """The exploration noise object for ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``)."""
@@ -269,7 +270,7 @@ def resolve(algo: str, env_id: str, entry: dict[str, Any], source: str, kind: En
         hyperparams=dict(entry),
         deterministic_eval=deterministic_eval,
         env_kind=kind,
-        **kind.experiment_settings(entry, source),
+        kind_options=kind.options(entry, source),
     )
 
 

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sbagents.capabilities import Capability
 from sbagents.core.env_kinds import TEAM
 from sbagents.errors import UsageError
+
+if TYPE_CHECKING:
+    from sbagents.core.experiment import Experiment
 
 POLICY_MODES = ("shared", "per_agent", "per_group")
 CRITICS = ("local", "centralized")
@@ -39,6 +42,17 @@ class TeamOptions:
     groups: dict[str, list[str]] | None = None
     agent_id: bool = False
     critic: str = "local"
+
+    @classmethod
+    def of(cls, exp: Experiment) -> TeamOptions:
+        """The team settings of ``exp`` (its :attr:`~sbagents.core.experiment.Experiment.kind_options`).
+
+        :raises TypeError: the experiment of another env kind (a caller's bug, not the user's).
+        """
+        if not isinstance(exp.kind_options, cls):
+            raise TypeError(f"{exp.env_id} is not a team's experiment (its kind options are "
+                            f"{type(exp.kind_options).__name__})")
+        return exp.kind_options
 
 
 def team_options(entry: Mapping[str, Any], source: str) -> TeamOptions:

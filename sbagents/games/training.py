@@ -39,7 +39,7 @@ ELO_SEED_OFFSET = 20_000
 
 def self_play_options(exp: Experiment) -> SelfPlayOptions:
     """The experiment's ``self_play`` settings (defaults when the config has none)."""
-    return exp.self_play if isinstance(exp.self_play, SelfPlayOptions) else SelfPlayOptions()
+    return exp.kind_options if isinstance(exp.kind_options, SelfPlayOptions) else SelfPlayOptions()
 
 
 def training_env_kwargs(exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from sbagents.callbacks.run_files import AtomicEvalCallback
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
+from sbagents.core.team_options import TeamOptions
 from sbagents.env_construction import check_env_kwargs
 from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_eval
 from sbagents.errors import UsageError
@@ -36,7 +37,6 @@ def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | No
     """A team: its groups, read from one env built with the experiment's kwargs."""
     from sbagents.multiagent.groups import team_groups
 
-    assert exp.team is not None
     check_env_kwargs(ref, exp.env_kwargs)
     try:
         probe = ref.parallel_env(**exp.env_kwargs)
@@ -45,7 +45,7 @@ def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | No
         raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {exc}") from None
     agents = [str(a) for a in probe.possible_agents]
     probe.close()
-    return team_groups(exp.team, agents)
+    return team_groups(TeamOptions.of(exp), agents)
 
 
 @kind_operation(GameKind)

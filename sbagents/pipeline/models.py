@@ -18,6 +18,7 @@ from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.extensions import ActiveExtension
+from sbagents.core.team_options import TeamOptions
 from sbagents.env_factory import make_eval_vec, make_team_vecs, make_vec
 from sbagents.errors import UsageError
 from sbagents.multiagent.centralized import CentralizedCriticPolicy
@@ -126,9 +127,9 @@ def _team_model_kwargs(kind: TeamKind, exp: Experiment, kwargs: dict[str, Any], 
 
     :raises UsageError: an off-policy algorithm on Dict observations (no masked Dict replay buffer yet).
     """
-    assert exp.team is not None
+    team = TeamOptions.of(exp)
     on_policy = issubclass(ALGOS[exp.algo].cls, OnPolicyAlgorithm)
-    centralized = exp.team.critic == "centralized"
+    centralized = team.critic == "centralized"
     if centralized and exp.algo not in algos_with("centralized_critic"):
         raise UsageError(f"critic: centralized is for {' and '.join(algos_with('centralized_critic'))} (a value "
                          f"function to centralize), not {exp.algo}")

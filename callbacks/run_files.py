@@ -19,7 +19,6 @@ from typing import Any
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from sbagents.atomic import save_model
-from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.state_files import BEST_VECNORMALIZE_FILE, save_vecnormalize
 
 #: Hidden staging folders inside the run dir (never read by anything; removed when training ends), made by
@@ -30,12 +29,16 @@ _STAGED_SUFFIX = ".partial"
 
 
 class AtomicEvalOutputs:
-    """Mixin for SB3 ``EvalCallback`` classes: the parent writes ``evaluations.npz`` and ``best_model.zip`` under
-    hidden staging names; after each call they are renamed to their real names, so a reader (``plot``, the
-    dashboard, ``evaluate --load-best``) never sees a half-written file."""
+    """Mixin for SB3 ``EvalCallback`` classes (put it before them): the parent's own ``_on_step`` evaluates (SB3's
+    ``evaluate_policy``, which carries a recurrent policy's state and, in sb3-contrib's ``MaskableEvalCallback``,
+    the legal-action masks) and writes ``evaluations.npz`` and ``best_model.zip`` under hidden staging names; after
+    each call they are renamed to their real names, so a reader (``plot``, the dashboard, ``evaluate --load-best``)
+    never sees a half-written file, and a new best model is published after the ``VecNormalize`` statistics of its
+    moment (``vecnormalize_best.npz``: those of the same call, which the training env has not updated since)."""
 
     log_path: str | None
     best_model_save_path: str | None
+    model: Any
 
     _final_log: Path | None
     _final_best: Path | None
@@ -72,11 +75,11 @@ class AtomicEvalOutputs:
             if staged.exists():
                 os.replace(staged, self._final_log)
         if self._final_best is not None and self._staged_best is not None:
-            stats = self._staged_best / BEST_VECNORMALIZE_FILE  # before the model: a best model has its statistics
-            if stats.exists():
-                os.replace(stats, self._final_best / BEST_VECNORMALIZE_FILE)
             staged = self._staged_best / "best_model.zip"
-            if staged.exists():
+            if staged.exists():  # a new best this call: its statistics first, so a best model has them beside it
+                venv = self.model.get_vec_normalize_env()
+                if venv is not None:
+                    save_vecnormalize(venv, self._final_best / BEST_VECNORMALIZE_FILE)
                 os.replace(staged, self._final_best / "best_model.zip")
 
     def _on_training_end(self) -> None:
@@ -88,9 +91,9 @@ class AtomicEvalOutputs:
         super()._on_training_end()  # type: ignore[misc]
 
 
-class AtomicEvalCallback(AtomicEvalOutputs, EpisodeEvalCallback, EvalCallback):
-    """SB3's ``EvalCallback`` (same arguments) with atomic ``evaluations.npz`` and ``best_model.zip``, playing its
-    episodes with the episode runner (:class:`~sbagents.callbacks.rollout.EpisodeEvalCallback`)."""
+class AtomicEvalCallback(AtomicEvalOutputs, EvalCallback):
+    """SB3's ``EvalCallback`` (same arguments) with atomic ``evaluations.npz`` and ``best_model.zip`` and the best
+    model's ``vecnormalize_best.npz``."""
 
 
 class AtomicCheckpointCallback(CheckpointCallback):

@@ -1,7 +1,8 @@
 """The ``deterministic_eval`` zoo key: every evaluation of a run (periodic, final, ``evaluate``, ``record_video``)
 acts greedily unless the run's config says ``deterministic_eval: false``; ``--deterministic``/``--stochastic``
-override it. Checked on what the evaluation code is asked to do (spies on the episode runner's ``model_actor`` as
-the periodic, final, ``evaluate`` and team evaluations call it), for a single-agent run and a PettingZoo team run,
+override it. Checked on what the evaluation code is asked to do (spies on SB3's ``evaluate_policy`` as the periodic
+evaluation calls it, and on the episode runner's ``model_actor`` as the final, ``evaluate`` and team evaluations call
+it), for a single-agent run and a PettingZoo team run,
 and on the config's validation."""
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import stable_baselines3.common.callbacks as sb3_callbacks
 
-import sbagents.callbacks.rollout as rollout
 import sbagents.multiagent.team_eval as team_eval
 import sbagents.pipeline.evaluation as evaluation
 from sbagents.api import EvalOptions, ExecOptions, OutputOptions, RunRef, TrainSpec, evaluate, train
@@ -39,17 +40,21 @@ def test_the_key_is_validated() -> None:
 
 
 def _spy(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    """Record the ``deterministic`` flag of every evaluation: ``model_actor`` as the periodic evaluation
-    (:class:`sbagents.callbacks.rollout.EpisodeEvalCallback`), :func:`sbagents.pipeline.evaluation.evaluate_model`
-    and the team evaluation call it."""
+    """Record the ``deterministic`` flag of every evaluation: SB3's ``evaluate_policy`` as the periodic evaluation
+    (SB3's ``EvalCallback``) calls it, and ``model_actor`` as :func:`sbagents.pipeline.evaluation.evaluate_model` and
+    the team evaluation call it."""
     seen: list[bool] = []
-    real_actor = team_eval.model_actor
+    real_policy, real_actor = sb3_callbacks.evaluate_policy, team_eval.model_actor
+
+    def policy_spy(*args: Any, **kwargs: Any) -> Any:
+        seen.append(bool(kwargs["deterministic"]))
+        return real_policy(*args, **kwargs)
 
     def actor_spy(model: Any, deterministic: bool = True) -> Any:
         seen.append(deterministic)
         return real_actor(model, deterministic)
 
-    monkeypatch.setattr(rollout, "model_actor", actor_spy)
+    monkeypatch.setattr(sb3_callbacks, "evaluate_policy", policy_spy)
     monkeypatch.setattr(team_eval, "model_actor", actor_spy)
     monkeypatch.setattr(evaluation, "model_actor", actor_spy)
     return seen

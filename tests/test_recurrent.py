@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -99,6 +100,34 @@ def test_evaluation_steps_the_lstm_with_its_state(lstm: RecurrentPPO) -> None:
             total += float(reward)
             done = term or trunc
         assert record.ret == pytest.approx(total)
+
+
+def test_periodic_evaluation_carries_the_lstm_state(lstm: RecurrentPPO, tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The run's periodic evaluation (SB3's EvalCallback, with atomic files) passes the state the LSTM returned back
+    to it and marks each episode's first step, as a hand-written loop does."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sbagents.callbacks.run_files import AtomicEvalCallback
+
+    calls: list[tuple[bool, list[bool]]] = []
+    real = RecurrentPPO.predict
+
+    def spy(self: RecurrentPPO, obs: Any, state: Any = None, episode_start: Any = None,
+            deterministic: bool = False) -> Any:
+        calls.append((state is not None, [bool(x) for x in np.atleast_1d(episode_start)]))
+        return real(self, obs, state=state, episode_start=episode_start, deterministic=deterministic)
+
+    eval_env = make_vec_env(ENV, n_envs=1, seed=3)
+    callback = AtomicEvalCallback(eval_env, eval_freq=1, n_eval_episodes=2, log_path=str(tmp_path),
+                                  best_model_save_path=str(tmp_path), verbose=0)
+    callback.init_callback(lstm)
+    monkeypatch.setattr(RecurrentPPO, "predict", spy)
+    callback.on_step()
+    assert len(calls) > 2 and calls[0] == (False, [True])  # the first step: no state yet, an episode starts
+    assert all(carried for carried, _ in calls[1:])  # every later step gets the state back
+    assert sum(start == [True] for _, start in calls) == 2  # one start per episode
+    assert (tmp_path / "evaluations.npz").is_file() and (tmp_path / "best_model.zip").is_file()
 
 
 def test_onnx_export_takes_and_gives_the_state_with_parity_over_whole_episodes(lstm: RecurrentPPO,

@@ -19,7 +19,6 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.callbacks.run_files import AtomicEvalOutputs
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -60,7 +59,7 @@ def game_env(exp: Experiment, ref: EnvRef, opponent: Player | str, seat: int | N
     return make_selfplay_env(ref.source, ref.modules, opponent=opponent, seat=seat, **exp.env_kwargs)
 
 
-class AtomicMaskableEvalCallback(AtomicEvalOutputs, EpisodeEvalCallback, MaskableEvalCallback):
+class AtomicMaskableEvalCallback(AtomicEvalOutputs, MaskableEvalCallback):
     """sb3-contrib's ``MaskableEvalCallback`` with atomic ``evaluations.npz`` (:mod:`sbagents.callbacks.run_files`)."""
 
 

@@ -22,7 +22,6 @@ from stable_baselines3.common.utils import set_random_seed
 
 from sbagents.algos import ALGOS
 from sbagents.atomic import save_figure, write_text
-from sbagents.callbacks.rollout import EpisodeEvalCallback
 from sbagents.core.env_names import EnvRef, resolve_env
 from sbagents.core.experiment import build_experiment
 from sbagents.core.options import StudyOptions, TrainSpec
@@ -63,7 +62,7 @@ def sample_params(trial: optuna.Trial, algo: str) -> dict[str, Any]:
     return params
 
 
-class _BestEval(EpisodeEvalCallback, EvalCallback):
+class _BestEval(EvalCallback):
     """EvalCallback that reports the running best mean return to the trial (for pruning)."""
 
     def __init__(self, trial: optuna.Trial, step_offset: int, seeds_done: list[float], **kwargs: Any) -> None:

@@ -338,3 +338,39 @@ def test_every_group_model_judges_the_final_evaluation(tmp_path: Path) -> None:
     summary = json.loads((result.run_dir / "summary.json").read_text())
     assert summary["by_group"] == {"scout": {"judge": {"group": "scout", "judged_episodes": 3}},
                                    "worker": {"judge": {"group": "worker", "judged_episodes": 3}}}
+
+
+def test_minus_i_continues_every_group_model_of_a_per_group_run(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """``-i`` with one group's model (final, best or checkpoint) continues every group's model from the files beside
+    it, with the VecNormalize statistics saved with each; anything else is refused in one line."""
+    params = {**PPO_PARAMS, "policies": "per_group", "normalize": True}
+    first = train(TrainSpec("ppo", RELAY, 1024, params), OutputOptions(tmp_path, save_freq=512),
+                  EvalOptions(eval_freq=-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+    before = {g: m.num_timesteps for g, m in first.models.items()}
+    stats = {g: np.load(first.run_dir / f"vecnormalize.{g}.npz")["ret_rms/count"] for g in before}
+    again = train(TrainSpec("ppo", RELAY, 1024, params, trained_agent=first.run_dir / "relay_v0.worker.zip"),
+                  OutputOptions(tmp_path), EvalOptions(eval_freq=-1, final_eval_episodes=0),
+                  ExecOptions(seed=0, verbose=0))
+    assert again.run_dir != first.run_dir
+    for group, model in again.models.items():  # each group's model went on from its own step and statistics
+        assert model.num_timesteps > before[group]
+        loaded = np.load(again.run_dir / f"vecnormalize.{group}.npz")["ret_rms/count"]
+        assert float(loaded) > float(stats[group])
+    assert again.summary["n_timesteps"] - again.summary["fps"] * again.summary["train_seconds"] == pytest.approx(
+        sum(before.values()), abs=2)  # fps counts the steps of this run only
+    checkpoint = min(first.run_dir.glob("rl_model.scout_*_steps.zip"), key=lambda p: int(p.name.split("_")[-2]))
+    steps = {g: int(checkpoint.name.split("_")[-2]) if g == "scout" else
+             int(next(first.run_dir.glob("rl_model.worker_*_steps.zip")).name.split("_")[-2]) for g in before}
+    assert steps["scout"] < before["scout"]  # an earlier model than the final one
+    resumed = train(TrainSpec("ppo", RELAY, 128, params, trained_agent=checkpoint), OutputOptions(tmp_path),
+                    EvalOptions(eval_freq=-1, final_eval_episodes=0), ExecOptions(seed=0, verbose=0))
+    trained = {g: resumed.models[g].num_timesteps - steps[g] for g in before}
+    assert all(0 < trained[g] < again.models[g].num_timesteps - before[g] for g in before), trained
+    for bad, expected in [(first.run_dir / "vecnormalize.scout.npz", "--trained-agent"),
+                          (first.run_dir / "relay_v0.zip", "this run trains one model per group (scout, worker)")]:
+        if bad.name == "relay_v0.zip":
+            shutil.copy(first.run_dir / "relay_v0.scout.zip", bad)
+        code = run_main("train", "--algo", "ppo", "--env", RELAY, "-f", str(tmp_path), "-i", str(bad),
+                        "-params", "policies:per_group", "--verbose", "0")
+        check_error(code, capsys.readouterr().err, expected)

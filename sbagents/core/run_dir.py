@@ -11,6 +11,7 @@ import dataclasses
 import errno
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -370,6 +371,59 @@ def run_groups(run_dir: Path, env_id: str) -> dict[str, list[str]] | None:
 def group_model_name(stem: str, group: str) -> str:
     """The model file of a group in a run dir: ``<EnvStem>.<group>.zip`` (``shared``: ``<EnvStem>.zip``)."""
     return f"{stem}.zip" if group == SHARED_GROUP else f"{stem}.{group}.zip"
+
+
+def group_resume_files(model: Path, env_id: str, groups: Sequence[str]) -> dict[str, tuple[Path, Path]]:
+    """What ``-i`` continues in a run of one model per group: given one group's model file, every group's model file
+    of the same moment beside it, with the ``VecNormalize`` statistics saved with each (that file may not exist).
+
+    ``model`` may be a group's final model (``<EnvStem>.<group>.zip``, with ``vecnormalize.<group>.npz``), best
+    model (``best_model.<group>.zip``, with ``vecnormalize_best.<group>.npz``) or checkpoint
+    (``rl_model.<group>_<N>_steps.zip``, with ``rl_model.<group>_vecnormalize_<N>_steps.npz``; the groups' models
+    count their own agents' steps, so the k-th checkpoint of each group is of the same moment).
+
+    :raises UsageError: a file that is none of these for a group of ``groups``, or another group's model missing.
+    """
+    run_dir, stem, best = model.parent, env_stem(env_id), Path(BEST_MODEL_FILE).stem
+
+    def checkpoint(group: str, name: str) -> int | None:
+        found = re.fullmatch(rf"{re.escape(CHECKPOINT_PREFIX)}\.{re.escape(group)}_(\d+)_steps\.zip", name)
+        return int(found.group(1)) if found else None
+
+    def checkpoints(group: str) -> list[int]:
+        return sorted(n for p in run_dir.iterdir() if (n := checkpoint(group, p.name)) is not None)
+
+    def files(kind: str, group: str, index: int = 0) -> tuple[str, Path]:
+        if kind == "final":
+            return group_model_name(stem, group), run_dir / group_stats_name(group)
+        if kind == "best":
+            return f"{best}.{group}.zip", best_stats_path(run_dir, group)
+        found = checkpoints(group)
+        steps = found[index] if index < len(found) else "N"
+        return (f"{CHECKPOINT_PREFIX}.{group}_{steps}_steps.zip",
+                run_dir / f"{CHECKPOINT_PREFIX}.{group}_vecnormalize_{steps}_steps.npz")
+
+    given: tuple[str, int] | None = None
+    for group in groups:
+        kind = next((k for k in ("final", "best") if files(k, group)[0] == model.name), None)
+        if kind is not None:
+            given = (kind, 0)
+        elif (steps := checkpoint(group, model.name)) is not None and steps in (found := checkpoints(group)):
+            given = ("checkpoint", found.index(steps))
+        if given is not None:
+            break
+    if given is None:
+        first = groups[0]
+        raise UsageError(f"-i {model}: this run trains one model per group ({', '.join(groups)}); give one group's "
+                         f"model ({files('final', first)[0]}, {files('best', first)[0]} or a checkpoint "
+                         f"{CHECKPOINT_PREFIX}.{first}_<N>_steps.zip) and the others beside it continue too")
+    resumed = {}
+    for group in groups:
+        name, stats = files(given[0], group, given[1])
+        if not (run_dir / name).is_file():
+            raise UsageError(f"-i {model}: group {group}'s model of the same moment is not beside it ({name})")
+        resumed[group] = (run_dir / name, stats)
+    return resumed
 
 
 def group_stats_name(group: str) -> str:

@@ -70,10 +70,13 @@ class Resume:
 
     :param path: the model ``.zip``.
     :param trust: its file may hold pickles beyond plain data (``--trust-run``; :mod:`sbagents.safe_load`).
+    :param stats: the ``VecNormalize`` statistics saved with it (the file may not exist: a model that does not
+        normalize; None: none).
     """
 
     path: Path
     trust: bool = False
+    stats: Path | None = None
 
 
 def make_model(

@@ -49,6 +49,7 @@ from sbagents.core.run_dir import (
     checkpoint_stats_path,
     env_stem,
     group_model_name,
+    group_resume_files,
     group_stats_name,
 )
 from sbagents.env_factory import make_team_vecs, make_vec, normalize_for_training
@@ -121,7 +122,7 @@ class _RunPlan:
     seed: int
     eval_freq: int
     vec_env: str
-    resume: Resume | None
+    resumes: dict[str | None, Resume]
     args: dict[str, Any]
     command: str
 
@@ -156,16 +157,20 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     exp = plan.exp
     per_group = groups is not None and len(groups) > 1
     if per_group:
-        if spec.trained_agent is not None:
-            raise UsageError("-i/--trained-agent continues a single model; this experiment trains one per group")
         refused = [a.extension.flags for a in actives if not a.extension.group_runs]
         if refused:
             raise UsageError(f"{', '.join(refused)} not supported for runs of one model per group ({ref.env_id})")
-    if per_group:
         check_group_spaces(exp, ref)
     else:
         check_spaces(exp, ref)
     agent_path = check_model_file(spec.trained_agent) if spec.trained_agent is not None else None
+    resumes: dict[str | None, Resume] = {}
+    if agent_path is not None and per_group:  # one group's model names them all: each continues
+        assert groups is not None
+        for name, (path, stats) in group_resume_files(agent_path, ref.env_id, list(groups)).items():
+            resumes[name] = Resume(check_model_file(path), spec.trust_run, stats)
+    elif agent_path is not None:
+        resumes[None] = Resume(agent_path, spec.trust_run, _resume_stats(agent_path))
     seed = draw_seed(execution.seed)
     vec_env = training_vec_env(sb3.vec_env, exp, ref)  # auto: EnvPool for Atari ids when installed
     eval_freq = evaluation.frequency(exp.n_timesteps)
@@ -178,7 +183,7 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
     if groups is not None:  # the team's agents per step: plots convert team steps to timesteps with it
         args.update(groups=groups, timesteps_per_env_step=sum(len(a) for a in groups.values()))
     return _RunPlan(spec, output, evaluation, execution, sb3, ref, exp, groups, actives, seed, eval_freq, vec_env,
-                    Resume(agent_path, spec.trust_run) if agent_path is not None else None, args,
+                    resumes, args,
                     output.command or default_command(spec, execution, actives))
 
 
@@ -221,18 +226,28 @@ def _resume_stats(model: Path) -> Path:
     return best_stats_path(model.parent) if model.name == BEST_MODEL_FILE else model.parent / VECNORMALIZE_FILE
 
 
+def _resumed(run: _RunPlan, group: str | None) -> Path | None:
+    """The model file ``-i`` continues for the model of ``group`` (None: a new model)."""
+    resume = run.resumes.get(group)
+    return resume.path if resume is not None else None
+
+
 def _train_envs(run: _RunPlan, run_dir: Path) -> tuple[dict[str | None, VecEnv], Any]:
     """The training VecEnv of each model (``None``: the run's one model; else each group's, stepping one team) with
     its normalization, and the team coordinator of the groups (None for one model)."""
     exp, ref = run.exp, run.ref
+
+    def stats(group: str | None) -> Path | None:
+        resume = run.resumes.get(group)
+        return resume.stats if resume is not None else None
+
     if not run.per_group:
-        stats = _resume_stats(run.resume.path) if run.resume is not None else None
         venv = make_vec(exp, ref, exp.n_envs, run.seed, run_dir, run.vec_env,
                         env_kwargs=training_env_kwargs(ref.kind, exp, ref, run_dir))
-        return {None: normalize_for_training(venv, exp, stats, run.spec.trust_run)}, None
+        return {None: normalize_for_training(venv, exp, stats(None), run.spec.trust_run)}, None
     venvs = make_team_vecs(exp, ref, exp.n_envs, run.seed, run_dir, run.vec_env)
     joint = next(iter(venvs.values())).unwrapped.joint  # type: ignore[attr-defined]
-    return {g: normalize_for_training(v, exp) for g, v in venvs.items()}, joint
+    return {g: normalize_for_training(v, exp, stats(g), run.spec.trust_run) for g, v in venvs.items()}, joint
 
 
 def _callbacks(contexts: Sequence[RunContext], run: _RunPlan, reporter: ProgressReporter) -> list[list[BaseCallback]]:
@@ -259,7 +274,7 @@ def _callbacks(contexts: Sequence[RunContext], run: _RunPlan, reporter: Progress
 def _build(run: _RunPlan) -> _BuiltRun:
     """Create the run dir (removed again if anything here fails), then for each model (one, or one per group) its
     training env, the model, its context and callbacks; every extension's model hooks run for each model."""
-    exp, ref, seed, resume = run.exp, run.ref, run.seed, run.resume
+    exp, ref, seed = run.exp, run.ref, run.seed
     with new_run_dir(run.output.log_folder, run.spec.algo, ref.env_id, exp.hyperparams, run.args,
                      run.command) as run_dir:
         set_random_seed(seed)
@@ -272,16 +287,16 @@ def _build(run: _RunPlan) -> _BuiltRun:
                 train_env = wrap(train_env)
             model = make_model(exp, train_env, seed, run.execution.device,
                                tensorboard_log=run.output.tensorboard_log, verbose=max(run.execution.verbose - 1, 0),
-                               resume=resume, extensions=run.actives)
+                               resume=run.resumes.get(group), extensions=run.actives)
             contexts.append(RunContext(exp, ref, run_dir, train_env, model, seed, run.eval_freq,
-                                       run.evaluation.eval_episodes, trained_agent=resume.path if resume else None,
+                                       run.evaluation.eval_episodes, trained_agent=_resumed(run, group),
                                        trust_run=run.spec.trust_run, save_freq=run.output.save_freq, group=group,
                                        steps_per_call=steps_per_call))
         # the extensions' callbacks first: what they print comes before the progress bar
         extension_callbacks = [[cb for active in run.actives for cb in active.extension.callbacks(active.spec, ctx)]
                                for ctx in contexts]
         lead = contexts[0]
-        steps_before = lead.model.num_timesteps if resume is not None else 0
+        steps_before = sum(ctx.model.num_timesteps for ctx in contexts) if run.resumes else 0  # the run's timesteps
         reporter = ProgressReporter(exp.n_timesteps, bar=run.execution.progress, quiet=run.execution.verbose <= 0,
                                     start=steps_before)
         own = _callbacks(contexts, run, reporter)
@@ -308,12 +323,13 @@ def _learn(run: _RunPlan, built: _BuiltRun, callbacks: Sequence[BaseCallback]) -
     try:
         with clock:
             if built.joint is None:
-                lead.learn(run.exp.n_timesteps, callback=each[0], reset_num_timesteps=run.resume is None,
+                lead.learn(run.exp.n_timesteps, callback=each[0], reset_num_timesteps=not run.resumes,
                            log_interval=log_interval)
             else:
                 groups = [str(m.ctx.group) for m in built.models]
                 learn_in_lockstep(built.joint, {g: m.ctx.model for g, m in zip(groups, built.models, strict=True)},
-                                  built.env_steps, dict(zip(groups, each, strict=True)), log_interval)
+                                  built.env_steps, dict(zip(groups, each, strict=True)), log_interval,
+                                  reset_num_timesteps=not run.resumes)
     finally:
         built.reporter.close()
         for m in built.models:  # every model saved before any extension's finish

@@ -37,12 +37,12 @@ def _constructor(kind: EnvKind, ref: EnvRef) -> Callable[..., Any]:
 
 
 @_constructor.register
-def _(kind: TeamKind, ref: EnvRef) -> Callable[..., Any]:
+def _team_constructor(kind: TeamKind, ref: EnvRef) -> Callable[..., Any]:
     return pettingzoo_factory(ref.source)
 
 
 @_constructor.register
-def _(kind: GameKind, ref: EnvRef) -> Callable[..., Any]:
+def _game_constructor(kind: GameKind, ref: EnvRef) -> Callable[..., Any]:
     from sbagents.games.aec import game_factory
 
     return game_factory(ref.source)
@@ -55,7 +55,7 @@ def env_fn(kind: EnvKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
 
 
 @env_fn.register
-def _(kind: GameKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
+def _game_env_fn(kind: GameKind, ref: EnvRef) -> str | Callable[..., gym.Env]:
     """A game's seat env (picklable)."""
     from sbagents.games.selfplay import make_selfplay_env
 
@@ -99,7 +99,7 @@ def _env_kwargs_of_env(kind: EnvKind, env_kwargs: dict[str, Any]) -> dict[str, A
 
 
 @_env_kwargs_of_env.register
-def _(kind: GameKind, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+def _game_env_kwargs_of_env(kind: GameKind, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     from sbagents.games.selfplay import SELFPLAY_KWARGS
 
     return {k: v for k, v in env_kwargs.items() if k not in SELFPLAY_KWARGS}
@@ -142,7 +142,7 @@ def _render_modes(kind: EnvKind, exp: Experiment, ref: EnvRef) -> list[str]:
 
 
 @_render_modes.register
-def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> list[str]:
+def _team_render_modes(kind: TeamKind, exp: Experiment, ref: EnvRef) -> list[str]:
     env = ref.parallel_env(**exp.env_kwargs)
     modes = list(env.metadata.get("render_modes", []))
     env.close()

@@ -113,7 +113,7 @@ def _batchable_options(kind: EnvKind, exp: Experiment) -> bool:
 
 
 @_batchable_options.register
-def _(kind: TeamKind, exp: Experiment) -> bool:
+def _team_batchable_options(kind: TeamKind, exp: Experiment) -> bool:
     """A team: a plain ``policies: shared`` team (no agent id, a local critic)."""
     team = TeamOptions.of(exp)
     return team.policies == "shared" and not team.agent_id and team.critic == "local"
@@ -242,7 +242,8 @@ def _plain_vec(env_kind: EnvKind, exp: Experiment, ref: EnvRef, n_envs: int, see
 
 
 @_plain_vec.register
-def _(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None, how: _VecArgs) -> VecEnv:
+def _team_plain_vec(env_kind: TeamKind, exp: Experiment, ref: EnvRef, n_envs: int, seed: int | None,
+                    how: _VecArgs) -> VecEnv:
     """A team: the one VecEnv of a parameter-sharing team (:func:`make_team_vecs` for one model per group)."""
     venvs = _team_vecs(exp, ref, n_envs, seed, *how)
     if len(venvs) != 1:

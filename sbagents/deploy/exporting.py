@@ -335,7 +335,8 @@ def preprocessing_of(loaded: LoadedRun) -> dict[str, Any] | None:
 
 
 @_export_kind.register
-def _(kind: TeamKind, loaded: LoadedRun, target: Path, int8: bool, checks: ExportChecks) -> dict[str, ExportReport]:
+def _team_export_kind(kind: TeamKind, loaded: LoadedRun, target: Path, int8: bool,
+                      checks: ExportChecks) -> dict[str, ExportReport]:
     """A team's run: every group's model (parity observations from a team in which each acts)."""
     from sbagents.deploy.team_export import export_team
 
@@ -344,7 +345,8 @@ def _(kind: TeamKind, loaded: LoadedRun, target: Path, int8: bool, checks: Expor
 
 
 @_export_kind.register
-def _(kind: GameKind, loaded: LoadedRun, target: Path, int8: bool, checks: ExportChecks) -> dict[str, ExportReport]:
+def _game_export_kind(kind: GameKind, loaded: LoadedRun, target: Path, int8: bool,
+                      checks: ExportChecks) -> dict[str, ExportReport]:
     """A turn-based game's run: refused."""
     raise UsageError(f"cannot export {loaded.experiment.algo} on {loaded.env.env_id} yet: its policy needs the action "
                      "mask as an input, which the ONNX policy and serve do not take (an exported argmax could pick "

@@ -94,7 +94,7 @@ def _evaluate_kind(kind: EnvKind, model: BaseAlgorithm, exp: Experiment, ref: En
 
 
 @_evaluate_kind.register
-def _(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
+def _team_evaluate_kind(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
       stats_path: Path | None, trust: bool) -> dict[str, Any]:
     """A team: whole-team episodes (team return, per-agent returns)."""
     if options.opponent is not None:
@@ -103,7 +103,7 @@ def _(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, option
 
 
 @_evaluate_kind.register
-def _(kind: GameKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
+def _game_evaluate_kind(kind: GameKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
       stats_path: Path | None, trust: bool) -> dict[str, Any]:
     """A turn-based game: matches against ``options.opponent`` (seats alternating); no attacks or fairness."""
     from sbagents.games.training import evaluate_game

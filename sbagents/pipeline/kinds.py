@@ -33,7 +33,7 @@ def model_groups(kind: EnvKind, exp: Experiment, ref: EnvRef) -> dict[str, list[
 
 
 @model_groups.register
-def _(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | None:
+def _team_model_groups(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | None:
     """A team: its groups, read from one env built with the experiment's kwargs."""
     from sbagents.multiagent.groups import team_groups
 
@@ -55,7 +55,7 @@ def model_callbacks(kind: EnvKind, ctx: RunContext) -> list[BaseCallback]:
 
 
 @model_callbacks.register
-def _(kind: TeamKind, ctx: RunContext) -> list[BaseCallback]:
+def _team_model_callbacks(kind: TeamKind, ctx: RunContext) -> list[BaseCallback]:
     """A team, on-policy: absent agents' transitions stay out of the rollout's minibatches."""
     from sbagents.multiagent.masking import ActedMaskCallback
 
@@ -81,8 +81,8 @@ def periodic_evaluation(kind: EnvKind, contexts: Sequence[RunContext], n_eval_en
 
 
 @periodic_evaluation.register
-def _(kind: TeamKind, contexts: Sequence[RunContext], n_eval_envs: int, after_eval: BaseCallback,
-      vec_env: str = "auto") -> list[BaseCallback]:
+def _team_periodic_evaluation(kind: TeamKind, contexts: Sequence[RunContext], n_eval_envs: int,
+                              after_eval: BaseCallback, vec_env: str = "auto") -> list[BaseCallback]:
     """A team: whole-team episodes on one env (team return, per-agent returns), every group's model acting; the best
     team's models are kept (``best_model.zip``, or ``best_model.<group>.zip`` per group)."""
     ctx = contexts[0]
@@ -102,8 +102,8 @@ def _(kind: TeamKind, contexts: Sequence[RunContext], n_eval_envs: int, after_ev
 
 
 @periodic_evaluation.register
-def _(kind: GameKind, contexts: Sequence[RunContext], n_eval_envs: int, after_eval: BaseCallback,
-      vec_env: str = "auto") -> list[BaseCallback]:
+def _game_periodic_evaluation(kind: GameKind, contexts: Sequence[RunContext], n_eval_envs: int,
+                              after_eval: BaseCallback, vec_env: str = "auto") -> list[BaseCallback]:
     """A turn-based game: matches against the evaluation opponent, snapshots into the self-play pool, Elo."""
     from sbagents.games.training import game_callbacks
 
@@ -125,7 +125,7 @@ def training_env_kwargs(kind: EnvKind, exp: Experiment, ref: EnvRef, run_dir: Pa
 
 
 @training_env_kwargs.register
-def _(kind: GameKind, exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
+def _game_training_env_kwargs(kind: GameKind, exp: Experiment, ref: EnvRef, run_dir: Path) -> dict[str, Any] | None:
     """A turn-based game: the training envs draw opponents from the run's snapshot pool."""
     from sbagents.games.training import training_env_kwargs
 

@@ -123,7 +123,7 @@ def model_policy(kind: EnvKind, exp: Experiment, kwargs: dict[str, Any], dict_ob
 
 
 @model_policy.register
-def _team_model_kwargs(kind: TeamKind, exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
+def _team_model_policy(kind: TeamKind, exp: Experiment, kwargs: dict[str, Any], dict_obs: bool) -> Any:
     """A team: death masking (buffers that skip absent agents' transitions) and the centralized critic, for a PettingZoo
     experiment; returns the policy to use and completes ``kwargs``. A recurrent algorithm (``ppo_lstm``) keeps
     sb3-contrib's sequence buffer: an agent that leaves before its team's episode ends adds its padded steps.

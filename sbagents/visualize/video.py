@@ -235,13 +235,15 @@ def _kind_render_vecs(kind: EnvKind, exp: Experiment, ref: EnvRef, seed: int,
 
 
 @_kind_render_vecs.register
-def _(kind: TeamKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str, Any]) -> dict[str, VecEnv]:
+def _team_kind_render_vecs(kind: TeamKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str,
+                           Any]) -> dict[str, VecEnv]:
     """A team: one team, group -> VecEnv."""
     return make_team_vecs(exp, ref, 1, seed, vec_env="dummy", env_kwargs=kwargs)
 
 
 @_kind_render_vecs.register
-def _(kind: GameKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str, Any]) -> dict[str, VecEnv]:
+def _game_kind_render_vecs(kind: GameKind, exp: Experiment, ref: EnvRef, seed: int, kwargs: dict[str,
+                           Any]) -> dict[str, VecEnv]:
     """A turn-based game: not recorded."""
     raise UsageError(f"record_video does not record turn-based games yet; play {ref.env_id} against the agent with "
                      "python -m sbagents.play, or measure it with sbagents.evaluate --opponent")
@@ -254,7 +256,7 @@ def _decision_log(kind: EnvKind, recorder: VecEnv) -> _DecisionLog | None:
 
 
 @_decision_log.register
-def _(kind: TeamKind, recorder: VecEnv) -> _DecisionLog | None:
+def _team_decision_log(kind: TeamKind, recorder: VecEnv) -> _DecisionLog | None:
     return None
 
 

@@ -95,7 +95,7 @@ def _evaluate_kind(kind: EnvKind, model: BaseAlgorithm, exp: Experiment, ref: En
 
 @_evaluate_kind.register
 def _team_evaluate_kind(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
-      stats_path: Path | None, trust: bool) -> dict[str, Any]:
+                        stats_path: Path | None, trust: bool) -> dict[str, Any]:
     """A team: whole-team episodes (team return, per-agent returns)."""
     if options.opponent is not None:
         raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
@@ -104,7 +104,7 @@ def _team_evaluate_kind(kind: TeamKind, model: BaseAlgorithm, exp: Experiment, r
 
 @_evaluate_kind.register
 def _game_evaluate_kind(kind: GameKind, model: BaseAlgorithm, exp: Experiment, ref: EnvRef, options: EvaluateOptions,
-      stats_path: Path | None, trust: bool) -> dict[str, Any]:
+                        stats_path: Path | None, trust: bool) -> dict[str, Any]:
     """A turn-based game: matches against ``options.opponent`` (seats alternating); no attacks or fairness."""
     from sbagents.games.training import evaluate_game
 

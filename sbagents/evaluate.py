@@ -1,6 +1,8 @@
-"""``python -m sbagents.evaluate``: evaluate a finished run (RL Zoo's ``enjoy``), SB3 or RLlib.
+"""``python -m sbagents.evaluate``: evaluate a finished run (RL Zoo's ``enjoy``), SB3 or RLlib, or a baseline
+policy on an env (``--policy random|scripted``, no run).
 
-Parses the flags and calls :func:`sbagents.pipeline.backends.evaluate`.
+Parses the flags and calls :func:`sbagents.pipeline.backends.evaluate` or
+:func:`sbagents.pipeline.evaluation.evaluate_baseline`.
 """
 
 from __future__ import annotations
@@ -13,14 +15,21 @@ import torch
 from sbagents.cli_common import ArgumentParser, add_run_arguments, run, run_ref
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.run_dir import RunRef
+from sbagents.errors import UsageError
 from sbagents.pipeline.backends import evaluate
 from sbagents.pipeline.console import format_evaluation
+from sbagents.pipeline.evaluation import BASELINES, evaluate_baseline
 
 
 def build_parser() -> ArgumentParser:
     """The ``evaluate`` argument parser."""
-    p = ArgumentParser(prog="python -m sbagents.evaluate", description="Evaluate a trained run.")
-    add_run_arguments(p, env_kwargs=True)
+    p = ArgumentParser(prog="python -m sbagents.evaluate",
+                       description="Evaluate a trained run (--algo, --env), or a baseline policy on an env "
+                                   "(--policy, --env).")
+    add_run_arguments(p, env_kwargs=True, required=False)
+    p.add_argument("--policy", choices=BASELINES, default=None,
+                   help="evaluate a baseline instead of a run: random (uniform actions; random legal moves in a "
+                        "game) or scripted (the env's expert; a game's best built-in player), on the plain env")
     p.add_argument("-n", "--n-episodes", type=int, default=10, help="episodes (games) to run (default 10)")
     p.add_argument("--render", action="store_true", help="print each state (text envs) or render in 'human' mode")
     group = p.add_mutually_exclusive_group()
@@ -50,10 +59,18 @@ def options_from_args(args: argparse.Namespace) -> tuple[RunRef, EvaluateOptions
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Parse ``argv``, evaluate the run, print a table or JSON."""
+    """Parse ``argv``, evaluate the run (or the baseline), print a table or JSON."""
     args = build_parser().parse_args(argv)
     torch.set_num_threads(1)
-    summary = evaluate(*options_from_args(args))
+    ref, options = options_from_args(args)
+    if args.policy is not None:
+        if args.env is None or args.algo is not None:
+            raise UsageError("--policy evaluates a baseline on --env ENV (no --algo: it names a run)")
+        summary = evaluate_baseline(ref.env_ref(), args.policy, options, ref.env_kwargs)
+    elif args.algo is None or args.env is None:
+        raise UsageError("--algo and --env name the run to evaluate (or --policy random|scripted with --env)")
+    else:
+        summary = evaluate(ref, options)
     print(json.dumps(summary) if args.json else format_evaluation(summary))
     return 0
 

@@ -16,6 +16,19 @@ GYM_ENVS: dict[str, str] = {
     "sbagents/SmartHomePrefOnce-v0": "sbagents.envs.smart_home:SmartHomeEnv",
 }
 
+#: Gymnasium ID -> the scripted expert that ``--policy scripted`` plays (``module:class`` of a controller built on one
+#: env: ``reset()``, ``act(obs)``; :mod:`sbagents.baselines`), imported when asked for.
+SCRIPTED_POLICIES: dict[str, str] = {
+    "sbagents/GridWorld-v0": "sbagents.baselines.experts:ShortestPath",
+    "sbagents/HazardGridWorld-v0": "sbagents.baselines.experts:ShortestPath",
+    "sbagents/SmartHome-v0": "sbagents.baselines.experts:ComfortController",
+    "sbagents/SmartHomePrefOnce-v0": "sbagents.baselines.experts:ComfortController",
+    "sbagents/PickAndPlace-v0": "sbagents.envs.kuka.scripted:ScriptedPusher",
+    "sbagents/RobustPickAndPlace-v0": "sbagents.envs.kuka.scripted:ScriptedPusher",
+    "sbagents/KukaPickAndPlace-v0": "sbagents.envs.kuka.scripted_pick:ScriptedPicker",
+    "sbagents/RobustKukaPickAndPlace-v0": "sbagents.envs.kuka.scripted_pick:ScriptedPicker",
+}
+
 #: Registration keywords of the IDs in :data:`GYM_ENVS` that need more than an entry point.
 GYM_ENV_KWARGS: dict[str, dict[str, object]] = {
     "sbagents/CartPoleNoVel-v1": {"max_episode_steps": 500, "reward_threshold": 475.0},

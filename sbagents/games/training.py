@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
+from sbagents.games.builtin import builtin_for
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
 from sbagents.games.numpy_policy import numpy_actor
@@ -88,6 +90,27 @@ def game_callbacks(exp: Experiment, ref: EnvRef, run_dir: Path, seed: int, n_env
             snapshots.save, max(options.elo_freq // n_envs, 1), options.elo_games, exp.deterministic_eval,
             seed + ELO_SEED_OFFSET))
     return callbacks
+
+
+#: The built-in players ``--policy scripted`` tries, strongest first.
+SCRIPTED_PLAYERS = ("minimax", "heuristic", "opportunist")
+
+
+def evaluate_game_baseline(policy: str, exp: Experiment, ref: EnvRef, options: EvaluateOptions) -> dict[str, Any]:
+    """:func:`evaluate_game` of a baseline in the learner's seats: ``random`` (random legal moves) or ``scripted``
+    (the strongest built-in player of the game, :data:`SCRIPTED_PLAYERS`), against ``options.opponent`` (default:
+    random).
+
+    :raises UsageError: ``scripted`` for a game without a built-in player.
+    """
+    name = "random"
+    if policy == "scripted":
+        name = next((n for n in SCRIPTED_PLAYERS if builtin_for(n, ref.env_id) is not None), "")
+        if not name:
+            raise UsageError(f"{ref.env_id} has no scripted player; --policy scripted plays the built-in players of "
+                             "connect four and tic-tac-toe; --policy random plays any game")
+    player = load_player(name, ref.env_id, np.random.default_rng(options.seed))
+    return evaluate_game(player, exp, ref, replace(options, opponent=options.opponent or "random"), algo=policy)
 
 
 def evaluate_game(model: BaseAlgorithm | Player, exp: Experiment, ref: EnvRef, options: EvaluateOptions,

@@ -62,8 +62,25 @@ def team_summary(episodes: Sequence[EpisodeRecord], groups: Mapping[str, Sequenc
     ``mean_return``/``std_return`` (team return = sum over agents), ``mean_length``, ``success_rate`` and
     ``metrics``: ``episode_length``, ``per_agent_return``, ``per_group_return`` (with several ``groups``) and the
     means of the env's declared episode metrics (``metadata["info_metrics"]``, carried in the team's ``episode``
-    info)."""
-    return summarize_records(episodes, groups)
+    info), and ``note`` when the agents of one shared policy compete (:func:`competition_note`)."""
+    summary = summarize_records(episodes, groups)
+    note = competition_note(episodes) if groups is None or len(groups) <= 1 else None
+    if note is not None:
+        summary["note"] = note
+    return summary
+
+
+def competition_note(episodes: Sequence[EpisodeRecord]) -> str | None:
+    """One line when the agents' returns sum to zero in every episode (and are not all zero): they compete, so a
+    team return is zero by construction (``rps_v2``) and one shared policy plays both sides; None otherwise."""
+    returns = [list(e.agent_returns.values()) for e in episodes if e.agent_returns]
+    if not returns or len(returns) < len(episodes) or min(len(r) for r in returns) < 2:
+        return None
+    zero_sum = all(abs(sum(r)) <= 1e-6 * (1.0 + max(abs(x) for x in r)) for r in returns)
+    if not zero_sum or not any(x != 0 for r in returns for x in r):
+        return None
+    return ("its agents compete: their returns sum to 0 in every episode, so the team return is 0 by construction; "
+            "train one model per side with -params policies:per_agent and compare metrics.per_agent_return")
 
 
 def evaluate_team(

@@ -93,7 +93,8 @@ def format_evaluation(summary: Mapping[str, Any]) -> str:
         rows += [("fairness.metric", fair["metric"]), ("fairness.worst_bucket_value", fair["worst"]["value"]),
                  ("fairness.gap", fair["gap"])]
     width = max(len(k) for k, _ in rows)
-    return "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
+    table = "\n".join(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}" for k, v in rows)
+    return table + (f"\nnote: {summary['env']}: {summary['note']}" if summary.get("note") else "")
 
 
 def train_summary_lines(summary: Mapping[str, Any], run_dir: Any, interrupted: bool) -> list[str]:
@@ -120,6 +121,7 @@ def _evaluation_lines(ev: Mapping[str, Any] | None) -> list[str]:
         metrics = "".join(f", {k} {v:.3g}" for k, v in console_metrics(ev["metrics"]).items())
         cost = "" if ev.get("mean_cost") is None else f", mean episode cost {ev['mean_cost']:.3g}"
         return [f"evaluation: mean return {ev['mean_return']:.2f} +- {ev['std_return']:.2f} over "
-                f"{ev['n_episodes']} episodes{success}{cost}{metrics}"]
+                f"{ev['n_episodes']} episodes{success}{cost}{metrics}",
+                *([f"note: {ev['env']}: {ev['note']}"] if ev.get("note") else [])]
     return []
 

@@ -4,6 +4,7 @@ its periodic evaluation, the callbacks each model gets and the extra keyword arg
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ def model_groups(kind: EnvKind, exp: Experiment, ref: EnvRef) -> dict[str, list[
 @model_groups.register
 def _team_model_groups(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str, list[str]] | None:
     """A team: its groups, read from one env built with the experiment's kwargs."""
+    from sbagents.multiagent.competition import zero_sum_under_random_play
     from sbagents.multiagent.groups import team_groups
 
     check_env_kwargs(ref, exp.env_kwargs)
@@ -44,8 +46,15 @@ def _team_model_groups(kind: TeamKind, exp: Experiment, ref: EnvRef) -> dict[str
         given = ", ".join(f"{k}={v!r}" for k, v in exp.env_kwargs.items())
         raise UsageError(f"cannot create {ref.env_id} with env kwargs {given}: {exc}") from None
     agents = [str(a) for a in probe.possible_agents]
-    probe.close()
-    return team_groups(TeamOptions.of(exp), agents)
+    groups = team_groups(TeamOptions.of(exp), agents)
+    try:
+        if len(groups) == 1 and zero_sum_under_random_play(probe):  # one shared policy plays every side
+            print(f"warning: {ref.env_id}'s agents compete (their rewards sum to 0 at every step under random play): "
+                  "one shared policy plays every side and the team return is 0 by construction; train one model "
+                  "per side with -params policies:per_agent", file=sys.stderr, flush=True)
+    finally:
+        probe.close()
+    return groups
 
 
 @kind_operation(GameKind)

@@ -27,6 +27,7 @@ CLI_ONLY = {
     "help": "prints the usage",
     "list": "train --list prints the envs and algorithms, then exits",
     "json": "evaluate --json prints the summary as JSON",
+    "policy": "evaluate --policy plays a baseline instead of a run (evaluate_baseline, no run to pick)",
 }
 #: Fields no flag sets (group type -> field -> why).
 NO_FLAG = {"OutputOptions": {"command": "the command line itself, recorded in command.txt"}}

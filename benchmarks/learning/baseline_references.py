@@ -94,7 +94,9 @@ def render(results: dict[str, Any]) -> str:
         "(random legal moves in a game); `scripted` is the env's expert (`sbagents.registration.SCRIPTED_POLICIES`: "
         "GridWorld's shortest path, HazardGridWorld's shortest safe path, SmartHome's controller of the true state, "
         "the Kuka push and pick scripts) or a game's strongest built-in player (minimax for tic-tac-toe, the "
-        "heuristic for connect four), playing against random moves with the seats alternating. These are the "
+        "heuristic for connect four), playing against random moves with the seats alternating. Nothing is trained, "
+        "so there is no spread over training seeds: 1 seed of evaluation (episodes reset from seed 0); `+-` is the "
+        "standard deviation over episodes. These are the "
         "reference rows beside the learned agents of the other sections, and what `python -m sbagents.collect "
         f"--policy scripted` records. {m['cpu']}, {m['cores']} cores, {m['date']}, load {m['load_before'][0]} before "
         f"/ {m['load_after'][0]} after.",

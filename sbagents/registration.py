@@ -16,8 +16,9 @@ GYM_ENVS: dict[str, str] = {
     "sbagents/SmartHomePrefOnce-v0": "sbagents.envs.smart_home:SmartHomeEnv",
 }
 
-#: Gymnasium ID -> the scripted expert that ``--policy scripted`` plays (``module:class`` of a controller built on one
-#: env: ``reset()``, ``act(obs)``; :mod:`sbagents.baselines`), imported when asked for.
+#: Env id -> the scripted expert that ``--policy scripted`` plays, imported when asked for: ``module:class`` of a
+#: controller built on one env (``reset()``, ``act(obs)``), or of a policy built on the VecEnv (a team's; its class
+#: says ``acts_on_vec_env``) (:mod:`sbagents.baselines`).
 SCRIPTED_POLICIES: dict[str, str] = {
     "sbagents/GridWorld-v0": "sbagents.baselines.experts:ShortestPath",
     "sbagents/HazardGridWorld-v0": "sbagents.baselines.experts:ShortestPath",
@@ -27,6 +28,7 @@ SCRIPTED_POLICIES: dict[str, str] = {
     "sbagents/RobustPickAndPlace-v0": "sbagents.envs.kuka.scripted:ScriptedPusher",
     "sbagents/KukaPickAndPlace-v0": "sbagents.envs.kuka.scripted_pick:ScriptedPicker",
     "sbagents/RobustKukaPickAndPlace-v0": "sbagents.envs.kuka.scripted_pick:ScriptedPicker",
+    "treasure_hunt_v0": "sbagents.baselines.experts:GreedyTreasureTeam",
 }
 
 #: Registration keywords of the IDs in :data:`GYM_ENVS` that need more than an entry point.

@@ -29,7 +29,7 @@ TASKS: tuple[tuple[str, tuple[str, ...], bool], ...] = (
     ("sbagents/RobustPickAndPlace-v0", ("scripted", "random"), True),
     ("sbagents/KukaPickAndPlace-v0", ("scripted", "random"), True),
     ("sbagents/RobustKukaPickAndPlace-v0", ("scripted", "random"), True),
-    ("treasure_hunt_v0", ("random",), False),
+    ("treasure_hunt_v0", ("scripted", "random"), False),
     ("mpe2.simple_spread_v3", ("random",), False),
     ("pettingzoo.classic.rps_v2", ("random",), False),
     ("pettingzoo.classic.tictactoe_v3", ("scripted", "random"), False),
@@ -93,7 +93,7 @@ def render(results: dict[str, Any]) -> str:
         "--seed 0 --json` on the plain env (no wrappers, no normalization): `random` samples the action space "
         "(random legal moves in a game); `scripted` is the env's expert (`sbagents.registration.SCRIPTED_POLICIES`: "
         "GridWorld's shortest path, HazardGridWorld's shortest safe path, SmartHome's controller of the true state, "
-        "the Kuka push and pick scripts) or a game's strongest built-in player (minimax for tic-tac-toe, the "
+        "the Kuka push and pick scripts, TreasureHunt's greedy team) or a game's strongest built-in player (minimax for tic-tac-toe, the "
         "heuristic for connect four), playing against random moves with the seats alternating. Nothing is trained, "
         "so there is no spread over training seeds: 1 seed of evaluation (episodes reset from seed 0); `+-` is the "
         "standard deviation over episodes. These are the "

@@ -85,9 +85,10 @@ class ControllerPolicy:
         return np.stack(actions), state
 
 
-def scripted_controller(env_id: str) -> Callable[[gym.Env[Any, Any]], Controller]:
-    """The controller class (or factory) of ``env_id``'s scripted expert
-    (:data:`sbagents.registration.SCRIPTED_POLICIES`).
+def scripted_policy(env_id: str, venv: VecEnv) -> Any:
+    """The scripted expert of ``env_id`` acting in ``venv``, with SB3's ``predict``
+    (:data:`sbagents.registration.SCRIPTED_POLICIES`): a controller per copy (:class:`ControllerPolicy`), or a policy
+    built on the VecEnv itself where the expert's class says ``acts_on_vec_env`` (a team's).
 
     :raises UsageError: an env without one (naming the envs that have one).
     """
@@ -96,8 +97,10 @@ def scripted_controller(env_id: str) -> Callable[[gym.Env[Any, Any]], Controller
     path = SCRIPTED_POLICIES.get(env_id)
     if path is None:
         raise UsageError(f"{env_id} has no scripted expert; --policy scripted plays one for "
-                         f"{', '.join(SCRIPTED_POLICIES)} (and the built-in opponents of turn-based games); "
+                         f"{', '.join(SCRIPTED_POLICIES)} (and the built-in players of turn-based games); "
                          "--policy random plays any env")
     module, _, name = path.partition(":")
-    factory: Callable[[gym.Env[Any, Any]], Controller] = getattr(importlib.import_module(module), name)
-    return factory
+    factory = getattr(importlib.import_module(module), name)
+    if getattr(factory, "acts_on_vec_env", False):
+        return factory(venv)
+    return ControllerPolicy(venv, factory)

@@ -118,11 +118,11 @@ def _run_env(exp: Experiment, ref: EnvRef, seed: int, stats: Path | None, trust:
 
 
 def _baseline_actor(policy: str, ref: EnvRef, venv: VecEnv, seed: int) -> Policy:
-    from sbagents.baselines.policies import ControllerPolicy, RandomPolicy, scripted_controller
+    from sbagents.baselines.policies import RandomPolicy, scripted_policy
 
     if policy == "random":
         return model_actor(RandomPolicy(venv.action_space, seed))
-    return model_actor(ControllerPolicy(venv, scripted_controller(ref.env_id)))
+    return model_actor(scripted_policy(ref.env_id, venv))
 
 
 def _slot(obs: Any) -> Any:

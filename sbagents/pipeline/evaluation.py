@@ -184,11 +184,11 @@ def evaluate_baseline(ref: EnvRef, policy: str, options: EvaluateOptions | None 
 
 def _baseline_actor(policy: str, env_id: str, venv: VecEnv, seed: int | None) -> Policy:
     """The actor of ``policy`` in ``venv``: uniform random actions, or one expert controller per copy."""
-    from sbagents.baselines.policies import ControllerPolicy, RandomPolicy, scripted_controller
+    from sbagents.baselines.policies import RandomPolicy, scripted_policy
 
     if policy == "random":
         return model_actor(RandomPolicy(venv.action_space, seed))
-    return model_actor(ControllerPolicy(venv, scripted_controller(env_id)))
+    return model_actor(scripted_policy(env_id, venv))
 
 
 @kind_operation()

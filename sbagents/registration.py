@@ -106,6 +106,7 @@ TRAINING_EXTENSIONS: tuple[str, ...] = (
     "sbagents.robust.extension:RobustExtension",
     "sbagents.constrained.extension:ConstraintExtension",
     "sbagents.callbacks.extension:TrustExtension",
+    "sbagents.datasets.extension:PretrainExtension",
 )
 
 

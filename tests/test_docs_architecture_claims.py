@@ -78,8 +78,9 @@ def test_what_core_and_extensions_import_is_what_the_doc_says() -> None:
 
 
 def test_what_the_pipeline_imports_of_the_training_extensions() -> None:
-    """Only the names the doc lists: the trust extension's parsers (trust.py) and the replay package's buffer files
-    (training.py); no DP, robust or constrained code, and runs of one model per group name no extension."""
+    """Only the names the doc lists: the trust extension's parsers (trust.py), the replay package's buffer files
+    (training.py) and the datasets' writer (collecting.py, not training); no DP, robust, constrained or cloning code,
+    and runs of one model per group name no extension."""
     from sbagents.registration import TRAINING_EXTENSIONS
 
     extension_modules = {path.partition(":")[0] for path in TRAINING_EXTENSIONS}
@@ -91,7 +92,8 @@ def test_what_the_pipeline_imports_of_the_training_extensions() -> None:
         if hits:
             found[path.name] = hits
     assert found == {"training.py": {"sbagents.replay.buffer_files"},
-                     "trust.py": {"sbagents.callbacks.extension"}}
+                     "trust.py": {"sbagents.callbacks.extension"},
+                     "collecting.py": {"sbagents.datasets.writing"}}
 
 
 def test_one_training_path_for_one_model_or_one_per_group() -> None:
@@ -122,7 +124,7 @@ def test_the_extensions_that_refuse_group_runs() -> None:
     from sbagents.extensions import registered_extensions
 
     refuse = {e.name for e in registered_extensions() if not e.group_runs and e.__module__.startswith("sbagents.")}
-    assert refuse == {"privacy", "robust", "constraint"}  # the doc: DP-SGD, robust and constrained training
+    assert refuse == {"privacy", "robust", "constraint", "pretrain"}  # the doc: DP, robust, constrained, cloning
 
 
 def test_the_count_of_kind_tests() -> None:

@@ -1,0 +1,124 @@
+"""``train --pretrain DATASET``: behaviour cloning of the policy from a Minari dataset before reinforcement learning,
+as a training extension (:mod:`sbagents.extensions`)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import sync_envs_normalization
+
+from sbagents.core.env_kinds import SINGLE_AGENT
+from sbagents.core.extensions import ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
+from sbagents.errors import UsageError
+
+#: Episodes the pretrained policy is evaluated on before learning starts.
+PRETRAINED_EVAL_EPISODES = 5
+
+
+@dataclass(frozen=True)
+class PretrainSpec:
+    """Behaviour cloning before RL.
+
+    :param dataset: the Minari dataset id (its spaces must be the env's).
+    :param steps: gradient steps (shuffled batches, as many passes over the pairs as that takes).
+    :param batch_size: pairs per gradient step.
+    :param learning_rate: Adam's step size.
+    :param holdout: share of the pairs kept out of training to report the loss on.
+    """
+
+    dataset: str
+    steps: int = 2000
+    batch_size: int = 256
+    learning_rate: float = 1e-3
+    holdout: float = 0.1
+
+    def validate(self) -> None:
+        """One line for a setting out of range."""
+        if self.steps < 1 or self.batch_size < 1 or not self.learning_rate > 0 or not 0 <= self.holdout < 1:
+            raise UsageError("--pretrain: steps and batch size must be >= 1, the learning rate > 0 and the held-out "
+                             f"share in [0, 1); got {self.steps}, {self.batch_size}, {self.learning_rate}, "
+                             f"{self.holdout}")
+
+
+class PretrainExtension(TrainingExtension[PretrainSpec]):
+    """``--pretrain DATASET`` (``--pretrain-steps N``): clone the dataset's actions into the new model's policy
+    (:func:`sbagents.datasets.cloning.clone`), print the held-out loss and the pretrained policy's return (one line,
+    before learning starts), then learn; ``summary.json``'s ``pretrain`` item."""
+
+    name = "pretrain"
+    title = "learning from data (behaviour cloning; pip install 'sbagents[data]')"
+    flags = "--pretrain"
+    spec_type = PretrainSpec
+    group_runs = False  # one model's policy (teams: not yet)
+    algos = ("a2c", "ppo", "trpo", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn")
+    kinds = (SINGLE_AGENT.name,)
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--pretrain", default=None, metavar="DATASET",
+                           help="behaviour-clone the policy from this Minari dataset (namespace/name-vN) before RL")
+        group.add_argument("--pretrain-steps", type=int, default=PretrainSpec.steps, metavar="N",
+                           help=f"gradient steps of behaviour cloning (default {PretrainSpec.steps}, batches of "
+                                f"{PretrainSpec.batch_size})")
+
+    def from_args(self, args: argparse.Namespace) -> PretrainSpec | None:
+        if args.pretrain is None:
+            if args.pretrain_steps != PretrainSpec.steps:
+                raise UsageError("--pretrain-steps applies to --pretrain DATASET")
+            return None
+        return PretrainSpec(args.pretrain, steps=args.pretrain_steps)
+
+    def configure(self, spec: PretrainSpec | None, plan: ExtensionPlan) -> PretrainSpec | None:
+        if spec is not None:
+            from sbagents.datasets.writing import require_minari
+
+            require_minari()
+        return spec
+
+    def callbacks(self, spec: PretrainSpec, ctx: TrainingContext) -> list[BaseCallback]:
+        from sbagents.datasets.cloning import clone
+        from sbagents.datasets.reading import load_transitions
+
+        data = load_transitions(spec.dataset, ctx.model.observation_space, ctx.model.action_space)
+        result = clone(ctx.model, data, steps=spec.steps, batch_size=spec.batch_size,
+                       learning_rate=spec.learning_rate, holdout=spec.holdout, seed=ctx.seed)
+        item: dict[str, Any] = {"dataset": spec.dataset, **asdict(result), "steps": spec.steps,
+                                "eval_return": _pretrained_return(ctx)}
+        ctx.state[self.name] = item
+        print(_line(item), flush=True)  # before learning (and its progress bar) starts
+        return []
+
+    def finish(self, spec: PretrainSpec, ctx: TrainingContext) -> dict[str, Any]:
+        item = ctx.state.get(self.name)
+        return {"pretrain": item} if item else {}
+
+    def record(self, spec: PretrainSpec) -> SpecRecord:
+        return SpecRecord(args={"pretrain": spec.dataset},
+                          flags=["--pretrain", spec.dataset, *(["--pretrain-steps", str(spec.steps)]
+                                                               if spec.steps != PretrainSpec.steps else [])])
+
+
+def _pretrained_return(ctx: TrainingContext) -> float:
+    """The cloned policy's mean return over :data:`PRETRAINED_EVAL_EPISODES` greedy episodes."""
+    from sbagents.callbacks.episodes import model_actor, play_episodes, summarize_records
+
+    venv = ctx.make_eval_env(1, ctx.seed + 50_000)
+    try:
+        if ctx.model.get_vec_normalize_env() is not None:
+            sync_envs_normalization(ctx.train_env, venv)
+        records = play_episodes(venv, model_actor(ctx.model, ctx.exp.deterministic_eval), PRETRAINED_EVAL_EPISODES,
+                                monitor_episodes=True)
+    finally:
+        venv.close()
+    return float(summarize_records(records)["mean_return"])
+
+
+def _line(item: Mapping[str, Any]) -> str:
+    """``pretrained on sbagents/x-v0 (900 pairs, 2000 steps): training loss 0.1, held-out loss 0.12; before RL: ...``"""
+    held = "" if item.get("holdout_loss") is None else f", held-out loss {item['holdout_loss']:.4g}"
+    return (f"pretrained on {item['dataset']} ({item['n_train']} pairs, {item['steps']} steps): training loss "
+            f"{item['train_loss']:.4g}{held}; before RL: mean return {item['eval_return']:.2f} over "
+            f"{PRETRAINED_EVAL_EPISODES} episodes")

@@ -22,7 +22,7 @@ def batch_size(obs: Any) -> int:
     return len(obs)
 
 
-def _slot(obs: Any, i: int) -> Any:
+def slot(obs: Any, i: int) -> Any:
     """Copy ``i``'s observation of a batch."""
     return {key: value[i] for key, value in obs.items()} if isinstance(obs, dict) else obs[i]
 
@@ -81,7 +81,7 @@ class ControllerPolicy:
         for i, controller in enumerate(self.controllers[:n]):
             if starts[i]:
                 controller.reset()
-            actions.append(np.asarray(controller.act(_slot(obs, i))))
+            actions.append(np.asarray(controller.act(slot(obs, i))))
         return np.stack(actions), state
 
 

@@ -9,6 +9,11 @@ from typing import Any
 PROBE_STEPS = 200
 
 
+def sums_to_zero(values: list[float]) -> bool:
+    """Whether ``values`` (one reward or return per agent) sum to zero, up to float rounding."""
+    return abs(sum(values)) <= 1e-6 * (1.0 + max(abs(v) for v in values))
+
+
 def zero_sum_under_random_play(env: Any, steps: int = PROBE_STEPS, seed: int = 0) -> bool:
     """Whether the rewards of the PettingZoo ``ParallelEnv`` ``env`` sum to zero at every one of ``steps`` steps of
     uniform random actions (reset with ``seed``, and again when every agent is done), some of them not zero.
@@ -25,9 +30,7 @@ def zero_sum_under_random_play(env: Any, steps: int = PROBE_STEPS, seed: int = 0
         actions = {agent: env.action_space(agent).sample() for agent in env.agents}
         _, rewards, _, _, _ = env.step(actions)
         values = [float(r) for r in rewards.values()]
-        if len(values) < 2:
-            return False
-        if abs(sum(values)) > 1e-6 * (1.0 + max(abs(v) for v in values)):
+        if len(values) < 2 or not sums_to_zero(values):
             return False
         seen = seen or any(v != 0.0 for v in values)
     return seen

@@ -24,6 +24,7 @@ from sbagents.atomic import save_model, write_npz
 from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, stateless, summarize_records
 from sbagents.callbacks.episodes import slot_agents as episode_slot_agents
 from sbagents.core.run_dir import best_stats_name
+from sbagents.multiagent.competition import sums_to_zero
 from sbagents.multiagent.parameter_sharing import SHARED_GROUP, ParameterSharingVecEnv
 from sbagents.state_files import save_vecnormalize
 
@@ -76,7 +77,7 @@ def competition_note(episodes: Sequence[EpisodeRecord]) -> str | None:
     returns = [list(e.agent_returns.values()) for e in episodes if e.agent_returns]
     if not returns or len(returns) < len(episodes) or min(len(r) for r in returns) < 2:
         return None
-    zero_sum = all(abs(sum(r)) <= 1e-6 * (1.0 + max(abs(x) for x in r)) for r in returns)
+    zero_sum = all(sums_to_zero(r) for r in returns)
     if not zero_sum or not any(x != 0 for r in returns for x in r):
         return None
     return ("its agents compete: their returns sum to 0 in every episode, so the team return is 0 by construction; "

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from sbagents.baselines.policies import slot
 from sbagents.callbacks.episodes import Policy, model_actor
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -24,7 +25,7 @@ from sbagents.core.run_dir import RunRef, load_run
 from sbagents.datasets.writing import DatasetInfo, EpisodeRecorder, check_dataset_id, require_minari, write_dataset
 from sbagents.env_factory import make_vec, normalize_for_eval
 from sbagents.errors import UsageError
-from sbagents.pipeline.evaluation import BASELINES, evaluate_baseline
+from sbagents.pipeline.evaluation import baseline_actor, baseline_experiment, evaluate_baseline
 
 
 @dataclass(frozen=True)
@@ -78,14 +79,11 @@ def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str |
         actor = model_actor(loaded.model, exp.deterministic_eval)
         algorithm = f"{exp.algo} ({loaded.run_dir})"
     else:
-        if policy not in BASELINES:
-            raise UsageError(f"--policy {policy!r}: accepted: {', '.join(BASELINES)}")
-        assert env is not None
+        assert env is not None and policy is not None
         ref = env
-        exp = Experiment(algo=str(policy), env_id=ref.env_id, n_timesteps=0, env_kwargs=dict(env_kwargs or {}),
-                         env_kind=ref.kind, kind_options=ref.kind.options({}, f"--policy {policy}"))
+        exp = baseline_experiment(ref, policy, env_kwargs)
         venv, norm = _check_one_agent(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), ref), None
-        actor = _baseline_actor(str(policy), ref, venv, options.seed)
+        actor = baseline_actor(policy, ref.env_id, venv, options.seed)
         algorithm = str(policy)
     try:
         episodes = _record(venv, norm, actor, options)
@@ -117,19 +115,6 @@ def _run_env(exp: Experiment, ref: EnvRef, seed: int, stats: Path | None, trust:
     return venv, norm if isinstance(norm, VecNormalize) else None
 
 
-def _baseline_actor(policy: str, ref: EnvRef, venv: VecEnv, seed: int) -> Policy:
-    from sbagents.baselines.policies import RandomPolicy, scripted_policy
-
-    if policy == "random":
-        return model_actor(RandomPolicy(venv.action_space, seed))
-    return model_actor(scripted_policy(ref.env_id, venv))
-
-
-def _slot(obs: Any) -> Any:
-    """The one copy's observation of a batch of one."""
-    return {key: value[0] for key, value in obs.items()} if isinstance(obs, dict) else obs[0]
-
-
 def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: CollectOptions
             ) -> list[EpisodeRecorder]:
     """Play the episodes on ``venv`` (one copy; episode ``i`` reset with ``options.seed + i``)."""
@@ -140,7 +125,7 @@ def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: Col
             venv.seed(options.seed + i)
             obs = venv.reset()
             recorder = EpisodeRecorder()
-            recorder.start(_slot(obs))
+            recorder.start(slot(obs, 0))
             state, start = None, np.ones(1, dtype=bool)
             while True:
                 seen: Any = obs
@@ -149,7 +134,7 @@ def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: Col
                 obs, rewards, dones, infos = venv.step(actions)
                 info = infos[0]
                 truncated = bool(info.get("TimeLimit.truncated", False))
-                last = info["terminal_observation"] if dones[0] else _slot(obs)
+                last = info["terminal_observation"] if dones[0] else slot(obs, 0)
                 recorder.step(np.asarray(actions)[0], last, float(rewards[0]), bool(dones[0]) and not truncated,
                               truncated, info)
                 if dones[0]:

@@ -173,16 +173,25 @@ def evaluate_baseline(ref: EnvRef, policy: str, options: EvaluateOptions | None 
 
     :raises UsageError: another policy name, or ``scripted`` for an env without an expert.
     """
-    if policy not in BASELINES:
-        raise UsageError(f"--policy {policy!r}: accepted: {', '.join(BASELINES)}")
+    exp = baseline_experiment(ref, policy, env_kwargs)
     options = options or EvaluateOptions()
     options.validate()
-    exp = Experiment(algo=policy, env_id=ref.env_id, n_timesteps=0, env_kwargs=dict(env_kwargs or {}),
-                     env_kind=ref.kind, kind_options=ref.kind.options({}, f"--policy {policy}"))
     return _baseline_kind(ref.kind, policy, exp, ref, options)
 
 
-def _baseline_actor(policy: str, env_id: str, venv: VecEnv, seed: int | None) -> Policy:
+def baseline_experiment(ref: EnvRef, policy: str, env_kwargs: Mapping[str, Any] | None = None) -> Experiment:
+    """The experiment a baseline plays: the plain env ``ref`` (no wrappers, no normalization, the kind's default
+    options) with ``env_kwargs``; its ``algo`` is the policy's name.
+
+    :raises UsageError: a policy other than :data:`BASELINES`.
+    """
+    if policy not in BASELINES:
+        raise UsageError(f"--policy {policy!r}: accepted: {', '.join(BASELINES)}")
+    return Experiment(algo=policy, env_id=ref.env_id, n_timesteps=0, env_kwargs=dict(env_kwargs or {}),
+                      env_kind=ref.kind, kind_options=ref.kind.options({}, f"--policy {policy}"))
+
+
+def baseline_actor(policy: str, env_id: str, venv: VecEnv, seed: int | None) -> Policy:
     """The actor of ``policy`` in ``venv``: uniform random actions, or one expert controller per copy."""
     from sbagents.baselines.policies import RandomPolicy, scripted_policy
 
@@ -197,7 +206,7 @@ def _baseline_kind(kind: EnvKind, policy: str, exp: Experiment, ref: EnvRef, opt
     """A Gymnasium env: episodes on one reference env."""
     if options.opponent is not None:
         raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
-    return _play_one(exp, ref, options, lambda venv: _baseline_actor(policy, ref.env_id, venv, options.seed))
+    return _play_one(exp, ref, options, lambda venv: baseline_actor(policy, ref.env_id, venv, options.seed))
 
 
 @_baseline_kind.register
@@ -207,7 +216,7 @@ def _team_baseline_kind(kind: TeamKind, policy: str, exp: Experiment, ref: EnvRe
     if options.opponent is not None:
         raise UsageError(f"--opponent applies to turn-based games; {ref.env_id} is not one")
     return _play_team(exp, ref, options,
-                      lambda group, venv: _baseline_actor(policy, ref.env_id, venv, options.seed))
+                      lambda group, venv: baseline_actor(policy, ref.env_id, venv, options.seed))
 
 
 @_baseline_kind.register

@@ -107,6 +107,7 @@ TRAINING_EXTENSIONS: tuple[str, ...] = (
     "sbagents.constrained.extension:ConstraintExtension",
     "sbagents.callbacks.extension:TrustExtension",
     "sbagents.datasets.extension:PretrainExtension",
+    "sbagents.datasets.extension:DemosExtension",
 )
 
 

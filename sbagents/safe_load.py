@@ -371,7 +371,7 @@ def _constructor_kwargs(cls: Any, data: dict[str, Any], hyperparams: Mapping[str
             if isinstance(kwargs.get(key), int):
                 kwargs[key] = max(1, min(kwargs[key], bound))
         buffer = kwargs.get("replay_buffer_class")
-        if buffer is not None and getattr(buffer, "__name__", "") == "HerReplayBuffer":
+        if isinstance(buffer, type) and any(k.__name__ == "HerReplayBuffer" for k in buffer.__mro__):
             kwargs["replay_buffer_class"], kwargs["replay_buffer_kwargs"] = None, {}  # HER samples need the env
     return kwargs
 

@@ -115,20 +115,22 @@ def clone(model: BaseAlgorithm, data: Transitions, *, steps: int = 2000, batch_s
     for _ in range(steps):
         if start >= len(train):  # a new pass over the pairs
             shuffled, start = rng.permutation(len(train)), 0
-        loss = loss_fn(*_tensors(model, train.take(shuffled[start:start + batch_size]), venv))
+        loss = loss_fn(*as_tensors(model, train.take(shuffled[start:start + batch_size]), venv))
         start += batch_size
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
     model.policy.set_training_mode(False)
     with torch.no_grad():
-        train_loss = float(loss_fn(*_tensors(model, train, venv)))
-        holdout_loss = float(loss_fn(*_tensors(model, held, venv))) if n_holdout else None
+        train_loss = float(loss_fn(*as_tensors(model, train, venv)))
+        holdout_loss = float(loss_fn(*as_tensors(model, held, venv))) if n_holdout else None
     _sync_targets(model)
     return CloningResult(len(train), n_holdout, train_loss, holdout_loss)
 
 
-def _tensors(model: BaseAlgorithm, batch: Transitions, venv: Any) -> tuple[Any, torch.Tensor]:
+def as_tensors(model: BaseAlgorithm, batch: Transitions, venv: Any) -> tuple[Any, torch.Tensor]:
+    """``batch`` as the model's tensors: observations normalized by ``venv`` (a ``VecNormalize`` that normalizes
+    them, else as they are), actions in the scale its policy outputs (integers ``(batch,)`` for ``Discrete``)."""
     obs = batch.observations
     if isinstance(venv, VecNormalize) and venv.norm_obs:
         obs = venv.normalize_obs(obs)

@@ -8,11 +8,12 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import sync_envs_normalization
 
 from sbagents.core.env_kinds import SINGLE_AGENT
-from sbagents.core.extensions import ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
+from sbagents.core.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 from sbagents.errors import UsageError
 
 #: Episodes the pretrained policy is evaluated on before learning starts.
@@ -122,3 +123,115 @@ def _line(item: Mapping[str, Any]) -> str:
     return (f"pretrained on {item['dataset']} ({item['n_train']} pairs, {item['steps']} steps): training loss "
             f"{item['train_loss']:.4g}{held}; before RL: mean return {item['eval_return']:.2f} over "
             f"{PRETRAINED_EVAL_EPISODES} episodes")
+
+
+@dataclass(frozen=True)
+class DemoSpec:
+    """Demonstrations in an off-policy model's replay buffer (:mod:`sbagents.datasets.demos`).
+
+    :param dataset: the Minari dataset id (its spaces must be the env's).
+    :param ratio: the share of every batch drawn from the demonstrations.
+    :param bc_weight: the factor of the supervised loss on demonstrations (0: none): behaviour cloning behind a
+        Q-filter for actor-critic algorithms, DQfD's margin loss for DQN and QR-DQN
+        (:mod:`sbagents.datasets.demo_losses`).
+    """
+
+    dataset: str
+    ratio: float = 0.25
+    bc_weight: float = 0.0
+
+    def validate(self) -> None:
+        """One line for a setting out of range."""
+        if not 0 <= self.ratio <= 1 or not self.bc_weight >= 0:
+            raise UsageError(f"--demos: the ratio must be in [0, 1] and the BC weight >= 0; got {self.ratio}, "
+                             f"{self.bc_weight}")
+
+
+class DemosExtension(TrainingExtension[DemoSpec]):
+    """``--demos DATASET`` (``--demo-ratio R``, ``--demo-bc WEIGHT``): the dataset's transitions stay in the replay
+    buffer and make up a set share of every batch (HER relabels them in goal envs), with an optional supervised loss on
+    them; prints one line before learning; ``summary.json``'s ``demos`` item."""
+
+    name = "demos"
+    title = "learning from demonstrations (off-policy; pip install 'sbagents[data]')"
+    flags = "--demos"
+    spec_type = DemoSpec
+    group_runs = False
+    algos = ("sac", "tqc", "td3", "ddpg", "dqn", "qrdqn")
+    kinds = (SINGLE_AGENT.name,)
+
+    def add_arguments(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--demos", default=None, metavar="DATASET",
+                           help="keep this Minari dataset's transitions in the replay buffer (off-policy algorithms)")
+        group.add_argument("--demo-ratio", type=float, default=DemoSpec.ratio, metavar="R",
+                           help=f"share of every batch drawn from the demonstrations (default {DemoSpec.ratio})")
+        group.add_argument("--demo-bc", type=float, default=DemoSpec.bc_weight, metavar="WEIGHT",
+                           help="weight of a supervised loss on the demonstrations: behaviour cloning behind a "
+                                "Q-filter (actor-critic), DQfD's margin loss (DQN); default 0: none")
+
+    def from_args(self, args: argparse.Namespace) -> DemoSpec | None:
+        if args.demos is None:
+            if args.demo_ratio != DemoSpec.ratio or args.demo_bc != DemoSpec.bc_weight:
+                raise UsageError("--demo-ratio and --demo-bc apply to --demos DATASET")
+            return None
+        return DemoSpec(args.demos, ratio=args.demo_ratio, bc_weight=args.demo_bc)
+
+    def configure(self, spec: DemoSpec | None, plan: ExtensionPlan) -> DemoSpec | None:
+        if spec is not None:
+            from sbagents.datasets.demos import demo_buffer_class
+            from sbagents.datasets.writing import require_minari
+
+            require_minari()
+            demo_buffer_class(plan.exp.algo_kwargs.get("replay_buffer_class"))  # one line for a buffer of its own
+            if int(plan.exp.algo_kwargs.get("n_steps", 1)) > 1:
+                raise UsageError("--demos keeps one-step transitions; n_steps > 1 is not supported with it")
+        return spec
+
+    def contribute(self, spec: DemoSpec, plan: ExtensionPlan) -> Contribution:
+        from sbagents.datasets.demos import demo_buffer_class
+
+        return Contribution(model_kwargs={
+            "replay_buffer_class": demo_buffer_class(plan.exp.algo_kwargs.get("replay_buffer_class"))})
+
+    def callbacks(self, spec: DemoSpec, ctx: TrainingContext) -> list[BaseCallback]:
+        from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+        from sbagents.datasets.demo_losses import DemoLossCallback
+        from sbagents.datasets.demos import DemoMixin, demo_buffer
+        from sbagents.datasets.reading import load_episodes, transitions_of
+
+        model = ctx.model
+        assert isinstance(model, OffPolicyAlgorithm) and isinstance(model.replay_buffer, DemoMixin)
+        episodes = load_episodes(spec.dataset, model.observation_space, model.action_space, flag="--demos")
+        model.replay_buffer.attach_demos(demo_buffer(model, episodes), spec.ratio)
+        item: dict[str, Any] = {"dataset": spec.dataset, "episodes": len(episodes),
+                                "transitions": sum(len(e) for e in episodes), "ratio": spec.ratio,
+                                "bc_weight": spec.bc_weight}
+        ctx.state[self.name] = item
+        kind = "margin" if isinstance(model.action_space, spaces.Discrete) else "Q-filtered BC"
+        loss = f", {kind} loss weight {spec.bc_weight:g}" if spec.bc_weight > 0 else ""
+        print(f"demonstrations: {item['episodes']} episodes ({item['transitions']} transitions) of {spec.dataset}, "
+              f"{spec.ratio:g} of every batch{loss}", flush=True)
+        if spec.bc_weight == 0:
+            return []
+        callback = DemoLossCallback(transitions_of(episodes), spec.bc_weight, seed=ctx.seed)
+        ctx.state[f"{self.name}.loss"] = callback
+        return [callback]
+
+    def finish(self, spec: DemoSpec, ctx: TrainingContext) -> dict[str, Any]:
+        item = ctx.state.get(self.name)
+        if not item:
+            return {}
+        callback = ctx.state.get(f"{self.name}.loss")
+        if callback is not None:
+            item = {**item, "loss_steps": callback.steps, "loss_kept": callback.kept}
+        return {"demos": item}
+
+    def record(self, spec: DemoSpec) -> SpecRecord:
+        flags = ["--demos", spec.dataset]
+        if spec.ratio != DemoSpec.ratio:
+            flags += ["--demo-ratio", str(spec.ratio)]
+        if spec.bc_weight != DemoSpec.bc_weight:
+            flags += ["--demo-bc", str(spec.bc_weight)]
+        return SpecRecord(args={"demos": spec.dataset, "demo_ratio": spec.ratio, "demo_bc": spec.bc_weight},
+                          flags=flags)

@@ -133,6 +133,8 @@ def test_the_q_filter_keeps_only_demonstrations_the_critic_values_higher() -> No
     assert kept == 0.0 and float(loss.detach()) == 0.0
     loss, kept = q_filtered_cloning_loss(model, obs, torch.clamp(-taken, -1, 1))
     assert 0.0 <= kept <= 1.0 and (float(loss.detach()) > 0) == (kept > 0)
+    loss, kept = q_filtered_cloning_loss(model, obs, taken, q_filter=False)  # before the filter starts: all count
+    assert kept == 1.0 and float(loss.detach()) == 0.0
 
 
 def test_the_margin_loss_is_zero_only_when_the_demonstrated_action_leads_by_the_margin() -> None:
@@ -174,13 +176,14 @@ def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(dataset
     collect("SmartHome-v0", "sbagents/home-expert-v0", 3)
     logs = tmp_path / "logs"
     common = ("--algo", "sac", "--env", "SmartHome-v0", "--demos", "sbagents/home-expert-v0", "--demo-bc", "0.5",
-              "--demo-ratio", "0.5", "-params", "learning_starts:100", "batch_size:32", "-f", str(logs), *QUIET)
+              "--demo-ratio", "0.5", "--demo-filter-after", "50", "-params", "learning_starts:100", "batch_size:32",
+              "-f", str(logs), *QUIET)
     assert run_main("train", *common, "-n", "300", "--save-replay-buffer") == 0
     first = run_summary(logs)
     demos = first["demos"]
     assert isinstance(demos, dict) and demos["ratio"] == 0.5
     assert demos["loss_steps"] == 100  # one per SAC gradient step: 200 steps after learning starts, train_freq 2
-    assert 0.0 <= float(demos["loss_kept"]) <= 1.0  # type: ignore[arg-type]
+    assert 0.0 <= float(demos["loss_kept"]) < 1.0  # type: ignore[arg-type]  # filtered after 50 of 100 steps
     (run_dir,) = (p.parent for p in logs.rglob("summary.json"))
     with np.load(run_dir / "replay_buffer.npz") as saved:
         settings = json.loads(str(saved["__settings__"]))
@@ -200,7 +203,7 @@ def test_bad_demonstrations_are_one_line_and_leave_no_run(datasets: Path, tmp_pa
     capsys.readouterr()
     for args, expected in (
             (("--algo", "ppo", "--demos", "sbagents/grid-expert-v0"), "--demos trains sac, tqc, td3"),
-            (("--algo", "dqn", "--demo-ratio", "0.5"), "--demo-ratio and --demo-bc apply to --demos DATASET"),
+            (("--algo", "dqn", "--demo-ratio", "0.5"), "--demo-ratio, --demo-bc and --demo-filter-after apply to"),
             (("--algo", "dqn", "--demos", "sbagents/grid-expert-v0", "--demo-ratio", "1.5"), "must be in [0, 1]"),
             (("--algo", "dqn", "--demos", "sbagents/none-v0"), "--demos sbagents/none-v0: cannot load the dataset"),
             (("--algo", "dqn", "--demos", "sbagents/grid-expert-v0", "-params", "n_steps:3"), "n_steps > 1"),

@@ -134,17 +134,20 @@ class DemoSpec:
     :param bc_weight: the factor of the supervised loss on demonstrations (0: none): behaviour cloning behind a
         Q-filter for actor-critic algorithms, DQfD's margin loss for DQN and QR-DQN
         (:mod:`sbagents.datasets.demo_losses`).
+    :param filter_after: steps of the cloning loss before its Q-filter starts (until then every demonstration
+        counts).
     """
 
     dataset: str
     ratio: float = 0.25
     bc_weight: float = 0.0
+    filter_after: int = 10_000
 
     def validate(self) -> None:
         """One line for a setting out of range."""
-        if not 0 <= self.ratio <= 1 or not self.bc_weight >= 0:
-            raise UsageError(f"--demos: the ratio must be in [0, 1] and the BC weight >= 0; got {self.ratio}, "
-                             f"{self.bc_weight}")
+        if not 0 <= self.ratio <= 1 or not self.bc_weight >= 0 or self.filter_after < 0:
+            raise UsageError(f"--demos: the ratio must be in [0, 1], the BC weight and the filter's start >= 0; got "
+                             f"{self.ratio}, {self.bc_weight}, {self.filter_after}")
 
 
 class DemosExtension(TrainingExtension[DemoSpec]):
@@ -168,13 +171,18 @@ class DemosExtension(TrainingExtension[DemoSpec]):
         group.add_argument("--demo-bc", type=float, default=DemoSpec.bc_weight, metavar="WEIGHT",
                            help="weight of a supervised loss on the demonstrations: behaviour cloning behind a "
                                 "Q-filter (actor-critic), DQfD's margin loss (DQN); default 0: none")
+        group.add_argument("--demo-filter-after", type=int, default=DemoSpec.filter_after, metavar="N",
+                           help="steps of the cloning loss before its Q-filter starts (default "
+                                f"{DemoSpec.filter_after:,}; until then every demonstration counts)")
 
     def from_args(self, args: argparse.Namespace) -> DemoSpec | None:
         if args.demos is None:
-            if args.demo_ratio != DemoSpec.ratio or args.demo_bc != DemoSpec.bc_weight:
-                raise UsageError("--demo-ratio and --demo-bc apply to --demos DATASET")
+            if (args.demo_ratio, args.demo_bc, args.demo_filter_after) != (DemoSpec.ratio, DemoSpec.bc_weight,
+                                                                            DemoSpec.filter_after):
+                raise UsageError("--demo-ratio, --demo-bc and --demo-filter-after apply to --demos DATASET")
             return None
-        return DemoSpec(args.demos, ratio=args.demo_ratio, bc_weight=args.demo_bc)
+        return DemoSpec(args.demos, ratio=args.demo_ratio, bc_weight=args.demo_bc,
+                        filter_after=args.demo_filter_after)
 
     def configure(self, spec: DemoSpec | None, plan: ExtensionPlan) -> DemoSpec | None:
         if spec is not None:
@@ -208,13 +216,15 @@ class DemosExtension(TrainingExtension[DemoSpec]):
                                 "transitions": sum(len(e) for e in episodes), "ratio": spec.ratio,
                                 "bc_weight": spec.bc_weight}
         ctx.state[self.name] = item
-        kind = "margin" if isinstance(model.action_space, spaces.Discrete) else "Q-filtered BC"
+        kind = "margin" if isinstance(model.action_space, spaces.Discrete) else \
+            f"BC (Q-filtered after {spec.filter_after:,} steps)"
         loss = f", {kind} loss weight {spec.bc_weight:g}" if spec.bc_weight > 0 else ""
         print(f"demonstrations: {item['episodes']} episodes ({item['transitions']} transitions) of {spec.dataset}, "
               f"{spec.ratio:g} of every batch{loss}", flush=True)
         if spec.bc_weight == 0:
             return []
-        callback = DemoLossCallback(transitions_of(episodes), spec.bc_weight, seed=ctx.seed)
+        callback = DemoLossCallback(transitions_of(episodes), spec.bc_weight, filter_after=spec.filter_after,
+                                    seed=ctx.seed)
         ctx.state[f"{self.name}.loss"] = callback
         return [callback]
 
@@ -233,5 +243,7 @@ class DemosExtension(TrainingExtension[DemoSpec]):
             flags += ["--demo-ratio", str(spec.ratio)]
         if spec.bc_weight != DemoSpec.bc_weight:
             flags += ["--demo-bc", str(spec.bc_weight)]
-        return SpecRecord(args={"demos": spec.dataset, "demo_ratio": spec.ratio, "demo_bc": spec.bc_weight},
-                          flags=flags)
+        if spec.filter_after != DemoSpec.filter_after:
+            flags += ["--demo-filter-after", str(spec.filter_after)]
+        return SpecRecord(args={"demos": spec.dataset, "demo_ratio": spec.ratio, "demo_bc": spec.bc_weight,
+                                "demo_filter_after": spec.filter_after}, flags=flags)

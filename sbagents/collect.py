@@ -1,11 +1,13 @@
 """``python -m sbagents.collect``: record episodes of a baseline (``--policy random|scripted``) or of a finished run
-(``--algo ALGO -f LOGS [--exp-id K]``) on an env into a Minari dataset (``--dataset namespace/name-vN``; the ``data``
-extra).
+(``--algo ALGO -f LOGS [--exp-id K]``) on an env, or read them from a run's transparency log (``--from-log PATH``),
+into a Minari dataset (``--dataset namespace/name-vN``; the ``data`` extra).
 
 Parses the flags and calls :func:`sbagents.pipeline.collecting.collect`.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import torch
 
@@ -22,7 +24,10 @@ def build_parser() -> ArgumentParser:
     add_run_arguments(p, required=False, load_best=True, env_kwargs=True)
     p.add_argument("--policy", choices=BASELINES, default=None,
                    help="who acts instead of a run: random (uniform actions) or scripted (the env's expert)")
-    p.add_argument("--episodes", type=int, required=True, help="episodes to record")
+    p.add_argument("--from-log", default=None, metavar="PATH",
+                   help="read the episodes from a run's transparency log (train --transparency-log) of --env")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="episodes to record (required but with --from-log, where it caps the complete episodes read)")
     p.add_argument("--dataset", required=True, metavar="ID",
                    help="dataset id namespace/name-vN, written under MINARI_DATASETS_PATH (default ~/.minari/datasets)")
     p.add_argument("--seed", type=int, default=0, help="reset seed of the first episode (episode i: seed + i)")
@@ -41,15 +46,18 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError("--env names the env to record")
     ref = run_ref(args)
     options = CollectOptions(args.episodes, args.dataset, args.seed, args.ref_episodes, args.progress)
+    if sum(given is not None for given in (args.policy, args.algo, args.from_log)) > 1:
+        raise UsageError("--policy records a baseline, --algo names a run, --from-log reads a log: give one of them")
     if args.policy is not None:
-        if args.algo is not None:
-            raise UsageError("--policy records a baseline; --algo names a run: give one of them")
-        path = collect(options, env=ref.env_ref(), policy=args.policy, env_kwargs=ref.env_kwargs)
+        path, count = collect(options, env=ref.env_ref(), policy=args.policy, env_kwargs=ref.env_kwargs)
     elif args.algo is not None:
-        path = collect(options, run=ref)
+        path, count = collect(options, run=ref)
+    elif args.from_log is not None:
+        path, count = collect(options, env=ref.env_ref(), log=Path(args.from_log), env_kwargs=ref.env_kwargs)
     else:
-        raise UsageError("who acts: --policy random|scripted, or a run with --algo ALGO (-f LOGS, --exp-id K)")
-    print(f"dataset {args.dataset}: {args.episodes} episodes in {path}")
+        raise UsageError("who acts: --policy random|scripted, a run with --algo ALGO (-f LOGS, --exp-id K), or "
+                         "--from-log PATH")
+    print(f"dataset {args.dataset}: {count} episodes in {path}")
     return 0
 
 

@@ -76,7 +76,7 @@ def test_bad_input_is_one_line_and_writes_nothing(datasets: Path, capsys: pytest
          "--episodes must be >= 1"),
         (("--env", "treasure_hunt_v0", "--episodes", "1", "--policy", "random", "--dataset", "sbagents/t-v0"),
          "collect records single Gymnasium agents for now"),
-        ((*base, "--dataset", "sbagents/g-v2"), "who acts: --policy random|scripted, or a run"),
+        ((*base, "--dataset", "sbagents/g-v2"), "who acts: --policy random|scripted, a run with --algo ALGO"),
         ((*base, "--policy", "random", "--algo", "ppo", "--dataset", "sbagents/g-v3"), "give one of them"),
         (("--env", "CartPole-v1", "--episodes", "1", "--policy", "scripted", "--dataset", "sbagents/c-v0"),
          "CartPole-v1 has no scripted expert"),

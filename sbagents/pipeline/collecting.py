@@ -32,7 +32,7 @@ from sbagents.pipeline.evaluation import baseline_actor, baseline_experiment, ev
 class CollectOptions:
     """What ``collect`` records.
 
-    :param episodes: episodes to record.
+    :param episodes: episodes to record (from a log: at most this many, None: all).
     :param dataset: the dataset id (``namespace/name-vN``).
     :param seed: the first episode's reset seed (episode ``i`` resets with ``seed + i``).
     :param ref_episodes: episodes of random play and of the scripted expert that give the dataset's reference scores
@@ -40,7 +40,7 @@ class CollectOptions:
     :param progress: show a progress bar (None: on a terminal).
     """
 
-    episodes: int
+    episodes: int | None
     dataset: str
     seed: int = 0
     ref_episodes: int = 10
@@ -48,7 +48,7 @@ class CollectOptions:
 
     def validate(self) -> None:
         """One line for what does not fit."""
-        if self.episodes < 1:
+        if self.episodes is not None and self.episodes < 1:
             raise UsageError(f"--episodes must be >= 1, got {self.episodes}")
         if self.ref_episodes < 0:
             raise UsageError(f"--ref-episodes must be >= 0, got {self.ref_episodes}")
@@ -56,20 +56,27 @@ class CollectOptions:
 
 
 def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str | None = None,
-            run: RunRef | None = None, env_kwargs: dict[str, Any] | None = None) -> Path:
-    """Record ``options.episodes`` episodes into the dataset ``options.dataset``; its folder.
+            run: RunRef | None = None, log: Path | None = None, env_kwargs: dict[str, Any] | None = None
+            ) -> tuple[Path, int]:
+    """Record episodes into the dataset ``options.dataset``; its folder and how many episodes it holds.
 
     Either ``policy`` (``random`` or ``scripted``, on ``env``) or ``run`` (a finished single-agent SB3 run, greedy)
-    acts.
+    acts, or ``log`` (a transparency log of a run on ``env``) gives the episodes (:mod:`sbagents.datasets.logs`).
 
-    :raises UsageError: (one line) both or neither of ``policy`` and ``run``, an env that is not a single Gymnasium
-        agent (teams and games are not recorded yet), an env without a scripted expert, a dataset that exists, or
-        Minari missing.
+    :raises UsageError: (one line) not exactly one of ``policy``, ``run`` and ``log``, an env that is not a single
+        Gymnasium agent (teams and games are not recorded yet), an env without a scripted expert, a log that does not
+        fit the env, a dataset that exists, or Minari missing.
     """
     options.validate()
     require_minari()
-    if (policy is None) == (run is None):
-        raise UsageError("collect records either --policy random|scripted or a run (--algo ALGO -f LOGS)")
+    if sum(source is not None for source in (policy, run, log)) != 1:
+        raise UsageError("collect records --policy random|scripted, a run (--algo ALGO -f LOGS) or --from-log PATH: "
+                         "give one of them")
+    if log is not None:
+        assert env is not None
+        return _from_log(options, env, log, env_kwargs)
+    if options.episodes is None:
+        raise UsageError("--episodes N: how many episodes to record")
     if run is not None:
         loaded = load_run(run)
         if len(loaded.models) > 1:
@@ -95,7 +102,23 @@ def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str |
                                    f"{options.seed + options.episodes - 1})")
     seeds = [options.seed + i for i in range(options.episodes)]
     return write_dataset(options.dataset, episodes, seeds, ref.env_id, info, venv.observation_space,
-                         venv.action_space)
+                         venv.action_space), len(episodes)
+
+
+def _from_log(options: CollectOptions, ref: EnvRef, log: Path, env_kwargs: dict[str, Any] | None
+              ) -> tuple[Path, int]:
+    """The complete episodes of the transparency log ``log`` of a run on ``ref``'s plain env."""
+    from sbagents.datasets.logs import episodes_from_log, log_description
+
+    exp = baseline_experiment(ref, "random", env_kwargs)
+    venv = _check_one_agent(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), ref)
+    obs_space, action_space = venv.observation_space, venv.action_space
+    venv.close()
+    episodes, dropped = episodes_from_log(log, obs_space, action_space, options.episodes)
+    info = DatasetInfo(f"transparency log {log.name}", *_reference_scores(ref, options, env_kwargs),
+                       description=log_description(log, len(episodes), dropped))
+    return write_dataset(options.dataset, episodes, [None] * len(episodes), ref.env_id, info, obs_space,
+                         action_space), len(episodes)
 
 
 def _check_one_agent(venv: VecEnv, ref: EnvRef) -> VecEnv:
@@ -118,6 +141,7 @@ def _run_env(exp: Experiment, ref: EnvRef, seed: int, stats: Path | None, trust:
 def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: CollectOptions
             ) -> list[EpisodeRecorder]:
     """Play the episodes on ``venv`` (one copy; episode ``i`` reset with ``options.seed + i``)."""
+    assert options.episodes is not None
     reporter = ProgressReporter(options.episodes, bar=options.progress)
     episodes = []
     try:

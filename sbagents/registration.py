@@ -75,6 +75,7 @@ KIND_OPERATION_MODULES: tuple[str, ...] = (
     "sbagents.pipeline.kinds",
     "sbagents.pipeline.models",
     "sbagents.pipeline.evaluation",
+    "sbagents.pipeline.collecting",
     "sbagents.deploy.exporting",
     "sbagents.visualize.video",
 )

@@ -12,7 +12,7 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import sync_envs_normalization
 
-from sbagents.core.env_kinds import SINGLE_AGENT
+from sbagents.core.env_kinds import SINGLE_AGENT, TEAM
 from sbagents.core.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 from sbagents.errors import UsageError
 
@@ -54,9 +54,9 @@ class PretrainExtension(TrainingExtension[PretrainSpec]):
     title = "learning from data (behaviour cloning; pip install 'sbagents[data]')"
     flags = "--pretrain"
     spec_type = PretrainSpec
-    group_runs = False  # one model's policy (teams: not yet)
+    group_runs = False  # one model's policy: a single agent, or a team's shared policy (not one model per group)
     algos = ("a2c", "ppo", "trpo", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn")
-    kinds = (SINGLE_AGENT.name,)
+    kinds = (SINGLE_AGENT.name, TEAM.name)
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--pretrain", default=None, metavar="DATASET",

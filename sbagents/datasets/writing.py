@@ -137,12 +137,13 @@ class DatasetInfo:
 
 
 def write_dataset(dataset_id: str, episodes: Sequence[EpisodeRecorder], seeds: Sequence[int | None],
-                  env: str | gym.Env[Any, Any], info: DatasetInfo,
+                  env: str | gym.Env[Any, Any] | None, info: DatasetInfo,
                   observation_space: gym.spaces.Space[Any] | None = None,
                   action_space: gym.spaces.Space[Any] | None = None) -> Path:
     """Write ``episodes`` as the Minari dataset ``dataset_id`` under :func:`datasets_root`, atomically; its folder.
 
-    :param env: the env's Gymnasium id (or the env) the episodes come from (Minari records its spec).
+    :param env: the env's Gymnasium id (or the env) the episodes come from (Minari records its spec; None: none, the
+        spaces given, e.g. a PettingZoo team's agent).
     :raises UsageError: an id that is not ``namespace/name-vN``, a dataset of that id that exists, no episodes, or
         Minari missing.
     """
@@ -176,7 +177,7 @@ def write_dataset(dataset_id: str, episodes: Sequence[EpisodeRecorder], seeds: S
     return target
 
 
-def _create(minari: Any, dataset_id: str, buffers: list[Any], env: str | gym.Env[Any, Any], info: DatasetInfo,
+def _create(minari: Any, dataset_id: str, buffers: list[Any], env: str | gym.Env[Any, Any] | None, info: DatasetInfo,
             observation_space: gym.spaces.Space[Any] | None, action_space: gym.spaces.Space[Any] | None) -> None:
     """Minari's ``create_dataset_from_buffers`` with what :class:`DatasetInfo` records."""
     minari.create_dataset_from_buffers(

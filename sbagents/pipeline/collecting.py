@@ -9,6 +9,7 @@ statistics applied to the policy's input only. Rewards are the env's own (never 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,14 +18,17 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.baselines.policies import slot
+from sbagents.callbacks.common import acted_slots
 from sbagents.callbacks.episodes import Policy, model_actor
+from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
 from sbagents.core.progress import ProgressReporter
 from sbagents.core.run_dir import RunRef, load_run
 from sbagents.datasets.writing import DatasetInfo, EpisodeRecorder, check_dataset_id, require_minari, write_dataset
-from sbagents.env_factory import make_vec, normalize_for_eval
+from sbagents.env_factory import make_team_vecs, make_vec, normalize_for_eval
 from sbagents.errors import UsageError
+from sbagents.multiagent.team_eval import slot_agents
 from sbagents.pipeline.evaluation import baseline_actor, baseline_experiment, evaluate_baseline
 
 
@@ -60,12 +64,13 @@ def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str |
             ) -> tuple[Path, int]:
     """Record episodes into the dataset ``options.dataset``; its folder and how many episodes it holds.
 
-    Either ``policy`` (``random`` or ``scripted``, on ``env``) or ``run`` (a finished single-agent SB3 run, greedy)
-    acts, or ``log`` (a transparency log of a run on ``env``) gives the episodes (:mod:`sbagents.datasets.logs`).
+    Either ``policy`` (``random`` or ``scripted``, on ``env``) or ``run`` (a finished SB3 run of one model, greedy)
+    acts, or ``log`` (a transparency log of a run on ``env``) gives the episodes (:mod:`sbagents.datasets.logs`). A
+    team (one shared group) is recorded in the layout :func:`_team_collect_kind` describes.
 
-    :raises UsageError: (one line) not exactly one of ``policy``, ``run`` and ``log``, an env that is not a single
-        Gymnasium agent (teams and games are not recorded yet), an env without a scripted expert, a log that does not
-        fit the env, a dataset that exists, or Minari missing.
+    :raises UsageError: (one line) not exactly one of ``policy``, ``run`` and ``log``, a turn-based game, a team of
+        several groups, an env without a scripted expert, a log that does not fit the env, a dataset that exists, or
+        Minari missing.
     """
     options.validate()
     require_minari()
@@ -82,27 +87,84 @@ def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str |
         if len(loaded.models) > 1:
             raise UsageError("collect records runs of one model; this run has one per group")
         ref, exp = loaded.env, loaded.experiment
-        venv, norm = _run_env(exp, ref, options.seed, loaded.stats_path, loaded.trust)
-        actor = model_actor(loaded.model, exp.deterministic_eval)
-        algorithm = f"{exp.algo} ({loaded.run_dir})"
+        algorithm, stats, trust = f"{exp.algo} ({loaded.run_dir})", loaded.stats_path, loaded.trust
+        model = loaded.model
+
+        def actor_for(venv: VecEnv) -> Policy:
+            return model_actor(model, exp.deterministic_eval)
     else:
         assert env is not None and policy is not None
-        ref = env
-        exp = baseline_experiment(ref, policy, env_kwargs)
-        venv, norm = _check_one_agent(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), ref), None
-        actor = baseline_actor(policy, ref.env_id, venv, options.seed)
-        algorithm = str(policy)
-    try:
-        episodes = _record(venv, norm, actor, options)
-    finally:
-        venv.close()
-    info = DatasetInfo(algorithm, *_reference_scores(ref, options, env_kwargs),
+        ref, exp = env, baseline_experiment(env, policy, env_kwargs)
+        algorithm, stats, trust = policy, None, False
+
+        def actor_for(venv: VecEnv) -> Policy:
+            return baseline_actor(policy, ref.env_id, venv, options.seed)
+    recorded = _collect_kind(ref.kind, exp, ref, actor_for, options, stats, trust)
+    assert options.episodes is not None
+    scores = _reference_scores(ref, options, env_kwargs) if recorded.env is not None else (None, None)
+    info = DatasetInfo(algorithm, *scores,
                        description=f"{options.episodes} episodes of {ref.env_id} played by {algorithm}, recorded by "
                                    f"python -m sbagents.collect (reset seeds {options.seed}..."
-                                   f"{options.seed + options.episodes - 1})")
-    seeds = [options.seed + i for i in range(options.episodes)]
-    return write_dataset(options.dataset, episodes, seeds, ref.env_id, info, venv.observation_space,
-                         venv.action_space), len(episodes)
+                                   f"{options.seed + options.episodes - 1}){recorded.layout}")
+    per = len(recorded.episodes) // options.episodes
+    seeds = [options.seed + i // per for i in range(len(recorded.episodes))]
+    return write_dataset(options.dataset, recorded.episodes, seeds, recorded.env, info, recorded.observation_space,
+                         recorded.action_space), len(recorded.episodes)
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """What a kind recorded: the episodes, their spaces, the env Minari records (its id; None where Gymnasium cannot
+    make it: a team, whose dataset then has no reference scores, which Minari keeps only with an env spec) and a note
+    on the layout for the dataset's description."""
+
+    episodes: list[EpisodeRecorder]
+    observation_space: Any
+    action_space: Any
+    env: str | None
+    layout: str = ""
+
+
+@kind_operation()
+def _collect_kind(kind: EnvKind, exp: Experiment, ref: EnvRef, actor_for: Callable[[VecEnv], Policy],
+                  options: CollectOptions, stats: Path | None, trust: bool) -> Recorded:
+    """One Gymnasium agent: one copy of the env as ``exp`` wraps it, the statistics ``stats`` applied to the policy's
+    input only."""
+    venv, norm = _env(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), exp, ref, stats, trust)
+    try:
+        episodes = _record(venv, norm, actor_for(venv), options)
+    finally:
+        venv.close()
+    return Recorded(episodes, venv.observation_space, venv.action_space, ref.env_id)
+
+
+@_collect_kind.register
+def _team_collect_kind(kind: TeamKind, exp: Experiment, ref: EnvRef, actor_for: Callable[[VecEnv], Policy],
+                       options: CollectOptions, stats: Path | None, trust: bool) -> Recorded:
+    """A team of one shared group: each team episode becomes one dataset episode per agent, consecutive, in the order
+    of the team's agents (an agent's steps while it is present; :func:`_record_team`); the spaces are one agent's."""
+    venvs = make_team_vecs(exp, ref, 1, options.seed, vec_env="dummy")
+    if len(venvs) != 1:
+        for venv in venvs.values():
+            venv.close()
+        raise UsageError(f"collect records teams of one shared group; {ref.env_id} trains groups {sorted(venvs)}")
+    ((group, venv),) = venvs.items()
+    norm = normalize_for_eval(venv, exp, stats, trust)
+    try:
+        agents = slot_agents(venv, group)
+        episodes = _record_team(venv, norm if isinstance(norm, VecNormalize) else None, actor_for(venv), options)
+    finally:
+        venv.close()
+    layout = (f"; multi-agent layout: each team episode is {len(agents)} consecutive episodes, one per agent in the "
+              f"order {', '.join(agents)}")
+    return Recorded(episodes, venv.observation_space, venv.action_space, None, layout)
+
+
+@_collect_kind.register
+def _game_collect_kind(kind: GameKind, exp: Experiment, ref: EnvRef, actor_for: Callable[[VecEnv], Policy],
+                       options: CollectOptions, stats: Path | None, trust: bool) -> Recorded:
+    """Turn-based games are not recorded yet."""
+    raise UsageError(f"collect records single agents and teams; {ref.env_id} is a turn-based game (not recorded yet)")
 
 
 def _from_log(options: CollectOptions, ref: EnvRef, log: Path, env_kwargs: dict[str, Any] | None
@@ -111,7 +173,7 @@ def _from_log(options: CollectOptions, ref: EnvRef, log: Path, env_kwargs: dict[
     from sbagents.datasets.logs import episodes_from_log, log_description
 
     exp = baseline_experiment(ref, "random", env_kwargs)
-    venv = _check_one_agent(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), ref)
+    venv, _ = _env(make_vec(exp, ref, 1, options.seed, vec_env="dummy"), exp, ref, None, False)
     obs_space, action_space = venv.observation_space, venv.action_space
     venv.close()
     episodes, dropped = episodes_from_log(log, obs_space, action_space, options.episodes)
@@ -121,19 +183,13 @@ def _from_log(options: CollectOptions, ref: EnvRef, log: Path, env_kwargs: dict[
                          action_space), len(episodes)
 
 
-def _check_one_agent(venv: VecEnv, ref: EnvRef) -> VecEnv:
-    """``venv`` if one copy of the env is one agent acting without action masks; else closed, and one line."""
+def _env(venv: VecEnv, exp: Experiment, ref: EnvRef, stats: Path | None, trust: bool
+         ) -> tuple[VecEnv, VecNormalize | None]:
+    """``venv`` if one copy of the env is one agent acting without action masks (else closed, and one line), and the
+    frozen statistics ``stats`` (None: none)."""
     if venv.num_envs != 1 or venv.has_attr("action_masks"):
         venv.close()
-        raise UsageError(f"collect records single Gymnasium agents for now; {ref.env_id} is a {ref.kind.name} env "
-                         "(teams and turn-based games are not recorded yet)")
-    return venv
-
-
-def _run_env(exp: Experiment, ref: EnvRef, seed: int, stats: Path | None, trust: bool
-             ) -> tuple[VecEnv, VecNormalize | None]:
-    """The run's env as training wrapped it, and its frozen statistics (applied to the policy's input only)."""
-    venv = _check_one_agent(make_vec(exp, ref, 1, seed, vec_env="dummy"), ref)
+        raise UsageError(f"collect records single Gymnasium agents and teams; {ref.env_id} acts with action masks")
     norm = normalize_for_eval(venv, exp, stats, trust)
     return venv, norm if isinstance(norm, VecNormalize) else None
 
@@ -164,6 +220,48 @@ def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: Col
                 if dones[0]:
                     break
             episodes.append(recorder)
+            reporter.update(i + 1)
+    finally:
+        reporter.close()
+    return episodes
+
+
+def _record_team(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: CollectOptions
+                 ) -> list[EpisodeRecorder]:
+    """Play team episodes on ``venv`` (one copy of a team of one group; team episode ``i`` reset with
+    ``options.seed + i``): per team episode, every slot's agent's steps while it acted (``ACTED``), its own episode
+    ending at its ``done`` (an agent still present when the team's episode ends is truncated there)."""
+    assert options.episodes is not None
+    reporter = ProgressReporter(options.episodes, bar=options.progress)
+    episodes: list[EpisodeRecorder] = []
+    n = venv.num_envs
+    try:
+        for i in range(options.episodes):
+            venv.seed(options.seed + i)
+            obs = venv.reset()
+            recorders = [EpisodeRecorder() for _ in range(n)]
+            for k, recorder in enumerate(recorders):
+                recorder.start(slot(obs, k))
+            ended = np.zeros(n, dtype=bool)
+            state, start = None, np.ones(n, dtype=bool)
+            while True:
+                seen: Any = obs
+                actions, state = actor(norm.normalize_obs(seen) if norm is not None else seen, state, start)
+                start = np.zeros(n, dtype=bool)
+                obs, rewards, dones, infos = venv.step(actions)
+                for j in np.flatnonzero(~ended & acted_slots(infos)).tolist():
+                    info = infos[j]
+                    truncated = bool(info.get("TimeLimit.truncated", False))
+                    last = info["terminal_observation"] if dones[j] else slot(obs, j)
+                    recorders[j].step(np.asarray(actions)[j], last, float(rewards[j]),
+                                      bool(dones[j]) and not truncated, truncated, info)
+                    ended[j] |= bool(dones[j])
+                if "episode" in infos[0] or ended.all():  # the team's episode is over
+                    break
+            for k, recorder in enumerate(recorders):
+                if recorder.actions and not ended[k]:
+                    recorder.truncations[-1] = True
+            episodes += [recorder for recorder in recorders if recorder.actions]
             reporter.update(i + 1)
     finally:
         reporter.close()

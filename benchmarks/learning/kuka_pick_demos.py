@@ -1,0 +1,274 @@
+"""Chapter 5's pick-and-place learned from demonstrations: ``sbagents/KukaPickAndPlace-v0`` with SAC + HER given 100
+episodes of the scripted grasp, beside behaviour cloning alone, learning without them, panda-gym's
+``PandaPickAndPlace-v3`` given as many episodes of a scripted Panda grasp (``pip install panda-gym``) and chapter 6's
+``RobustKukaPickAndPlace-v0``, over seeds.
+
+Per seed: ``python -m sbagents.collect --policy scripted`` records the demonstrations (reset seeds from
+``1000 * seed``); then each variant trains with ``benchmarks/configs/kuka_pick.yml`` (SAC + HER, 64-64 networks, batch
+256, half a gradient step per env step, the settings of the ``kuka-pick-learning`` runs without demonstrations):
+
+- ``demos``: ``--pretrain DATASET`` (behaviour cloning first), then ``--demos DATASET --demo-bc W`` (the
+  demonstrations in the replay buffer, and the cloning loss, behind a Q-filter after ``--demo-filter-after`` steps);
+- ``bc``: ``--pretrain DATASET`` alone, with no learning step (``learning_starts`` above the budget);
+- ``none``: SAC + HER without demonstrations (the ``kuka-pick-learning`` runs; 500k steps per seed);
+- ``panda-demos``, ``panda-bc``, ``robust-demos``, ``robust-bc``: ``demos`` and ``bc`` on the Panda and on the robust
+  env.
+
+Every run ends with 50 greedy episodes (the success rate in the table); ``demos`` and ``none`` also evaluate 20
+greedy episodes every 10k steps (the curves). Runs that finished are kept (a ``summary.json`` in their folder): run
+the command again to add seeds or variants. ``--jobs 2`` trains two runs at once::
+
+    python -m benchmarks run kuka-pick-demos -f OUT [--seeds 0 1 2] [--variants demos bc panda-demos:0] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.harness import Benchmark
+from benchmarks.report import RESULTS_DIR, load_average, machine_info, save_figure
+from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+
+NAME = "kuka-pick-demos"
+ENV = "sbagents/KukaPickAndPlace-v0"
+PANDA = "PandaPickAndPlace-v3"
+ROBUST = "sbagents/RobustKukaPickAndPlace-v0"
+CONFIG = "benchmarks/configs/kuka_pick.yml"
+PLOT = "kuka_pick_demos.png"
+FINAL_EPISODES = 50
+DEMOS = ("--pretrain", "{dataset}", "--pretrain-steps", "5000", "--demos", "{dataset}", "--demo-bc", "100",
+         "--demo-filter-after", "20000")
+CLONE = ("--pretrain", "{dataset}", "--pretrain-steps", "5000")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One way to train: the env, the extra ``train`` flags (``{dataset}``: the seed's demonstrations) and the env
+    steps (``bc``: no learning step within them)."""
+
+    env: str
+    flags: tuple[str, ...]
+    steps: int
+
+
+VARIANTS: dict[str, Variant] = {
+    "demos": Variant(ENV, DEMOS, 200_000), "bc": Variant(ENV, CLONE, 100), "none": Variant(ENV, (), 500_000),
+    "panda-demos": Variant(PANDA, DEMOS, 200_000), "panda-bc": Variant(PANDA, CLONE, 100),
+    "robust-demos": Variant(ROBUST, DEMOS, 200_000), "robust-bc": Variant(ROBUST, CLONE, 100),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Options of ``python -m benchmarks run kuka-pick-demos``."""
+    parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {NAME}", description=__doc__.splitlines()[0])
+    parser.add_argument("-f", "--folder", type=Path, required=True, help="output folder (datasets and runs; kept)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--variants", nargs="+", default=["demos", "bc"], metavar="VARIANT[:SEEDS]",
+                        help=f"of {', '.join(VARIANTS)}; VARIANT:0,1 trains those seeds only (default: --seeds)")
+    parser.add_argument("--episodes", type=int, default=100, help="demonstration episodes per seed")
+    parser.add_argument("--steps", type=int, default=None, help="env steps of the *demos variants (default 200000)")
+    parser.add_argument("--jobs", type=int, default=1, help="runs trained at once")
+    parser.add_argument("--plots", type=Path, default=RESULTS_DIR, help="folder of the PNG")
+    parser.add_argument("--quick", action="store_true", help="smoke run: seed 0, 5 episodes, 3000 steps")
+    return parser
+
+
+def _jobs(given: Sequence[str], seeds: Sequence[int]) -> list[tuple[str, int]]:
+    """``VARIANT[:s1,s2]`` items -> (variant, seed) pairs."""
+    jobs = []
+    for item in given:
+        name, _, own = item.partition(":")
+        if name not in VARIANTS:
+            raise SystemExit(f"--variants: {name!r} is not one of {', '.join(VARIANTS)}")
+        jobs += [(name, int(s)) for s in own.split(",")] if own else [(name, s) for s in seeds]
+    return jobs
+
+
+def _cli(*args: str, env: dict[str, str]) -> None:
+    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, env=env, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args[:3])} failed: {done.stderr.strip()[-600:]}")
+
+
+def _dataset(folder: Path, env_id: str, seed: int, episodes: int, env: dict[str, str]) -> str:
+    """The seed's demonstrations on ``env_id`` (recorded once): our scripted grasp, or the Panda's
+    (:mod:`benchmarks.learning.panda_pick`)."""
+    name = env_id.split("/")[-1].lower()
+    dataset = f"bench/{name}-scripted-s{seed}-e{episodes}-v0" if env_id != ENV else \
+        f"bench/kuka-pick-scripted-s{seed}-e{episodes}-v0"
+    if not (folder / "datasets" / dataset).exists():
+        if env_id == PANDA:
+            from benchmarks.learning.panda_pick import record
+
+            os.environ["MINARI_DATASETS_PATH"] = env["MINARI_DATASETS_PATH"]
+            record(dataset, episodes, 1000 * seed)
+        else:
+            _cli("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(episodes),
+                 "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
+    return dataset
+
+
+def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, env: dict[str, str]) -> dict[str, Any]:
+    """One run (kept when its folder has a summary already): its row with its curve."""
+    spec = VARIANTS[variant]
+    logs = folder / variant / f"seed{seed}"
+    kept = sorted(logs.rglob("summary.json"))
+    started, trained = time.time(), not kept
+    if trained:
+        flags = [f.format(dataset=dataset) for f in spec.flags]
+        periodic = ("--eval-freq", "-1") if spec.steps <= 100 else ("--eval-freq", "10000", "--eval-episodes", "20")
+        packages = ("--gym-packages", "panda_gym") if spec.env == PANDA else ()
+        _cli("sbagents.train", "--algo", "sac", "--env", spec.env, "-conf", CONFIG, *packages, *flags, "--seed",
+             str(seed), "-n", str(steps), "-f", str(logs), *periodic, "--final-eval-episodes", str(FINAL_EPISODES),
+             "--verbose", "0", env=env)
+        kept = sorted(logs.rglob("summary.json"))
+    run_dir = kept[-1].parent
+    summary = json.loads(kept[-1].read_text())
+    curve = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None
+    steps_at = [int(t) for t in curve["timesteps"]] if curve is not None else []
+    success = [float(s) for s in np.asarray(curve["successes"], dtype=float).mean(axis=1)] if curve is not None \
+        else []
+    first_90 = next((t for t, s in zip(steps_at, success, strict=True) if s >= 0.9), None)
+    return {"variant": variant, "env": spec.env, "seed": seed, "n_timesteps": int(summary["n_timesteps"]),
+            "final_success": float(summary["eval"]["success_rate"]), "final_episodes": FINAL_EPISODES,
+            "final_cost": summary["eval"].get("mean_cost"),
+            "best_eval_success": max(success) if success else None, "first_eval_at_90": first_90,
+            "train_s": float(summary["train_seconds"]), "wall_s": round(time.time() - started, 1) if trained else None,
+            "steps": steps_at, "success": success,
+            "demos": summary.get("demos"), "pretrain": summary.get("pretrain")}
+
+
+def _stored_none() -> list[dict[str, Any]]:
+    """The ``kuka-pick-learning`` run of our env without demonstrations (seed 0, 500k steps), as a row."""
+    path = RESULTS_DIR / "kuka_pick_learning.json"
+    if not path.exists():
+        return []
+    for report in json.loads(path.read_text())["reports"]:
+        for run in report["runs"]:
+            if report["key"] == "pick" and run["label"] == "ours":
+                return [{"variant": "none", "env": ENV, "seed": report["seed"], "n_timesteps": run["n_timesteps"],
+                         "final_success": run["final_success"], "final_episodes": run["final_episodes"],
+                         "best_eval_success": max(s for s in run["success"] if s is not None),
+                         "first_eval_at_90": None, "train_s": run["train_s"], "wall_s": None,
+                         "steps": run["steps"], "success": run["success"], "stored": "kuka-pick-learning"}]
+    return []
+
+
+def run(argv: Sequence[str]) -> dict[str, Any]:
+    """Every (variant, seed) run's row, then each variant's statistics over seeds."""
+    args = build_parser().parse_args(list(argv))
+    if args.quick:  # the plot goes to a scratch folder too
+        args.seeds, args.episodes, args.steps = args.seeds[:1], 5, 3000
+        args.plots = Path(tempfile.mkdtemp(prefix=f"{NAME}-"))
+    folder = args.folder.resolve()
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MINARI_DATASETS_PATH": str(folder / "datasets")}
+    load_before = load_average()
+    jobs = _jobs(args.variants, args.seeds)
+    datasets = {(VARIANTS[v].env, s): _dataset(folder, VARIANTS[v].env, s, args.episodes, env)
+                for v, s in jobs if VARIANTS[v].flags}
+    steps = {v: args.steps if args.steps and v.endswith("demos") else spec.steps for v, spec in VARIANTS.items()}
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        rows = list(pool.map(lambda job: _train(folder, job[0], job[1], datasets.get((VARIANTS[job[0]].env, job[1]),
+                                                                                      ""), steps[job[0]], env), jobs))
+    if not any(v == "none" for v, _ in jobs):
+        rows += _stored_none()
+    for row in rows:
+        print(f"{row['variant']} seed {row['seed']}: final success {row['final_success']:.2f}", file=sys.stderr)
+    variants = [v for v in VARIANTS if any(r["variant"] == v for r in rows)]
+    stats = {v: seed_stats([r["final_success"] for r in rows if r["variant"] == v]) for v in variants}
+    results = {"command": f"python -m benchmarks run {NAME} -f <output dir> --seeds "
+                          f"{' '.join(map(str, args.seeds))} --variants {' '.join(args.variants)} --episodes "
+                          f"{args.episodes} --jobs {args.jobs}" + (f" --steps {args.steps}" if args.steps else ""),
+               "episodes": args.episodes, "steps": {v: steps[v] for v in variants},
+               "envs": {v: VARIANTS[v].env for v in variants},
+               "flags": {v: " ".join(VARIANTS[v].flags) for v in variants},
+               "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()},
+               "rows": rows, "stats": stats}
+    _plot(rows, args.plots / PLOT)
+    return results
+
+
+def _plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """Success (20 greedy episodes) against env steps, one line per run with a curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    colours = {"demos": "tab:blue", "none": "tab:grey", "bc": "tab:blue", "panda-demos": "tab:green",
+               "panda-bc": "tab:green", "robust-demos": "tab:red", "robust-bc": "tab:red"}
+    for row in rows:
+        if row["steps"]:
+            ax.plot(row["steps"], [100 * s for s in row["success"]], color=colours[row["variant"]], alpha=0.8,
+                    label=f"{row['variant']} seed {row['seed']}")
+        elif row["variant"].endswith("bc"):
+            ax.axhline(100 * row["final_success"], color=colours[row["variant"]], ls=":", lw=1)
+    ax.axhline(90, color="black", ls="--", lw=0.8)
+    ax.set(xlabel="env steps", ylabel="success (%)", ylim=(-3, 103), xlim=(0, None),
+           title="Pick-and-place, SAC + HER with 100 scripted demonstrations (dotted: BC alone, final)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}%"
+
+
+def render(results: dict[str, Any]) -> str:
+    """The section: one row per run, each variant's success over seeds, the plot."""
+    m = results["machine"]
+    lines = [
+        "## Kuka pick-and-place from demonstrations (SAC + HER, 100 scripted episodes)",
+        "",
+        f"Command: `{results['command']}`. Per env and seed, {results['episodes']} episodes of the env's scripted "
+        "grasp (`python -m sbagents.collect --policy scripted`; for the Panda, `benchmarks/learning/panda_pick.py`, "
+        "which succeeds in 100 of 100 episodes) are the demonstrations; every variant trains `sac` with "
+        f"`{CONFIG}` (HER, 64-64 networks, batch 256, half a gradient step per env step: the settings of the runs "
+        "without demonstrations in the pick-and-place section above) and ends with "
+        f"{FINAL_EPISODES} greedy episodes (final success and mean episode cost). Flags per variant: "
+        + "; ".join(f"{v} ({results.get('envs', {}).get(v, ENV)}): `{flags or '(none)'}`, "
+                    f"{results['steps'][v]:,} steps" for v, flags in results["flags"].items())
+        + ". The `*bc` variants take no learning step (`learning_starts` 1000 is above their budget). "
+        f"{m['cpu']}, {m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} "
+        "after; two runs trained at once where `--jobs 2`.",
+        "",
+        "| variant | env | seed | steps | final success (50) | cost | best eval (20) | first eval >= 90% | train s |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in results["rows"]:
+        stored = f" (stored: {r['stored']})" if r.get("stored") else ""
+        first = "-" if r["first_eval_at_90"] is None else f"{r['first_eval_at_90']:,}"
+        cost = "-" if r.get("final_cost") is None else f"{r['final_cost']:.2f}"
+        lines.append(f"| {r['variant']}{stored} | {r.get('env', ENV)} | {r['seed']} | {r['n_timesteps']:,} | "
+                     f"{_pct(r['final_success'])} | {cost} | {_pct(r['best_eval_success'])} | {first} | "
+                     f"{r['train_s']:.0f} |")
+    lines.append("")
+    for variant, st in results["stats"].items():
+        interval = f", IQM {format_iqm(st, '.2f')}" if st["n"] > 1 else ""
+        lines.append(f"- {variant}: final success {format_mean_std(st, '.2f')} over {st['n']} seed(s){interval}.")
+    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable).", "",
+              f"![success vs steps](benchmarks/results/{PLOT})"]
+    return "\n".join(lines)
+
+
+BENCHMARKS = (
+    Benchmark(name=NAME, kind="learning", results="kuka_pick_demos.json",
+              summary="Kuka pick-and-place from 100 scripted demonstrations (SAC + HER + BC) vs BC alone, over seeds",
+              run=run, render=render),
+)

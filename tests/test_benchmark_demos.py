@@ -1,0 +1,47 @@
+"""The learning-from-demonstrations benchmarks on tiny budgets: ``kuka-pick-demos`` (SAC + HER with demonstrations and
+behaviour cloning alone, kept runs reused), ``dqn-demos`` (demonstration replay and DQfD's margin loss) and the scripted
+Panda grasp that gives panda-gym's pick-and-place its demonstrations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("minari", reason="needs Minari: pip install -e '.[test]' (or the data extra)")
+
+
+def test_kuka_pick_demos_quick_run_keeps_finished_runs(tmp_path: Path) -> None:
+    from benchmarks.learning.kuka_pick_demos import render, run
+
+    results = run(["-f", str(tmp_path), "--quick", "--variants", "demos", "bc"])
+    rows = {r["variant"]: r for r in results["rows"]}
+    assert set(rows) == {"demos", "bc", "none"}  # none: the stored kuka-pick-learning run
+    assert rows["demos"]["n_timesteps"] == 3000 and rows["demos"]["demos"]["transitions"] == 250  # 5 x 50 steps
+    assert rows["bc"]["pretrain"]["n_train"] + rows["bc"]["pretrain"]["n_holdout"] == 250
+    assert all(0 <= r["final_success"] <= 1 for r in rows.values())
+    section = render(results)
+    assert "| demos | sbagents/KukaPickAndPlace-v0 | 0 | 3,000 |" in section
+    again = run(["-f", str(tmp_path), "--quick", "--variants", "demos"])  # kept: read, not trained again
+    assert again["rows"][0]["wall_s"] is None and again["rows"][0]["final_success"] == rows["demos"]["final_success"]
+    with pytest.raises(SystemExit, match="'nope' is not one of"):
+        run(["-f", str(tmp_path), "--quick", "--variants", "nope"])
+
+
+def test_dqn_demos_quick_run() -> None:
+    from benchmarks.learning.dqn_demos import render, run
+
+    results = run(["--quick"])
+    assert {(r["env"], r["variant"]) for r in results["rows"]} == {
+        (env, variant) for env in ("sbagents/GridWorld-v0", "sbagents/HazardGridWorld-v0")
+        for variant in ("none", "replay", "margin")}
+    assert "| sbagents/GridWorld-v0 | 600 | margin |" in render(results)
+
+
+def test_the_scripted_panda_grasp_succeeds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("panda_gym", reason="the Panda variants need panda-gym: pip install panda-gym")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    from benchmarks.learning.panda_pick import record
+
+    assert record("bench/panda-v0", 5, 0) == 1.0
+    assert (tmp_path / "bench" / "panda-v0").is_dir()

@@ -5,6 +5,7 @@ is one line (exit 2, no run dir left)."""
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 
@@ -121,6 +122,7 @@ def test_the_demo_class_follows_the_buffer_the_model_would_use() -> None:
     box = spaces.Box(-1, 1, (2,))
     assert type(DemoReplayBuffer(8, spaces.Dict({"a": box}), box)) is DemoDictReplayBuffer  # as SB3 picks the class
     assert type(DemoReplayBuffer(8, box, box)) is DemoReplayBuffer
+    assert type(copy.deepcopy(DemoReplayBuffer(8, box, box))) is DemoReplayBuffer
 
 
 def test_the_q_filter_keeps_only_demonstrations_the_critic_values_higher() -> None:
@@ -213,3 +215,20 @@ def test_bad_demonstrations_are_one_line_and_leave_no_run(datasets: Path, tmp_pa
                          "sbagents/grid-expert-v0", *common), capsys.readouterr().err,
                 "--demos sbagents/grid-expert-v0: its observation space Discrete(25) is not the env's Discrete(35)")
     assert not logs.exists() or not any(logs.rglob("*.yml"))  # no run dir was left behind
+
+
+@pytest.mark.parametrize(("algo", "env", "expert"), [("tqc", "SmartHome-v0", "home"), ("td3", "SmartHome-v0", "home"),
+                                                     ("ddpg", "SmartHome-v0", "home"),
+                                                     ("qrdqn", "GridWorld-v0", "grid")])
+def test_every_declared_algorithm_learns_with_demonstrations_and_its_loss(algo: str, env: str, expert: str,
+                                                                          datasets: Path, tmp_path: Path) -> None:
+    """TQC's quantile critics, TD3's and DDPG's twin or single critic behind the Q-filter; QR-DQN's quantiles in the
+    margin loss (with DQN's GridWorld entry: QR-DQN's own file has Atari entries only)."""
+    collect(env, f"sbagents/{expert}-expert-v0", 2)
+    logs = tmp_path / "logs"
+    config = ("-conf", str(Path(sbagents.__file__).parent / "zoo_configs" / "dqn.yml")) if algo == "qrdqn" else ()
+    assert run_main("train", "--algo", algo, "--env", env, *config, "--demos", f"sbagents/{expert}-expert-v0",
+                    "--demo-bc", "1", "--demo-filter-after", "10", "-n", "300", "-params", "learning_starts:100",
+                    "batch_size:32", "-f", str(logs), *QUIET) == 0
+    demos = run_summary(logs)["demos"]
+    assert isinstance(demos, dict) and demos["loss_steps"] > 10 and 0 <= demos["loss_kept"] <= 1

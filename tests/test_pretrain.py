@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from cli_helpers import check_error, run_main
 
 import sbagents  # noqa: F401 (registers the env ids)
@@ -118,3 +121,21 @@ def test_bad_datasets_are_one_line_and_leave_no_run(datasets: Path, tmp_path: Pa
     check_error(run_main("train", "--algo", "ppo", "--env", "GridWorld-v0", "--pretrain", "sbagents/grid-expert-v0",
                          *common), capsys.readouterr().err, "--pretrain sbagents/grid-expert-v0: cannot")
     assert not logs.exists() or not any(logs.rglob("*.yml"))  # no run dir was left behind
+
+
+def test_qrdqn_clones_its_quantile_network_and_its_target(datasets: Path, tmp_path: Path) -> None:
+    """QR-DQN's values live in ``quantile_net`` (not ``q_net``): the cloned greedy policy walks the expert's path, and
+    the target network starts as the clone (DQN's GridWorld entry: QR-DQN's own file has Atari entries only)."""
+    from sbagents.datasets.cloning import _sync_targets, q_network
+
+    collect("GridWorld-v0", "sbagents/grid-expert-v0", 10)
+    logs = tmp_path / "logs"
+    config = str(Path(sbagents.__file__).parent / "zoo_configs" / "dqn.yml")
+    assert run_main("train", "--algo", "qrdqn", "--env", "GridWorld-v0", "-conf", config, "--pretrain",
+                    "sbagents/grid-expert-v0", "--pretrain-steps", "300", "-n", "64", "-f", str(logs), *QUIET) == 0
+    assert pretrained(logs, "qrdqn")["eval_return"] == 93.0
+
+    model: Any = SimpleNamespace(quantile_net=torch.nn.Linear(2, 2), quantile_net_target=torch.nn.Linear(2, 2))
+    assert q_network(model) is model.quantile_net
+    _sync_targets(model)
+    assert torch.equal(model.quantile_net.weight, model.quantile_net_target.weight)

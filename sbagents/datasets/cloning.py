@@ -73,7 +73,7 @@ def _loss(model: BaseAlgorithm) -> tuple[Callable[[Any, torch.Tensor], torch.Ten
             return torch.nn.functional.mse_loss(taken, actions)
 
         return deterministic, list(actor.parameters())
-    q_net = getattr(model, "q_net", None)
+    q_net = q_network(model)
     if q_net is not None and isinstance(model.action_space, spaces.Discrete):
         def q_logits(obs: Any, actions: torch.Tensor) -> torch.Tensor:
             values = q_net(obs)
@@ -83,6 +83,11 @@ def _loss(model: BaseAlgorithm) -> tuple[Callable[[Any, torch.Tensor], torch.Ten
 
         return q_logits, list(q_net.parameters())
     raise UsageError(f"--pretrain does not know how to clone a {type(model).__name__} policy")
+
+
+def q_network(model: BaseAlgorithm) -> Any:
+    """The network of a Q-learning model's values (DQN's ``q_net``, QR-DQN's ``quantile_net``; None for others)."""
+    return getattr(model, "q_net", None) or getattr(model, "quantile_net", None)
 
 
 def _scaled(model: BaseAlgorithm, actions: np.ndarray) -> np.ndarray:
@@ -152,7 +157,8 @@ def _update_statistics(venv: VecNormalize, observations: Any) -> None:
 
 
 def _sync_targets(model: BaseAlgorithm) -> None:
-    """Copy the cloned networks into their targets (TD3, DDPG: the actor; DQN: the Q-network)."""
-    for net, target in (("actor", "actor_target"), ("q_net", "q_net_target")):
+    """Copy the cloned networks into their targets (TD3, DDPG: the actor; DQN: the Q-network; QR-DQN: the quantile
+    network)."""
+    for net, target in (("actor", "actor_target"), ("q_net", "q_net_target"), ("quantile_net", "quantile_net_target")):
         if getattr(model, target, None) is not None and getattr(model, net, None) is not None:
             getattr(model, target).load_state_dict(getattr(model, net).state_dict())

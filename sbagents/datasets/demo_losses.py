@@ -27,7 +27,7 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from sbagents.datasets.cloning import Transitions, as_tensors
+from sbagents.datasets.cloning import Transitions, as_tensors, q_network
 from sbagents.errors import UsageError
 
 #: DQfD's margin between the demonstrated action's value and every other's.
@@ -60,7 +60,7 @@ def margin_loss(model: OffPolicyAlgorithm, obs: Any, actions: torch.Tensor, q_fi
     :param actions: demonstrated actions ``(batch,)`` (integers).
     :param q_filter: unused (DQfD's loss has no filter).
     """
-    values = model.q_net(obs)  # type: ignore[attr-defined]
+    values = q_network(model)(obs)
     if values.dim() == 3:  # QR-DQN: (batch, n_quantiles, actions)
         values = values.mean(dim=1)
     demo = values.gather(1, actions.long().reshape(-1, 1)).squeeze(1)

@@ -66,7 +66,8 @@ class DemoReplayBuffer(DemoMixin, ReplayBuffer):
 
     base_class = ReplayBuffer
 
-    def __new__(cls, buffer_size: int, observation_space: spaces.Space[Any], *args: Any, **kwargs: Any) -> Any:
+    def __new__(cls, buffer_size: int = 0, observation_space: spaces.Space[Any] | None = None, *args: Any,
+                **kwargs: Any) -> Any:  # defaults: copy and pickle call __new__ without arguments
         if cls is DemoReplayBuffer and isinstance(observation_space, spaces.Dict):
             return DemoDictReplayBuffer(buffer_size, observation_space, *args, **kwargs)
         return super().__new__(cls)

@@ -214,6 +214,9 @@ def test_bad_demonstrations_are_one_line_and_leave_no_run(datasets: Path, tmp_pa
     check_error(run_main("train", "--algo", "dqn", "--env", "HazardGridWorld-v0", "--demos",
                          "sbagents/grid-expert-v0", *common), capsys.readouterr().err,
                 "--demos sbagents/grid-expert-v0: its observation space Discrete(25) is not the env's Discrete(35)")
+    (datasets / "sbagents" / "grid-expert-v0" / "data" / "main_data.hdf5").write_bytes(b"not hdf5")  # damaged
+    check_error(run_main("train", "--algo", "dqn", "--env", "GridWorld-v0", "--demos", "sbagents/grid-expert-v0",
+                         *common), capsys.readouterr().err, "--demos sbagents/grid-expert-v0: cannot")
     assert not logs.exists() or not any(logs.rglob("*.yml"))  # no run dir was left behind
 
 

@@ -164,3 +164,10 @@ def section_text(text: str, name: str) -> str:
     assert text.count(start) == 1 and text.count(end) == 1, f"markers of {name} missing or repeated"
     return text[text.index(start) + len(start) : text.index(end)]
 
+
+
+def collect_expert(env: str, dataset: str, episodes: int) -> None:
+    """``python -m sbagents.collect`` of ``episodes`` episodes of ``env``'s scripted expert into ``dataset`` (no
+    reference scores)."""
+    assert run_main("collect", "--env", env, "--policy", "scripted", "--episodes", str(episodes), "--dataset",
+                    dataset, "--ref-episodes", "0") == 0

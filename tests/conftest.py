@@ -9,6 +9,7 @@ quick loop skips the few long tests: ``python -m pytest -n auto --dist loadfile 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import torch
@@ -38,3 +39,11 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
         return int(override)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(MAX_AUTO_WORKERS, cores))
+
+
+@pytest.fixture
+def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A fresh Minari datasets root for the test (``MINARI_DATASETS_PATH``)."""
+    root = tmp_path / "datasets"
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
+    return root

@@ -13,13 +13,6 @@ from cli_helpers import check_error, run_main
 minari = pytest.importorskip("minari", reason="needs Minari: pip install -e '.[test]' (or the data extra)")
 
 
-@pytest.fixture
-def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    root = tmp_path / "datasets"
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
-    return root
-
-
 def test_the_experts_episodes_load_with_minari(datasets: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert run_main("collect", "--env", "HazardGridWorld-v0", "--policy", "scripted", "--episodes", "3", "--dataset",
                     "sbagents/hazard-expert-v0", "--ref-episodes", "3") == 0

@@ -20,13 +20,6 @@ minari = pytest.importorskip("minari", reason="needs Minari: pip install -e '.[t
 QUIET = ("--verbose", "0", "--eval-freq", "-1", "--final-eval-episodes", "2", "--seed", "0")
 
 
-@pytest.fixture
-def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    root = tmp_path / "datasets"
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
-    return root
-
-
 def logged_run(tmp_path: Path, algo: str, env: str, steps: int, *extra: str) -> Path:
     logs = tmp_path / "logs"
     assert run_main("train", "--algo", algo, "--env", env, "-n", str(steps), "-f", str(logs), "--transparency-log",

@@ -15,13 +15,6 @@ import sbagents  # noqa: F401 (registers the env ids)
 minari = pytest.importorskip("minari", reason="needs Minari: pip install -e '.[test]' (or the data extra)")
 
 
-@pytest.fixture
-def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    root = tmp_path / "datasets"
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
-    return root
-
-
 def test_the_greedy_team_is_recorded_per_agent_and_cloned(datasets: Path, tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     """TreasureHunt's greedy team (3 agents, all 5 treasures in every episode) with the egocentric observation the

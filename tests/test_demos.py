@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_helpers import check_error, run_main
+from cli_helpers import check_error, collect_expert, run_main
 from stable_baselines3 import DQN, SAC
 from stable_baselines3.common.envs import BitFlippingEnv
 from stable_baselines3.common.vec_env import DummyVecEnv
@@ -32,18 +32,6 @@ from sbagents.errors import UsageError
 minari = pytest.importorskip("minari", reason="needs Minari: pip install -e '.[test]' (or the data extra)")
 QUIET = ("--verbose", "0", "--eval-freq", "-1", "--final-eval-episodes", "5", "--seed", "0")
 N_BITS = 4
-
-
-@pytest.fixture
-def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    root = tmp_path / "datasets"
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
-    return root
-
-
-def collect(env: str, dataset: str, episodes: int) -> None:
-    assert run_main("collect", "--env", env, "--policy", "scripted", "--episodes", str(episodes), "--dataset",
-                    dataset, "--ref-episodes", "0") == 0
 
 
 def run_summary(logs: Path) -> dict[str, object]:
@@ -159,7 +147,7 @@ def test_the_margin_loss_is_zero_only_when_the_demonstrated_action_leads_by_the_
 # --- the command ------------------------------------------------------------------------------------------------
 def test_dqn_with_demonstrations_and_the_margin_loss_solves_the_grid(datasets: Path, tmp_path: Path,
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    collect("GridWorld-v0", "sbagents/grid-expert-v0", 10)
+    collect_expert("GridWorld-v0", "sbagents/grid-expert-v0", 10)
     logs = tmp_path / "logs"
     assert run_main("train", "--algo", "dqn", "--env", "GridWorld-v0", "--demos", "sbagents/grid-expert-v0",
                     "--demo-bc", "1", "-n", "2000", "-f", str(logs), *QUIET) == 0
@@ -175,7 +163,7 @@ def test_dqn_with_demonstrations_and_the_margin_loss_solves_the_grid(datasets: P
 def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(datasets: Path, tmp_path: Path) -> None:
     """SmartHome's expert as demonstrations with the Q-filtered BC loss; the saved buffer holds only the model's own
     transitions; ``-i`` continues with the demonstrations read again, and ``evaluate`` loads the model."""
-    collect("SmartHome-v0", "sbagents/home-expert-v0", 3)
+    collect_expert("SmartHome-v0", "sbagents/home-expert-v0", 3)
     logs = tmp_path / "logs"
     common = ("--algo", "sac", "--env", "SmartHome-v0", "--demos", "sbagents/home-expert-v0", "--demo-bc", "0.5",
               "--demo-ratio", "0.5", "--demo-filter-after", "50", "-params", "learning_starts:100", "batch_size:32",
@@ -199,7 +187,7 @@ def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(dataset
 
 def test_bad_demonstrations_are_one_line_and_leave_no_run(datasets: Path, tmp_path: Path,
                                                          capsys: pytest.CaptureFixture[str]) -> None:
-    collect("GridWorld-v0", "sbagents/grid-expert-v0", 2)
+    collect_expert("GridWorld-v0", "sbagents/grid-expert-v0", 2)
     logs = tmp_path / "logs"
     common = ("-n", "64", "-f", str(logs), *QUIET)
     capsys.readouterr()
@@ -227,7 +215,7 @@ def test_every_declared_algorithm_learns_with_demonstrations_and_its_loss(algo: 
                                                                           datasets: Path, tmp_path: Path) -> None:
     """TQC's quantile critics, TD3's and DDPG's twin or single critic behind the Q-filter; QR-DQN's quantiles in the
     margin loss (with DQN's GridWorld entry: QR-DQN's own file has Atari entries only)."""
-    collect(env, f"sbagents/{expert}-expert-v0", 2)
+    collect_expert(env, f"sbagents/{expert}-expert-v0", 2)
     logs = tmp_path / "logs"
     config = ("-conf", str(Path(sbagents.__file__).parent / "zoo_configs" / "dqn.yml")) if algo == "qrdqn" else ()
     assert run_main("train", "--algo", algo, "--env", env, *config, "--demos", f"sbagents/{expert}-expert-v0",

@@ -14,25 +14,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from cli_helpers import check_error, run_main
+from cli_helpers import check_error, collect_expert, run_main
 
 import sbagents  # noqa: F401 (registers the env ids)
 from sbagents.baselines.experts import ComfortController
 
 minari = pytest.importorskip("minari", reason="needs Minari: pip install -e '.[test]' (or the data extra)")
 QUIET = ("--verbose", "0", "--eval-freq", "-1", "--final-eval-episodes", "5", "--seed", "0")
-
-
-@pytest.fixture
-def datasets(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    root = tmp_path / "datasets"
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
-    return root
-
-
-def collect(env: str, dataset: str, episodes: int) -> None:
-    assert run_main("collect", "--env", env, "--policy", "scripted", "--episodes", str(episodes), "--dataset",
-                    dataset, "--ref-episodes", "0") == 0
 
 
 def pretrained(logs: Path, algo: str) -> dict[str, object]:
@@ -44,7 +32,7 @@ def pretrained(logs: Path, algo: str) -> dict[str, object]:
 @pytest.mark.parametrize("algo", ["ppo", "dqn"])
 def test_cloning_the_grid_expert_reaches_its_return_before_rl(algo: str, datasets: Path, tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
-    collect("GridWorld-v0", "sbagents/grid-expert-v0", 10)
+    collect_expert("GridWorld-v0", "sbagents/grid-expert-v0", 10)
     logs = tmp_path / "logs"
     assert run_main("train", "--algo", algo, "--env", "GridWorld-v0", "--pretrain", "sbagents/grid-expert-v0",
                     "--pretrain-steps", "300", "-n", "64", "-f", str(logs), *QUIET) == 0
@@ -61,7 +49,7 @@ def test_cloning_the_grid_expert_reaches_its_return_before_rl(algo: str, dataset
 def test_cloning_the_smart_home_expert_keeps_most_of_its_return(algo: str, datasets: Path, tmp_path: Path) -> None:
     """Continuous actions, normalized observations where the entry says so (PPO): the clone's return is far above
     random play's (-1,598) and near the expert's (-6.6 over 100 episodes)."""
-    collect("SmartHome-v0", "sbagents/home-expert-v0", 20)
+    collect_expert("SmartHome-v0", "sbagents/home-expert-v0", 20)
     logs = tmp_path / "logs"
     assert run_main("train", "--algo", algo, "--env", "SmartHome-v0", "--pretrain", "sbagents/home-expert-v0",
                     "--pretrain-steps", "1500", "-n", "64", "-f", str(logs), *QUIET,
@@ -103,7 +91,7 @@ def test_a_dataset_minari_wrote_itself_trains(datasets: Path, tmp_path: Path) ->
 
 def test_bad_datasets_are_one_line_and_leave_no_run(datasets: Path, tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    collect("GridWorld-v0", "sbagents/grid-expert-v0", 2)
+    collect_expert("GridWorld-v0", "sbagents/grid-expert-v0", 2)
     data = datasets / "sbagents" / "grid-expert-v0" / "data" / "main_data.hdf5"
     logs = tmp_path / "logs"
     common = ("-n", "64", "-f", str(logs), *QUIET)
@@ -128,7 +116,7 @@ def test_qrdqn_clones_its_quantile_network_and_its_target(datasets: Path, tmp_pa
     the target network starts as the clone (DQN's GridWorld entry: QR-DQN's own file has Atari entries only)."""
     from sbagents.datasets.cloning import _sync_targets, q_network
 
-    collect("GridWorld-v0", "sbagents/grid-expert-v0", 10)
+    collect_expert("GridWorld-v0", "sbagents/grid-expert-v0", 10)
     logs = tmp_path / "logs"
     config = str(Path(sbagents.__file__).parent / "zoo_configs" / "dqn.yml")
     assert run_main("train", "--algo", "qrdqn", "--env", "GridWorld-v0", "-conf", config, "--pretrain",

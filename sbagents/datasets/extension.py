@@ -209,9 +209,12 @@ class DemosExtension(TrainingExtension[DemoSpec]):
         from sbagents.datasets.reading import load_episodes, transitions_of
 
         model = ctx.model
-        assert isinstance(model, OffPolicyAlgorithm) and isinstance(model.replay_buffer, DemoMixin)
+        if not isinstance(model, OffPolicyAlgorithm):
+            raise UsageError(f"--demos needs an off-policy model, not a {type(model).__name__}")
         episodes = load_episodes(spec.dataset, model.observation_space, model.action_space, flag="--demos")
-        model.replay_buffer.attach_demos(demo_buffer(model, episodes), spec.ratio)
+        demos = demo_buffer(model, episodes)  # one line when the model's buffer does not mix demonstrations
+        assert isinstance(model.replay_buffer, DemoMixin)
+        model.replay_buffer.attach_demos(demos, spec.ratio)
         item: dict[str, Any] = {"dataset": spec.dataset, "episodes": len(episodes),
                                 "transitions": sum(len(e) for e in episodes), "ratio": spec.ratio,
                                 "bc_weight": spec.bc_weight}

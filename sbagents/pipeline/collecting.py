@@ -106,19 +106,18 @@ def collect(options: CollectOptions, *, env: EnvRef | None = None, policy: str |
                        description=f"{options.episodes} episodes of {ref.env_id} played by {algorithm}, recorded by "
                                    f"python -m sbagents.collect (reset seeds {options.seed}..."
                                    f"{options.seed + options.episodes - 1}){recorded.layout}")
-    per = len(recorded.episodes) // options.episodes
-    seeds = [options.seed + i // per for i in range(len(recorded.episodes))]
-    return write_dataset(options.dataset, recorded.episodes, seeds, recorded.env, info, recorded.observation_space,
-                         recorded.action_space), len(recorded.episodes)
+    return write_dataset(options.dataset, recorded.episodes, recorded.seeds, recorded.env, info,
+                         recorded.observation_space, recorded.action_space), len(recorded.episodes)
 
 
 @dataclass(frozen=True)
 class Recorded:
-    """What a kind recorded: the episodes, their spaces, the env Minari records (its id; None where Gymnasium cannot
-    make it: a team, whose dataset then has no reference scores, which Minari keeps only with an env spec) and a note
-    on the layout for the dataset's description."""
+    """What a kind recorded: the episodes and each one's reset seed, their spaces, the env Minari records (its id; None
+    where Gymnasium cannot make it: a team, whose dataset then has no reference scores, which Minari keeps only with an
+    env spec) and a note on the layout for the dataset's description."""
 
     episodes: list[EpisodeRecorder]
+    seeds: list[int]
     observation_space: Any
     action_space: Any
     env: str | None
@@ -135,7 +134,8 @@ def _collect_kind(kind: EnvKind, exp: Experiment, ref: EnvRef, actor_for: Callab
         episodes = _record(venv, norm, actor_for(venv), options)
     finally:
         venv.close()
-    return Recorded(episodes, venv.observation_space, venv.action_space, ref.env_id)
+    seeds = [options.seed + i for i in range(len(episodes))]
+    return Recorded(episodes, seeds, venv.observation_space, venv.action_space, ref.env_id)
 
 
 @_collect_kind.register
@@ -152,12 +152,13 @@ def _team_collect_kind(kind: TeamKind, exp: Experiment, ref: EnvRef, actor_for: 
     norm = normalize_for_eval(venv, exp, stats, trust)
     try:
         agents = slot_agents(venv, group)
-        episodes = _record_team(venv, norm if isinstance(norm, VecNormalize) else None, actor_for(venv), options)
+        episodes, seeds = _record_team(venv, norm if isinstance(norm, VecNormalize) else None, actor_for(venv),
+                                       options)
     finally:
         venv.close()
     layout = (f"; multi-agent layout: each team episode is {len(agents)} consecutive episodes, one per agent in the "
               f"order {', '.join(agents)}")
-    return Recorded(episodes, venv.observation_space, venv.action_space, None, layout)
+    return Recorded(episodes, seeds, venv.observation_space, venv.action_space, None, layout)
 
 
 @_collect_kind.register
@@ -227,13 +228,15 @@ def _record(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: Col
 
 
 def _record_team(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options: CollectOptions
-                 ) -> list[EpisodeRecorder]:
+                 ) -> tuple[list[EpisodeRecorder], list[int]]:
     """Play team episodes on ``venv`` (one copy of a team of one group; team episode ``i`` reset with
     ``options.seed + i``): per team episode, every slot's agent's steps while it acted (``ACTED``), its own episode
-    ending at its ``done`` (an agent still present when the team's episode ends is truncated there)."""
+    ending at its ``done`` (an agent still present when the team's episode ends is truncated there); the episodes
+    and each one's reset seed."""
     assert options.episodes is not None
     reporter = ProgressReporter(options.episodes, bar=options.progress)
     episodes: list[EpisodeRecorder] = []
+    seeds: list[int] = []
     n = venv.num_envs
     try:
         for i in range(options.episodes):
@@ -261,11 +264,13 @@ def _record_team(venv: VecEnv, norm: VecNormalize | None, actor: Policy, options
             for k, recorder in enumerate(recorders):
                 if recorder.actions and not ended[k]:
                     recorder.truncations[-1] = True
-            episodes += [recorder for recorder in recorders if recorder.actions]
+            played = [recorder for recorder in recorders if recorder.actions]
+            episodes += played
+            seeds += [options.seed + i] * len(played)
             reporter.update(i + 1)
     finally:
         reporter.close()
-    return episodes
+    return episodes, seeds
 
 
 def _reference_scores(ref: EnvRef, options: CollectOptions, env_kwargs: dict[str, Any] | None

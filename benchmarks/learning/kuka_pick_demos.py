@@ -16,7 +16,8 @@ Per seed: ``python -m sbagents.collect --policy scripted`` records the demonstra
 
 Every run ends with 50 greedy episodes (the success rate in the table); ``demos`` and ``none`` also evaluate 20
 greedy episodes every 10k steps (the curves). Runs that finished are kept (a ``summary.json`` in their folder): run
-the command again to add seeds or variants. ``--jobs 2`` trains two runs at once::
+the command again to add seeds or variants; a run that learns saves a checkpoint with its replay buffer every 50k
+steps (continue one by hand with ``train ... -i <its checkpoint>``). ``--jobs 2`` trains two runs at once::
 
     python -m benchmarks run kuka-pick-demos -f OUT [--seeds 0 1 2] [--variants demos bc panda-demos:0] [--jobs 2]
 """
@@ -129,7 +130,8 @@ def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, env:
     started, trained = time.time(), not kept
     if trained:
         flags = [f.format(dataset=dataset) for f in spec.flags]
-        periodic = ("--eval-freq", "-1") if spec.steps <= 100 else ("--eval-freq", "10000", "--eval-episodes", "20")
+        periodic = ("--eval-freq", "-1") if spec.steps <= 100 else (
+            "--eval-freq", "10000", "--eval-episodes", "20", "--save-freq", "50000", "--save-replay-buffer")
         packages = ("--gym-packages", "panda_gym") if spec.env == PANDA else ()
         _cli("sbagents.train", "--algo", "sac", "--env", spec.env, "-conf", CONFIG, *packages, *flags, "--seed",
              str(seed), "-n", str(steps), "-f", str(logs), *periodic, "--final-eval-episodes", str(FINAL_EPISODES),

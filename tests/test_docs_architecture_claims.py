@@ -79,7 +79,8 @@ def test_what_core_and_extensions_import_is_what_the_doc_says() -> None:
 
 def test_what_the_pipeline_imports_of_the_training_extensions() -> None:
     """Only the names the doc lists: the trust extension's parsers (trust.py), the replay package's buffer files
-    (training.py) and the datasets' writer (collecting.py, not training); no DP, robust, constrained or cloning code,
+    (training.py) and the datasets' writer and log reader (collecting.py, not training); no DP, robust, constrained,
+    cloning or demonstration code,
     and runs of one model per group name no extension."""
     from sbagents.registration import TRAINING_EXTENSIONS
 
@@ -93,7 +94,7 @@ def test_what_the_pipeline_imports_of_the_training_extensions() -> None:
             found[path.name] = hits
     assert found == {"training.py": {"sbagents.replay.buffer_files"},
                      "trust.py": {"sbagents.callbacks.extension"},
-                     "collecting.py": {"sbagents.datasets.writing"}}
+                     "collecting.py": {"sbagents.datasets.writing", "sbagents.datasets.logs"}}
 
 
 def test_one_training_path_for_one_model_or_one_per_group() -> None:
@@ -124,7 +125,8 @@ def test_the_extensions_that_refuse_group_runs() -> None:
     from sbagents.extensions import registered_extensions
 
     refuse = {e.name for e in registered_extensions() if not e.group_runs and e.__module__.startswith("sbagents.")}
-    assert refuse == {"privacy", "robust", "constraint", "pretrain"}  # the doc: DP, robust, constrained, cloning
+    assert refuse == {"privacy", "robust", "constraint", "pretrain", "demos"}  # the doc: DP, robust, constrained,
+    # cloning, demonstrations
 
 
 def test_the_count_of_kind_tests() -> None:

@@ -36,6 +36,7 @@ BEFORE = {
     "robust:sa+adv": ("ddpg", "td3"),
     "constrained": ("ppo", "sac"),
     "pretrain": ("a2c", "ppo", "trpo", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # added with --pretrain
+    "demos": ("sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # added with --demos
     "federated": ("a2c", "ppo", "ddpg", "td3", "sac"),
     "centralized_critic": ("a2c", "ppo"),
     "rllib": ("ppo",),

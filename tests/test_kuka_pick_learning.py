@@ -20,8 +20,9 @@ OURS, PANDA = learning_speed.OURS, learning_speed.PANDA
 
 def test_pick_pair_shares_its_hyperparameters() -> None:
     data = load_yaml(CONF)
-    assert set(data) == {OURS, PANDA}
-    assert data[OURS] == data[PANDA]  # no env_kwargs: both envs' defaults are panda-gym's workspace
+    assert set(data) == {OURS, PANDA, "sbagents/RobustKukaPickAndPlace-v0"}  # the robust env: kuka-pick-demos
+    assert data[OURS] == data[PANDA] == data["sbagents/RobustKukaPickAndPlace-v0"]  # no env_kwargs: panda-gym's
+    # workspace is both envs' default
     exp = resolve("sac", OURS, dict(data[OURS]), "kuka_pick.yml")
     assert exp.n_timesteps == 500_000 and exp.n_envs == 2 and exp.policy == "MultiInputPolicy"
     assert exp.algo_kwargs["replay_buffer_class"] is HerReplayBuffer

@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import os
 import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -144,3 +146,14 @@ def save_figure(fig: Any, path: str | os.PathLike[str], dpi: float | None = None
     finally:
         tmp.unlink(missing_ok=True)
         plt.close(fig)
+
+
+def run_module(*args: str, env: dict[str, str]) -> str:
+    """``python -m <args>`` in this interpreter with ``env``; its standard output.
+
+    :raises RuntimeError: it failed (the message ends with its standard error's last 600 characters).
+    """
+    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, env=env, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args[:3])} failed: {done.stderr.strip()[-600:]}")
+    return done.stdout

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -24,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import load_average, machine_info
+from benchmarks.report import load_average, machine_info, run_module
 from benchmarks.stats import format_iqm, format_mean_std, seed_stats
 
 NAME = "bc-references"
@@ -42,26 +41,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _cli(*args: str, env: dict[str, str]) -> str:
-    out = subprocess.run([sys.executable, "-m", *args], check=True, capture_output=True, text=True, env=env)
-    return out.stdout
-
-
 def _evaluate(env_id: str, policy: str, seed: int, env: dict[str, str]) -> float:
-    out = _cli("sbagents.evaluate", "--policy", policy, "--env", env_id, "-n", str(EVAL_EPISODES), "--seed",
-               str(seed), "--json", env=env)
+    out = run_module("sbagents.evaluate", "--policy", policy, "--env", env_id, "-n", str(EVAL_EPISODES), "--seed",
+                     str(seed), "--json", env=env)
     return float(json.loads(out.strip().splitlines()[-1])["mean_return"])
 
 
 def _one(env_id: str, algo: str, seed: int, episodes: int, work: Path) -> dict[str, Any]:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MINARI_DATASETS_PATH": str(work / "datasets")}
     dataset = f"bench/{env_id.split('/')[-1].lower()}-expert-s{seed}-v0"
-    _cli("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(episodes), "--dataset",
-         dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
+    run_module("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(episodes),
+               "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
     logs = work / f"logs_{env_id.split('/')[-1]}_{seed}"
-    _cli("sbagents.train", "--algo", algo, "--env", env_id, "--pretrain", dataset, "--seed", str(seed), "-n", "100",
-         "-f", str(logs), "--eval-freq", "-1", "--final-eval-episodes", str(EVAL_EPISODES), "--verbose", "0",
-         "-params", "learning_starts:1000", env=env)
+    run_module("sbagents.train", "--algo", algo, "--env", env_id, "--pretrain", dataset, "--seed", str(seed), "-n",
+               "100", "-f", str(logs), "--eval-freq", "-1", "--final-eval-episodes", str(EVAL_EPISODES), "--verbose",
+               "0", "-params", "learning_starts:1000", env=env)
     (summary_file,) = logs.rglob("summary.json")
     summary = json.loads(summary_file.read_text())
     item = summary["pretrain"]

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -23,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import load_average, machine_info
+from benchmarks.report import load_average, machine_info, run_module
 from benchmarks.stats import format_iqm, seed_stats
 
 NAME = "dqn-demos"
@@ -42,18 +41,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _cli(*args: str, env: dict[str, str]) -> None:
-    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, env=env, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(args[:3])} failed: {done.stderr.strip()[-600:]}")
-
-
 def _one(env_id: str, variant: str, seed: int, steps: int, dataset: str, work: Path, env: dict[str, str]
          ) -> dict[str, Any]:
     logs = work / f"{env_id.split('/')[-1]}_{variant}_{seed}_{steps}"
     flags = [f.format(dataset=dataset) for f in VARIANTS[variant]]
-    _cli("sbagents.train", "--algo", "dqn", "--env", env_id, *flags, "--seed", str(seed), "-n", str(steps), "-f",
-         str(logs), "--eval-freq", "-1", "--final-eval-episodes", str(EVAL_EPISODES), "--verbose", "0", env=env)
+    run_module("sbagents.train", "--algo", "dqn", "--env", env_id, *flags, "--seed", str(seed), "-n", str(steps), "-f",
+               str(logs), "--eval-freq", "-1", "--final-eval-episodes", str(EVAL_EPISODES), "--verbose", "0", env=env)
     (summary_file,) = logs.rglob("summary.json")
     summary = json.loads(summary_file.read_text())
     return {"env": env_id, "variant": variant, "seed": seed, "steps": steps,
@@ -73,8 +66,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     for env_id in ENVS:
         for seed in args.seeds:
             dataset = f"bench/{env_id.split('/')[-1].lower()}-expert-s{seed}-v0"
-            _cli("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(EPISODES),
-                 "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
+            run_module("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(EPISODES),
+                       "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
             for steps in args.steps:
                 for variant in VARIANTS:
                     rows.append(_one(env_id, variant, seed, steps, dataset, work, env))

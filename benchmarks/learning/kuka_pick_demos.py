@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -40,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR, load_average, machine_info, save_figure
+from benchmarks.report import RESULTS_DIR, load_average, machine_info, run_module, save_figure
 from benchmarks.stats import format_iqm, format_mean_std, seed_stats
 
 NAME = "kuka-pick-demos"
@@ -98,12 +97,6 @@ def _jobs(given: Sequence[str], seeds: Sequence[int]) -> list[tuple[str, int]]:
     return jobs
 
 
-def _cli(*args: str, env: dict[str, str]) -> None:
-    done = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, env=env, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(args[:3])} failed: {done.stderr.strip()[-600:]}")
-
-
 def _dataset(folder: Path, env_id: str, seed: int, episodes: int, env: dict[str, str]) -> str:
     """The seed's demonstrations on ``env_id`` (recorded once): our scripted grasp, or the Panda's
     (:mod:`benchmarks.learning.panda_pick`)."""
@@ -117,8 +110,8 @@ def _dataset(folder: Path, env_id: str, seed: int, episodes: int, env: dict[str,
             os.environ["MINARI_DATASETS_PATH"] = env["MINARI_DATASETS_PATH"]
             record(dataset, episodes, 1000 * seed)
         else:
-            _cli("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(episodes),
-                 "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
+            run_module("sbagents.collect", "--env", env_id, "--policy", "scripted", "--episodes", str(episodes),
+                       "--dataset", dataset, "--seed", str(1000 * seed), "--ref-episodes", "0", env=env)
     return dataset
 
 
@@ -133,9 +126,9 @@ def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, env:
         periodic = ("--eval-freq", "-1") if spec.steps <= 100 else (
             "--eval-freq", "10000", "--eval-episodes", "20", "--save-freq", "50000", "--save-replay-buffer")
         packages = ("--gym-packages", "panda_gym") if spec.env == PANDA else ()
-        _cli("sbagents.train", "--algo", "sac", "--env", spec.env, "-conf", CONFIG, *packages, *flags, "--seed",
-             str(seed), "-n", str(steps), "-f", str(logs), *periodic, "--final-eval-episodes", str(FINAL_EPISODES),
-             "--verbose", "0", env=env)
+        run_module("sbagents.train", "--algo", "sac", "--env", spec.env, "-conf", CONFIG, *packages, *flags, "--seed",
+                   str(seed), "-n", str(steps), "-f", str(logs), *periodic, "--final-eval-episodes",
+                   str(FINAL_EPISODES), "--verbose", "0", env=env)
         kept = sorted(logs.rglob("summary.json"))
     run_dir = kept[-1].parent
     summary = json.loads(kept[-1].read_text())

@@ -96,8 +96,10 @@ def demo_buffer_class(base: type | None) -> type[DemoMixin]:
 
     :raises UsageError: a buffer class of another kind (e.g. a private or a constrained run's own buffer).
     """
-    if base is None or base in _DEMO_CLASSES.values():
-        return DemoReplayBuffer if base is None else base  # type: ignore[return-value]
+    if base is None:
+        return DemoReplayBuffer
+    if issubclass(base, DemoMixin):  # already the twin (a resolved experiment given again)
+        return base
     try:
         return _DEMO_CLASSES[base]
     except KeyError:

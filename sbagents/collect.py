@@ -34,6 +34,11 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--ref-episodes", type=int, default=10,
                    help="episodes of random play and of the expert that set the dataset's reference scores (envs "
                         "with a scripted expert; 0: none)")
+    p.add_argument("--group", default=None, metavar="NAME",
+                   help="a team of several groups: record this group's agents (every group acts; a baseline plays "
+                        "one policy per group)")
+    p.add_argument("--opponent", default=None, metavar="SPEC",
+                   help="a turn-based game: who plays the other seats (as evaluate --opponent; default random)")
     p.add_argument("-P", "--progress", action="store_true", default=None, help="show a progress bar")
     return p
 
@@ -45,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.env is None:
         raise UsageError("--env names the env to record")
     ref = run_ref(args)
-    options = CollectOptions(args.episodes, args.dataset, args.seed, args.ref_episodes, args.progress)
+    options = CollectOptions(args.episodes, args.dataset, args.seed, args.ref_episodes, args.progress, args.group,
+                             args.opponent)
     if sum(given is not None for given in (args.policy, args.algo, args.from_log)) > 1:
         raise UsageError("--policy records a baseline, --algo names a run, --from-log reads a log: give one of them")
     if args.policy is not None:

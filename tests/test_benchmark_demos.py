@@ -28,6 +28,36 @@ def test_kuka_pick_demos_quick_run_keeps_finished_runs(tmp_path: Path) -> None:
         run(["-f", str(tmp_path), "--quick", "--variants", "nope"])
 
 
+def test_kuka_pick_demos_continues_a_stopped_run_from_its_checkpoint(tmp_path: Path) -> None:
+    """A run that stopped after a checkpoint (a session that ended) goes on from it with ``-i``, its replay buffer and
+    no ``--pretrain``; its row counts the model's steps and names the step it continued from."""
+    from benchmarks.learning.kuka_pick_demos import run
+
+    run(["-f", str(tmp_path), "--quick", "--steps", "2000", "--variants", "demos"])
+    stopped = tmp_path / "demos" / "seed0-n3000"  # a 3000-step run whose last checkpoint was at step 2000
+    (tmp_path / "demos" / "seed0-n2000").rename(stopped)
+    (summary,) = stopped.rglob("summary.json")
+    summary.unlink()
+    (row, *_) = run(["-f", str(tmp_path), "--quick", "--variants", "demos"])["rows"]
+    assert row["resumed_from"] == [2000] and row["n_timesteps"] == 3000 and row["pretrain"] is None
+    assert row["demos"]["loss_steps"] > 0 and row["wall_s"] is not None
+    words = sorted(stopped.rglob("command.txt"))[-1].read_text().split()
+    assert words[words.index("-n") + 1] == "1000" and words[words.index("-i") + 1].endswith("rl_model_2000_steps.zip")
+    assert "--pretrain" not in words and "--demos" in words
+
+
+def test_kuka_pick_demos_variants_take_their_seeds_and_budget() -> None:
+    from benchmarks.learning.kuka_pick_demos import _jobs
+
+    defaults = {"demos": 200_000, "bc": 100}
+    assert _jobs(["demos@500000", "bc:1"], [0, 2], defaults) == [("demos", 0, 500_000), ("demos", 2, 500_000),
+                                                                  ("bc", 1, 100)]
+    with pytest.raises(SystemExit, match="demos is given two budgets"):
+        _jobs(["demos:0@500000", "demos:1"], [0], defaults)
+    with pytest.raises(SystemExit, match="@STEPS takes a whole number"):
+        _jobs(["demos@5e5"], [0], defaults)
+
+
 def test_dqn_demos_quick_run() -> None:
     from benchmarks.learning.dqn_demos import render, run
 

@@ -1,12 +1,13 @@
-"""A team in a dataset and a team cloned from one: ``collect`` records each agent's part of every team episode as an
-episode of its own (the layout the dataset's description states), and ``train --pretrain`` clones the team's shared
-policy from it."""
+"""Teams and games in a dataset, and policies cloned from them: ``collect`` records each agent's part of every team
+episode as an episode of its own, and a game from the recorded player's seat (the layouts the dataset's description
+states); ``train --pretrain`` clones a team's shared policy or a game's player from them."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from cli_helpers import run_main
 
@@ -47,3 +48,34 @@ def test_the_greedy_team_is_recorded_per_agent_and_cloned(datasets: Path, tmp_pa
     (summary,) = logs.rglob("summary.json")
     pretrain = json.loads(summary.read_text())["pretrain"]
     assert pretrain["eval_return"] > 20  # random play: about -30 (BENCHMARKS.md, baseline-references)
+
+
+def test_a_game_is_recorded_from_the_players_seat_and_cloned(datasets: Path, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Tic-tac-toe's minimax player against random moves: one episode per game from its seat (the opponent's replies
+    inside each step), every recorded move legal by the mask kept with its observation, never a loss; MaskablePPO
+    cloned from 200 such games beats random play before RL."""
+    game = "pettingzoo.classic.tictactoe_v3"
+    assert run_main("collect", "--env", game, "--policy", "scripted", "--episodes", "200", "--dataset",
+                    "sbagents/ttt-minimax-v0") == 0
+    dataset = minari.load_dataset("sbagents/ttt-minimax-v0")
+    assert "one episode per game from the recorded player's seat" in dataset.storage.metadata["description"]
+    assert "reset seed 0, then unseeded resets" in dataset.storage.metadata["description"]
+    episodes = list(dataset.iterate_episodes())
+    assert len(episodes) == 200 and all(e.rewards.sum() >= 0 for e in episodes)  # minimax never loses
+    assert sum(e.rewards.sum() > 0 for e in episodes) > 150
+    for e in episodes:
+        masks = e.infos["action_mask"]
+        assert masks.shape == (len(e.actions) + 1, 9) and e.observations.shape == (len(e.actions) + 1, 3, 3, 2)
+        assert masks[np.arange(len(e.actions)), e.actions].all()  # each move legal in its position
+    first_moves = {int(e.observations[0].sum()) for e in episodes}
+    assert first_moves == {0, 1}  # seats alternate: an empty board, or one opponent mark already there
+
+    logs = tmp_path / "logs"
+    capsys.readouterr()
+    assert run_main("train", "--algo", "ppo_mask", "--env", game, "--pretrain", "sbagents/ttt-minimax-v0", "-n", "64",
+                    "-f", str(logs), "--eval-freq", "-1", "--final-eval-episodes", "2", "--seed", "0",
+                    "--verbose", "0") == 0
+    (summary,) = logs.rglob("summary.json")
+    pretrain = json.loads(summary.read_text())["pretrain"]
+    assert pretrain["eval_return"] > 0.3  # random play: -0.06 over 200 games (evaluate --policy random)

@@ -160,27 +160,33 @@ def test_dqn_with_demonstrations_and_the_margin_loss_solves_the_grid(datasets: P
     assert summary["eval"]["mean_return"] == 93.0  # type: ignore[index]
 
 
-def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(datasets: Path, tmp_path: Path) -> None:
+def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(datasets: Path, tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
     """SmartHome's expert as demonstrations with the Q-filtered BC loss; the saved buffer holds only the model's own
-    transitions; ``-i`` continues with the demonstrations read again, and ``evaluate`` loads the model."""
+    transitions; ``-i`` continues with the demonstrations read again and the Q-filter on (it counts the model's
+    gradient steps, not the continued run's), refuses ``--pretrain``, and ``evaluate`` loads the model."""
     collect_expert("SmartHome-v0", "sbagents/home-expert-v0", 3)
     logs = tmp_path / "logs"
     common = ("--algo", "sac", "--env", "SmartHome-v0", "--demos", "sbagents/home-expert-v0", "--demo-bc", "0.5",
-              "--demo-ratio", "0.5", "--demo-filter-after", "50", "-params", "learning_starts:100", "batch_size:32",
+              "--demo-ratio", "0.5", "--demo-filter-after", "100", "-params", "learning_starts:100", "batch_size:32",
               "-f", str(logs), *QUIET)
     assert run_main("train", *common, "-n", "300", "--save-replay-buffer") == 0
     first = run_summary(logs)
     demos = first["demos"]
     assert isinstance(demos, dict) and demos["ratio"] == 0.5
     assert demos["loss_steps"] == 100  # one per SAC gradient step: 200 steps after learning starts, train_freq 2
-    assert 0.0 <= float(demos["loss_kept"]) < 1.0  # type: ignore[arg-type]  # filtered after 50 of 100 steps
+    assert demos["loss_kept"] == 1.0  # the filter starts after the model's 100th gradient step: not yet
     (run_dir,) = (p.parent for p in logs.rglob("summary.json"))
     with np.load(run_dir / "replay_buffer.npz") as saved:
         settings = json.loads(str(saved["__settings__"]))
     assert settings["class"] == "DemoReplayBuffer" and settings["pos"] == 300  # the demonstrations are not in it
-    assert run_main("train", *common, "-n", "200", "-i", str(run_dir / "sbagents_SmartHome-v0.zip")) == 0
-    resumed = sorted(logs.rglob("summary.json"))[-1]
-    assert json.loads(resumed.read_text())["demos"]["loss_steps"] == 100
+    model = str(run_dir / "sbagents_SmartHome-v0.zip")
+    capsys.readouterr()
+    check_error(run_main("train", *common, "-n", "200", "-i", model, "--pretrain", "sbagents/home-expert-v0"),
+                capsys.readouterr().err, "--pretrain clones into a new model; -i continues a trained one")
+    assert run_main("train", *common, "-n", "200", "-i", model) == 0
+    resumed = json.loads(sorted(logs.rglob("summary.json"))[-1].read_text())["demos"]
+    assert resumed["loss_steps"] == 100 and 0.0 <= resumed["loss_kept"] < 1.0  # filtered from the first step
     assert run_main("evaluate", "--algo", "sac", "--env", "SmartHome-v0", "-f", str(logs), "-n", "2",
                     "--exp-id", "1") == 0
 

@@ -125,8 +125,7 @@ def test_the_extensions_that_refuse_group_runs() -> None:
     from sbagents.extensions import registered_extensions
 
     refuse = {e.name for e in registered_extensions() if not e.group_runs and e.__module__.startswith("sbagents.")}
-    assert refuse == {"privacy", "robust", "constraint", "pretrain", "demos"}  # the doc: DP, robust, constrained,
-    # cloning, demonstrations
+    assert refuse == {"privacy", "robust", "constraint", "demos"}  # the doc: DP, robust, constrained, demonstrations
 
 
 def test_the_count_of_kind_tests() -> None:

@@ -35,7 +35,7 @@ BEFORE = {
     "robust:adv": ("ddpg", "td3", "sac"),
     "robust:sa+adv": ("ddpg", "td3"),
     "constrained": ("ppo", "sac"),
-    "pretrain": ("a2c", "ppo", "trpo", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # added with --pretrain
+    "pretrain": ("a2c", "ppo", "trpo", "ppo_mask", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # ppo_mask: games
     "demos": ("sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # added with --demos
     "federated": ("a2c", "ppo", "ddpg", "td3", "sac"),
     "centralized_critic": ("a2c", "ppo"),

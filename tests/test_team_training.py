@@ -134,6 +134,44 @@ def test_centralized_critic_learns_and_exports_its_actor(tmp_path: Path) -> None
     assert sidecar["observation_space"]["shape"] == [obs_dim]
 
 
+def test_each_group_of_a_run_is_recorded_and_cloned_into_its_own_model(
+        relay_runs: Callable[[str, str], tuple[Path, Any]], datasets: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``collect --group`` records one group's agents of a run of one model per group (every group acts, each with
+    its own model and spaces); ``train --pretrain GROUP=DATASET`` clones each group's model from its dataset, and the
+    cloned team plays about as well as the run it was recorded from before RL changes it (learning rate 1e-6)."""
+    folder, _ = relay_runs("ppo", "per_group")
+    for group in ("scout", "worker"):
+        assert run_main("collect", "--algo", "ppo", "--env", RELAY, "-f", str(folder), "--group", group,
+                        "--episodes", "20", "--dataset", f"sbagents/relay-{group}-v0") == 0
+    out = capsys.readouterr().out  # 20 team episodes: one scout, two workers each
+    assert "relay-scout-v0: 20 episodes in" in out and "relay-worker-v0: 40 episodes in" in out
+    logs = tmp_path / "logs"
+    params = ("-params", "policies:per_group", "n_envs:4", "n_steps:32", "batch_size:128", "learning_rate:1e-6")
+    quiet_flags = ("--eval-freq", "-1", "--final-eval-episodes", "10", "--seed", "1", "--verbose", "0")
+    assert run_main("train", "--algo", "ppo", "--env", RELAY, *params, "--pretrain", "scout=sbagents/relay-scout-v0",
+                    "--pretrain", "worker=sbagents/relay-worker-v0", "-n", "256", "-f", str(logs), *quiet_flags) == 0
+    summary = json.loads(next(logs.rglob("summary.json")).read_text())
+    by_group = summary["by_group"]
+    assert {g: by_group[g]["pretrain"]["n_train"] + by_group[g]["pretrain"]["n_holdout"] for g in by_group} == {
+        "scout": 100, "worker": 400}  # 20 x 5 scout steps, 20 x 2 x 10 worker steps
+    assert summary["eval"]["mean_return"] >= OPTIMAL - 2  # random play: about a third of 25
+    capsys.readouterr()
+    for args, expected in [
+        (("--pretrain", "boss=sbagents/relay-scout-v0", *params), "boss is not one of this run's (relay_v0: its "
+                                                                  "groups are scout, worker)"),
+        (("--pretrain", "scout=sbagents/relay-scout-v0"), "relay_v0: it trains one model"),
+        (("--pretrain", "sbagents/relay-scout-v0", "--pretrain", "sbagents/relay-worker-v0", *params),
+         "--pretrain takes one DATASET for every model, and GROUP=DATASET once per group"),
+        (("--pretrain", "worker=sbagents/relay-scout-v0", *params), "is not the env's"),
+    ]:
+        check_error(run_main("train", "--algo", "ppo", "--env", RELAY, *args, "-n", "128", "-f",
+                             str(tmp_path / "bad"), *quiet_flags), capsys.readouterr().err, expected)
+    check_error(run_main("collect", "--algo", "ppo", "--env", RELAY, "-f", str(folder), "--episodes", "1",
+                         "--dataset", "sbagents/relay-v9"), capsys.readouterr().err,
+                "relay_v0 has the groups scout, worker: --group NAME records one of them")
+
+
 def test_per_group_run_exports_one_policy_per_group(relay_runs: Callable[[str, str], tuple[Path, Any]],
                                                    tmp_path: Path) -> None:
     shutil.copytree(relay_runs("ppo", "per_group")[0], tmp_path, dirs_exist_ok=True)  # the export writes into it

@@ -15,11 +15,15 @@ Per seed: ``python -m sbagents.collect --policy scripted`` records the demonstra
   env.
 
 Every run ends with 50 greedy episodes (the success rate in the table); ``demos`` and ``none`` also evaluate 20
-greedy episodes every 10k steps (the curves). Runs that finished are kept (a ``summary.json`` in their folder): run
-the command again to add seeds or variants; a run that learns saves a checkpoint with its replay buffer every 50k
-steps (continue one by hand with ``train ... -i <its checkpoint>``). ``--jobs 2`` trains two runs at once::
+greedy episodes every 10k steps (the curves). Each run has a folder per variant, seed and budget
+(``OUT/demos/seed0-n500000``). Runs that finished are kept (a ``summary.json`` in their folder): run the command again
+to add seeds or variants. A run that learns saves a checkpoint with its replay buffer every 50k steps; the command run
+again continues a run that stopped (a session that ended) from its latest checkpoint with ``train -i`` and that
+buffer, without ``--pretrain``, and the table counts the parts' training time together. ``--jobs 2`` trains two runs
+at once::
 
-    python -m benchmarks run kuka-pick-demos -f OUT [--seeds 0 1 2] [--variants demos bc panda-demos:0] [--jobs 2]
+    python -m benchmarks run kuka-pick-demos -f OUT [--seeds 0 1 2] [--variants demos@500000 bc panda-demos:0]
+        [--jobs 2]
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import tempfile
 import time
@@ -41,6 +46,9 @@ import numpy as np
 from benchmarks.harness import Benchmark
 from benchmarks.report import RESULTS_DIR, load_average, machine_info, run_module, save_figure
 from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+from sbagents.core.run_dir import CHECKPOINT_PREFIX
+from sbagents.replay.buffer_files import checkpoint_steps
+from sbagents.state_files import REPLAY_BUFFER_FILE, replay_buffer_steps
 
 NAME = "kuka-pick-demos"
 ENV = "sbagents/KukaPickAndPlace-v0"
@@ -76,24 +84,35 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=f"python -m benchmarks run {NAME}", description=__doc__.splitlines()[0])
     parser.add_argument("-f", "--folder", type=Path, required=True, help="output folder (datasets and runs; kept)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--variants", nargs="+", default=["demos", "bc"], metavar="VARIANT[:SEEDS]",
-                        help=f"of {', '.join(VARIANTS)}; VARIANT:0,1 trains those seeds only (default: --seeds)")
+    parser.add_argument("--variants", nargs="+", default=["demos", "bc"], metavar="VARIANT[:SEEDS][@STEPS]",
+                        help=f"of {', '.join(VARIANTS)}; VARIANT:0,1 trains those seeds only (default: --seeds), "
+                             "VARIANT@500000 that budget (default: --steps)")
     parser.add_argument("--episodes", type=int, default=100, help="demonstration episodes per seed")
-    parser.add_argument("--steps", type=int, default=None, help="env steps of the *demos variants (default 200000)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="env steps of the *demos variants without @STEPS (default 200000)")
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once")
+    parser.add_argument("--save-freq", type=int, default=50_000, help="env steps between checkpoints (with the buffer)")
     parser.add_argument("--plots", type=Path, default=RESULTS_DIR, help="folder of the PNG")
-    parser.add_argument("--quick", action="store_true", help="smoke run: seed 0, 5 episodes, 3000 steps")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: seed 0, 5 episodes, 3000 steps (or --steps), a checkpoint every 1000")
     return parser
 
 
-def _jobs(given: Sequence[str], seeds: Sequence[int]) -> list[tuple[str, int]]:
-    """``VARIANT[:s1,s2]`` items -> (variant, seed) pairs."""
+def _jobs(given: Sequence[str], seeds: Sequence[int], steps: dict[str, int]) -> list[tuple[str, int, int]]:
+    """``VARIANT[:s1,s2][@STEPS]`` items -> (variant, seed, env steps) triples (``steps``: each variant's default)."""
     jobs = []
     for item in given:
-        name, _, own = item.partition(":")
+        head, _, budget = item.partition("@")
+        name, _, own = head.partition(":")
         if name not in VARIANTS:
             raise SystemExit(f"--variants: {name!r} is not one of {', '.join(VARIANTS)}")
-        jobs += [(name, int(s)) for s in own.split(",")] if own else [(name, s) for s in seeds]
+        if budget and not budget.isdigit():
+            raise SystemExit(f"--variants: {item!r}: @STEPS takes a whole number of env steps")
+        n = int(budget) if budget else steps[name]
+        jobs += [(name, int(s), n) for s in own.split(",")] if own else [(name, s, n) for s in seeds]
+    for name in {v for v, _, _ in jobs}:
+        if len({n for v, _, n in jobs if v == name}) > 1:
+            raise SystemExit(f"--variants: {name} is given two budgets; one per command")
     return jobs
 
 
@@ -115,34 +134,88 @@ def _dataset(folder: Path, env_id: str, seed: int, episodes: int, env: dict[str,
     return dataset
 
 
-def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, env: dict[str, str]) -> dict[str, Any]:
-    """One run (kept when its folder has a summary already): its row with its curve."""
+def _parts(logs: Path) -> list[Path]:
+    """The run dirs of one (variant, seed, budget), in order: the first run, then each one that continued it."""
+    return sorted((p.parent for p in logs.rglob("command.txt")), key=lambda d: (d.stat().st_mtime, d.name))
+
+
+def _resumed_from(run_dir: Path) -> int | None:
+    """The step of the checkpoint ``run_dir``'s run continued (``-i`` in its ``command.txt``), else None."""
+    words = shlex.split((run_dir / "command.txt").read_text())
+    return checkpoint_steps(Path(words[words.index("-i") + 1])) if "-i" in words else None
+
+
+def _resume_point(parts: Sequence[Path]) -> Path | None:
+    """The latest checkpoint of an unfinished run whose replay buffer was saved with it (the run dir's buffer records
+    the step it was saved at), else None."""
+    for run_dir in reversed(parts):
+        buffer = run_dir / REPLAY_BUFFER_FILE
+        saved_at = replay_buffer_steps(buffer) if buffer.exists() else None
+        checkpoint = run_dir / f"{CHECKPOINT_PREFIX}_{saved_at}_steps.zip"
+        if saved_at is not None and checkpoint.exists():
+            return checkpoint
+    return None
+
+
+def _without_pretrain(flags: Sequence[str]) -> list[str]:
+    """``flags`` less ``--pretrain DATASET`` and ``--pretrain-steps N`` (a continued model keeps its weights)."""
+    out, skip = [], False
+    for flag in flags:
+        if skip or flag in ("--pretrain", "--pretrain-steps"):
+            skip = not skip
+            continue
+        out.append(flag)
+    return out
+
+
+def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, save_freq: int, env: dict[str, str]
+           ) -> dict[str, Any]:
+    """One run of ``steps`` env steps (kept when it finished already, continued from its latest checkpoint and replay
+    buffer when it stopped before): its row with its curve."""
     spec = VARIANTS[variant]
-    logs = folder / variant / f"seed{seed}"
-    kept = sorted(logs.rglob("summary.json"))
-    started, trained = time.time(), not kept
+    logs = folder / variant / f"seed{seed}-n{steps}"
+    parts = _parts(logs)
+    started, trained = time.time(), not (parts and (parts[-1] / "summary.json").exists())
     if trained:
         flags = [f.format(dataset=dataset) for f in spec.flags]
+        point = _resume_point(parts)
+        budget = steps
+        if point is not None:  # -n counts the steps still to take
+            flags, budget = [*_without_pretrain(flags), "-i", str(point)], steps - (checkpoint_steps(point) or 0)
+            print(f"{variant} seed {seed}: continuing {point.parent.name} from step {steps - budget:,}",
+                  file=sys.stderr)
         periodic = ("--eval-freq", "-1") if spec.steps <= 100 else (
-            "--eval-freq", "10000", "--eval-episodes", "20", "--save-freq", "50000", "--save-replay-buffer")
+            "--eval-freq", "10000", "--eval-episodes", "20", "--save-freq", str(save_freq), "--save-replay-buffer")
         packages = ("--gym-packages", "panda_gym") if spec.env == PANDA else ()
         run_module("sbagents.train", "--algo", "sac", "--env", spec.env, "-conf", CONFIG, *packages, *flags, "--seed",
-                   str(seed), "-n", str(steps), "-f", str(logs), *periodic, "--final-eval-episodes",
+                   str(seed), "-n", str(budget), "-f", str(logs), *periodic, "--final-eval-episodes",
                    str(FINAL_EPISODES), "--verbose", "0", env=env)
-        kept = sorted(logs.rglob("summary.json"))
-    run_dir = kept[-1].parent
-    summary = json.loads(kept[-1].read_text())
-    curve = np.load(run_dir / "evaluations.npz") if (run_dir / "evaluations.npz").exists() else None
-    steps_at = [int(t) for t in curve["timesteps"]] if curve is not None else []
-    success = [float(s) for s in np.asarray(curve["successes"], dtype=float).mean(axis=1)] if curve is not None \
-        else []
+        parts = _parts(logs)
+    summary = json.loads((parts[-1] / "summary.json").read_text())
+    steps_at: list[int] = []
+    success: list[float] = []
+    train_s = float(summary["train_seconds"])
+    for i, run_dir in enumerate(parts):
+        end = _resumed_from(parts[i + 1]) if i + 1 < len(parts) else None
+        if end is not None:  # the time this part took to its checkpoint the next one continued
+            train_s += (run_dir / f"{CHECKPOINT_PREFIX}_{end}_steps.zip").stat().st_mtime - \
+                (run_dir / "command.txt").stat().st_mtime
+        if (run_dir / "evaluations.npz").exists():
+            with np.load(run_dir / "evaluations.npz") as curve:
+                for t, s in zip(curve["timesteps"], np.asarray(curve["successes"], dtype=float).mean(axis=1),
+                                strict=True):
+                    if end is None or t <= end:
+                        steps_at.append(int(t))
+                        success.append(float(s))
     first_90 = next((t for t, s in zip(steps_at, success, strict=True) if s >= 0.9), None)
-    return {"variant": variant, "env": spec.env, "seed": seed, "n_timesteps": int(summary["n_timesteps"]),
+    resumed = [r for r in (_resumed_from(d) for d in parts) if r is not None]
+    return {"variant": variant, "env": spec.env, "seed": seed,
+            "n_timesteps": int(summary["n_timesteps"]),  # the model's count: a continued run's total
             "final_success": float(summary["eval"]["success_rate"]), "final_episodes": FINAL_EPISODES,
             "final_cost": summary["eval"].get("mean_cost"),
             "best_eval_success": max(success) if success else None, "first_eval_at_90": first_90,
-            "train_s": float(summary["train_seconds"]), "wall_s": round(time.time() - started, 1) if trained else None,
-            "steps": steps_at, "success": success,
+            "train_s": round(train_s, 1), "wall_s": round(time.time() - started, 1) if trained else None,
+            "resumed_from": resumed, "steps": steps_at, "success": success,
             "demos": summary.get("demos"), "pretrain": summary.get("pretrain")}
 
 
@@ -166,19 +239,21 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     """Every (variant, seed) run's row, then each variant's statistics over seeds."""
     args = build_parser().parse_args(list(argv))
     if args.quick:  # the plot goes to a scratch folder too
-        args.seeds, args.episodes, args.steps = args.seeds[:1], 5, 3000
+        args.seeds, args.episodes, args.steps, args.save_freq = args.seeds[:1], 5, args.steps or 3000, 1000
         args.plots = Path(tempfile.mkdtemp(prefix=f"{NAME}-"))
     folder = args.folder.resolve()
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MINARI_DATASETS_PATH": str(folder / "datasets")}
     load_before = load_average()
-    jobs = _jobs(args.variants, args.seeds)
+    defaults = {v: args.steps if args.steps and v.endswith("demos") else spec.steps for v, spec in VARIANTS.items()}
+    jobs = _jobs(args.variants, args.seeds, defaults)
+    steps = {v: n for v, _, n in jobs}
     datasets = {(VARIANTS[v].env, s): _dataset(folder, VARIANTS[v].env, s, args.episodes, env)
-                for v, s in jobs if VARIANTS[v].flags}
-    steps = {v: args.steps if args.steps and v.endswith("demos") else spec.steps for v, spec in VARIANTS.items()}
+                for v, s, _ in jobs if VARIANTS[v].flags}
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         rows = list(pool.map(lambda job: _train(folder, job[0], job[1], datasets.get((VARIANTS[job[0]].env, job[1]),
-                                                                                      ""), steps[job[0]], env), jobs))
-    if not any(v == "none" for v, _ in jobs):
+                                                                                      ""), job[2], args.save_freq,
+                                                       env), jobs))
+    if not any(v == "none" for v, _, _ in jobs):
         rows += _stored_none()
     for row in rows:
         print(f"{row['variant']} seed {row['seed']}: final success {row['final_success']:.2f}", file=sys.stderr)
@@ -187,7 +262,7 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     results = {"command": f"python -m benchmarks run {NAME} -f <output dir> --seeds "
                           f"{' '.join(map(str, args.seeds))} --variants {' '.join(args.variants)} --episodes "
                           f"{args.episodes} --jobs {args.jobs}" + (f" --steps {args.steps}" if args.steps else ""),
-               "episodes": args.episodes, "steps": {v: steps[v] for v in variants},
+               "episodes": args.episodes, "steps": {v: steps.get(v, VARIANTS[v].steps) for v in variants},
                "envs": {v: VARIANTS[v].env for v in variants},
                "flags": {v: " ".join(VARIANTS[v].flags) for v in variants},
                "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()},

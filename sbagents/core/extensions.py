@@ -131,6 +131,7 @@ class ExtensionPlan:
     :param ref: the env reference (``ref.env_id``, ``ref.kind``).
     :param resuming: ``-i`` continues a model.
     :param n_models: models the run trains (one per group of a team with ``policies: per_group``; else 1).
+    :param groups: the groups of those models when there are several (else empty).
     :param specs: every extension's spec of this run by extension name (after the requirements of
         :meth:`TrainingExtension.requires`, and each extension's own ``configure`` once it ran).
     :param hyperparams: the ``-params`` overrides.
@@ -143,6 +144,7 @@ class ExtensionPlan:
     ref: EnvRef
     resuming: bool
     n_models: int = 1
+    groups: tuple[str, ...] = ()
     specs: dict[str, Any] = field(default_factory=dict)
     hyperparams: Mapping[str, Any] = field(default_factory=dict)
     given: Mapping[str, Any] = field(default_factory=dict)

@@ -9,7 +9,8 @@
 The Q-filter needs a critic that has learned something: before that, a random critic prefers the actor's own action
 as often as not and the actor's own updates pull it away from the demonstrations (seen on Kuka pick-and-place: a
 cloned policy's success fell from 42% to 0% within 250 gradient steps). The filter therefore starts after
-``filter_after`` steps of the loss; before, every demonstration counts.
+``filter_after`` gradient steps of the model (its own count, which a run continued with ``-i`` keeps); before, every
+demonstration counts.
 
 Both are taken as separate gradient steps of the actor's (the Q-network's) own optimizer, as many per rollout as the
 model's gradient steps, on batches of demonstrations (their original goals in goal envs), once learning has started;
@@ -85,7 +86,8 @@ class DemoLossCallback(BaseCallback):
 
     :param data: the demonstrations' (observation, action) pairs.
     :param weight: the loss's factor.
-    :param filter_after: steps of the loss before the Q-filter starts.
+    :param filter_after: the model's gradient steps before the Q-filter starts (counted by the model, so a run
+        continued with ``-i`` does not start unfiltered again).
     :param seed: seeds the batches.
     """
 
@@ -117,11 +119,12 @@ class DemoLossCallback(BaseCallback):
             return
         steps = model.gradient_steps if model.gradient_steps > 0 else model.train_freq.frequency * model.n_envs
         venv = model.get_vec_normalize_env()
+        done = int(getattr(model, "_n_updates", self.steps))  # the model's gradient steps: a resumed run goes on
         model.policy.set_training_mode(True)
-        for _ in range(steps):
+        for i in range(steps):
             index = self.rng.integers(0, len(self.data), size=min(model.batch_size, len(self.data)))
             obs, actions = as_tensors(model, self.data.take(index), venv)
-            loss, kept = self._loss(model, obs, actions, self.steps >= self.filter_after)
+            loss, kept = self._loss(model, obs, actions, done + i >= self.filter_after)
             self._optimizer.zero_grad()
             (self.weight * loss).backward()
             self._optimizer.step()

@@ -12,7 +12,7 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import sync_envs_normalization
 
-from sbagents.core.env_kinds import SINGLE_AGENT, TEAM
+from sbagents.core.env_kinds import GAME, SINGLE_AGENT, TEAM
 from sbagents.core.extensions import Contribution, ExtensionPlan, SpecRecord, TrainingContext, TrainingExtension
 from sbagents.errors import UsageError
 
@@ -24,7 +24,9 @@ PRETRAINED_EVAL_EPISODES = 5
 class PretrainSpec:
     """Behaviour cloning before RL.
 
-    :param dataset: the Minari dataset id (its spaces must be the env's).
+    :param dataset: the Minari dataset id (its spaces must be the env's; "": only the groups of ``by_group``).
+    :param by_group: (group, dataset id) pairs of a run of one model per group: that group's model is cloned from
+        that dataset (its spaces must be the group's); groups without one take ``dataset`` (or none when "").
     :param steps: gradient steps (shuffled batches, as many passes over the pairs as that takes).
     :param batch_size: pairs per gradient step.
     :param learning_rate: Adam's step size.
@@ -36,6 +38,11 @@ class PretrainSpec:
     batch_size: int = 256
     learning_rate: float = 1e-3
     holdout: float = 0.1
+    by_group: tuple[tuple[str, str], ...] = ()
+
+    def dataset_for(self, group: str | None) -> str | None:
+        """The dataset of the model of ``group`` (None: the run's one model); None: that model is not cloned."""
+        return (dict(self.by_group).get(group) if group is not None else None) or self.dataset or None
 
     def validate(self) -> None:
         """One line for a setting out of range."""
@@ -54,13 +61,14 @@ class PretrainExtension(TrainingExtension[PretrainSpec]):
     title = "learning from data (behaviour cloning; pip install 'sbagents[data]')"
     flags = "--pretrain"
     spec_type = PretrainSpec
-    group_runs = False  # one model's policy: a single agent, or a team's shared policy (not one model per group)
-    algos = ("a2c", "ppo", "trpo", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn")
-    kinds = (SINGLE_AGENT.name, TEAM.name)
+    group_runs = True  # one model per group: --pretrain GROUP=DATASET for each group (spaces differ by group)
+    algos = ("a2c", "ppo", "trpo", "ppo_mask", "sac", "tqc", "td3", "ddpg", "dqn", "qrdqn")
+    kinds = (SINGLE_AGENT.name, TEAM.name, GAME.name)
 
     def add_arguments(self, group: argparse._ArgumentGroup) -> None:
-        group.add_argument("--pretrain", default=None, metavar="DATASET",
-                           help="behaviour-clone the policy from this Minari dataset (namespace/name-vN) before RL")
+        group.add_argument("--pretrain", action="append", default=None, metavar="[GROUP=]DATASET",
+                           help="behaviour-clone the policy from this Minari dataset (namespace/name-vN) before RL; "
+                                "GROUP=DATASET (repeated) clones a group's model in a run of one model per group")
         group.add_argument("--pretrain-steps", type=int, default=PretrainSpec.steps, metavar="N",
                            help=f"gradient steps of behaviour cloning (default {PretrainSpec.steps}, batches of "
                                 f"{PretrainSpec.batch_size})")
@@ -70,10 +78,24 @@ class PretrainExtension(TrainingExtension[PretrainSpec]):
             if args.pretrain_steps != PretrainSpec.steps:
                 raise UsageError("--pretrain-steps applies to --pretrain DATASET")
             return None
-        return PretrainSpec(args.pretrain, steps=args.pretrain_steps)
+        plain = [item for item in args.pretrain if "=" not in item]
+        pairs = [tuple(item.split("=", 1)) for item in args.pretrain if "=" in item]
+        if len(plain) > 1 or any(not g or not d for g, d in pairs) or len({g for g, _ in pairs}) < len(pairs):
+            raise UsageError("--pretrain takes one DATASET for every model, and GROUP=DATASET once per group; got "
+                             + " ".join(args.pretrain))
+        return PretrainSpec(plain[0] if plain else "", steps=args.pretrain_steps,
+                            by_group=tuple((str(g), str(d)) for g, d in pairs))
 
     def configure(self, spec: PretrainSpec | None, plan: ExtensionPlan) -> PretrainSpec | None:
         if spec is not None:
+            if plan.resuming:
+                raise UsageError("--pretrain clones into a new model; -i continues a trained one (its weights would "
+                                 "be overwritten): drop --pretrain to continue a run")
+            unknown = sorted({g for g, _ in spec.by_group} - set(plan.groups))
+            if unknown:
+                where = f"its groups are {', '.join(plan.groups)}" if plan.groups else "it trains one model"
+                raise UsageError(f"--pretrain GROUP=DATASET names the groups of a run of one model per group: "
+                                 f"{', '.join(unknown)} is not one of this run's ({plan.ref.env_id}: {where})")
             from sbagents.datasets.writing import require_minari
 
             require_minari()
@@ -83,11 +105,17 @@ class PretrainExtension(TrainingExtension[PretrainSpec]):
         from sbagents.datasets.cloning import clone
         from sbagents.datasets.reading import load_transitions
 
-        data = load_transitions(spec.dataset, ctx.model.observation_space, ctx.model.action_space)
+        dataset = spec.dataset_for(ctx.group)
+        if dataset is None:  # a group without a dataset of its own learns from scratch
+            return []
+        data = load_transitions(dataset, ctx.model.observation_space, ctx.model.action_space)
         result = clone(ctx.model, data, steps=spec.steps, batch_size=spec.batch_size,
                        learning_rate=spec.learning_rate, holdout=spec.holdout, seed=ctx.seed)
-        item: dict[str, Any] = {"dataset": spec.dataset, **asdict(result), "steps": spec.steps,
-                                "eval_return": _pretrained_return(ctx)}
+        # a group's model acts only beside the other groups: the team is evaluated after training, not before
+        item: dict[str, Any] = {"dataset": dataset, **asdict(result), "steps": spec.steps,
+                                "eval_return": _pretrained_return(ctx) if ctx.group is None else None}
+        if ctx.group is not None:
+            item["group"] = ctx.group
         ctx.state[self.name] = item
         print(_line(item), flush=True)  # before learning (and its progress bar) starts
         return []
@@ -97,9 +125,10 @@ class PretrainExtension(TrainingExtension[PretrainSpec]):
         return {"pretrain": item} if item else {}
 
     def record(self, spec: PretrainSpec) -> SpecRecord:
-        return SpecRecord(args={"pretrain": spec.dataset},
-                          flags=["--pretrain", spec.dataset, *(["--pretrain-steps", str(spec.steps)]
-                                                               if spec.steps != PretrainSpec.steps else [])])
+        given = ([spec.dataset] if spec.dataset else []) + [f"{g}={d}" for g, d in spec.by_group]
+        return SpecRecord(args={"pretrain": given[0] if len(given) == 1 else given},
+                          flags=[*(w for item in given for w in ("--pretrain", item)),
+                                 *(["--pretrain-steps", str(spec.steps)] if spec.steps != PretrainSpec.steps else [])])
 
 
 def _pretrained_return(ctx: TrainingContext) -> float:
@@ -120,9 +149,11 @@ def _pretrained_return(ctx: TrainingContext) -> float:
 def _line(item: Mapping[str, Any]) -> str:
     """``pretrained on sbagents/x-v0 (900 pairs, 2000 steps): training loss 0.1, held-out loss 0.12; before RL: ...``"""
     held = "" if item.get("holdout_loss") is None else f", held-out loss {item['holdout_loss']:.4g}"
-    return (f"pretrained on {item['dataset']} ({item['n_train']} pairs, {item['steps']} steps): training loss "
-            f"{item['train_loss']:.4g}{held}; before RL: mean return {item['eval_return']:.2f} over "
-            f"{PRETRAINED_EVAL_EPISODES} episodes")
+    before = ("" if item.get("eval_return") is None else
+              f"; before RL: mean return {item['eval_return']:.2f} over {PRETRAINED_EVAL_EPISODES} episodes")
+    who = f"group {item['group']} " if item.get("group") else ""
+    return (f"{who}pretrained on {item['dataset']} ({item['n_train']} pairs, {item['steps']} steps): training loss "
+            f"{item['train_loss']:.4g}{held}{before}")
 
 
 @dataclass(frozen=True)
@@ -134,8 +165,8 @@ class DemoSpec:
     :param bc_weight: the factor of the supervised loss on demonstrations (0: none): behaviour cloning behind a
         Q-filter for actor-critic algorithms, DQfD's margin loss for DQN and QR-DQN
         (:mod:`sbagents.datasets.demo_losses`).
-    :param filter_after: steps of the cloning loss before its Q-filter starts (until then every demonstration
-        counts).
+    :param filter_after: the model's gradient steps before the cloning loss's Q-filter starts (until then every
+        demonstration counts; a run continued with ``-i`` counts on from its model's steps).
     """
 
     dataset: str
@@ -172,7 +203,7 @@ class DemosExtension(TrainingExtension[DemoSpec]):
                            help="weight of a supervised loss on the demonstrations: behaviour cloning behind a "
                                 "Q-filter (actor-critic), DQfD's margin loss (DQN); default 0: none")
         group.add_argument("--demo-filter-after", type=int, default=DemoSpec.filter_after, metavar="N",
-                           help="steps of the cloning loss before its Q-filter starts (default "
+                           help="gradient steps of the model before the cloning loss's Q-filter starts (default "
                                 f"{DemoSpec.filter_after:,}; until then every demonstration counts)")
 
     def from_args(self, args: argparse.Namespace) -> DemoSpec | None:

@@ -25,9 +25,10 @@ import numpy as np
 
 from sbagents.errors import UsageError
 
-#: The info keys a dataset keeps (each step's value; a key the env never reports is left out): success, and the
-#: safety cost and violation (its kind as ASCII bytes, ``b""`` where none: HDF5 stores no unicode arrays).
-INFO_KEYS = ("is_success", "cost", "violation")
+#: The info keys a dataset keeps (each step's value; a key the env never reports is left out): success, the
+#: safety cost and violation (its kind as ASCII bytes, ``b""`` where none: HDF5 stores no unicode arrays), and a
+#: turn-based game's legal moves of each observation (``action_mask``, bool).
+INFO_KEYS = ("is_success", "cost", "violation", "action_mask")
 #: A dataset id: ``namespace/name-vN`` (Minari's ``(namespace/)(env_name/)name-vN``; a namespace is required here so
 #: that our datasets do not mix with others at the root).
 DATASET_ID = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*/[A-Za-z0-9_.]+(-[A-Za-z0-9_.]+)*-v\d+$")
@@ -45,10 +46,23 @@ def require_minari() -> Any:
 
 def check_dataset_id(dataset_id: str) -> str:
     """``dataset_id`` if it is ``namespace/name-vN``, else one line saying what is accepted."""
-    if not DATASET_ID.match(dataset_id):
-        raise UsageError(f"--dataset {dataset_id!r}: a dataset id is namespace/name-vN, e.g. "
-                         "sbagents/gridworld-expert-v0")
+    if not DATASET_ID.match(dataset_id) or not _minari_accepts(dataset_id):
+        raise UsageError(f"--dataset {dataset_id!r}: a dataset id is namespace/name-vN (a namespace of 2 characters "
+                         "or more), e.g. sbagents/gridworld-expert-v0")
     return dataset_id
+
+
+def _minari_accepts(dataset_id: str) -> bool:
+    """Whether Minari's own parser takes ``dataset_id`` (True when Minari is not installed: it refuses later)."""
+    try:
+        from minari.dataset.minari_dataset import parse_dataset_id
+    except ImportError:
+        return True
+    try:
+        parse_dataset_id(dataset_id)
+    except ValueError:
+        return False
+    return True
 
 
 def datasets_root() -> Path:
@@ -108,6 +122,9 @@ class EpisodeRecorder:
                 kept[key] = np.array([b"" if v is None else str(v).encode() for v in values], dtype=bytes)
             elif key == "is_success":
                 kept[key] = np.array([bool(v) for v in values])
+            elif key == "action_mask":
+                shape = np.shape(next(v for v in values if v is not None))
+                kept[key] = np.array([np.ones(shape, bool) if v is None else np.asarray(v, bool) for v in values])
             else:
                 kept[key] = np.array([0.0 if v is None else float(v) for v in values], dtype=np.float64)
         return kept

@@ -26,6 +26,7 @@ from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
+from sbagents.games import recording  # noqa: F401 (game_operations().recording: collect's recording)
 from sbagents.games.builtin import builtin_for
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
@@ -97,20 +98,31 @@ SCRIPTED_PLAYERS = ("minimax", "heuristic", "opportunist")
 
 
 def evaluate_game_baseline(policy: str, exp: Experiment, ref: EnvRef, options: EvaluateOptions) -> dict[str, Any]:
-    """:func:`evaluate_game` of a baseline in the learner's seats: ``random`` (random legal moves) or ``scripted``
-    (the strongest built-in player of the game, :data:`SCRIPTED_PLAYERS`), against ``options.opponent`` (default:
-    random).
+    """:func:`evaluate_game` of a baseline (:func:`game_player`) in the learner's seats, against ``options.opponent``
+    (default: random).
 
     :raises UsageError: ``scripted`` for a game without a built-in player.
     """
+    player = game_player(policy, ref, options.seed)
+    return evaluate_game(player, exp, ref, replace(options, opponent=options.opponent or "random"), algo=policy)
+
+
+def game_player(acting: str | BaseAlgorithm, ref: EnvRef, seed: int | None, deterministic: bool = True) -> Player:
+    """The player of a baseline, ``random`` (random legal moves) or ``scripted`` (the strongest built-in player of the
+    game, :data:`SCRIPTED_PLAYERS`), or of a model (greedy when ``deterministic``, with the mask).
+
+    :raises UsageError: ``scripted`` for a game without a built-in player.
+    """
+    rng = np.random.default_rng(seed)
+    if isinstance(acting, BaseAlgorithm):
+        return ModelPlayer(acting, deterministic, numpy_actor(acting.policy), rng)
     name = "random"
-    if policy == "scripted":
+    if acting == "scripted":
         name = next((n for n in SCRIPTED_PLAYERS if builtin_for(n, ref.env_id) is not None), "")
         if not name:
             raise UsageError(f"{ref.env_id} has no scripted player; --policy scripted plays the built-in players of "
                              "connect four and tic-tac-toe; --policy random plays any game")
-    player = load_player(name, ref.env_id, np.random.default_rng(options.seed))
-    return evaluate_game(player, exp, ref, replace(options, opponent=options.opponent or "random"), algo=policy)
+    return load_player(name, ref.env_id, rng)
 
 
 def evaluate_game(model: BaseAlgorithm | Player, exp: Experiment, ref: EnvRef, options: EvaluateOptions,

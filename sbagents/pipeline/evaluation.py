@@ -119,7 +119,7 @@ def _game_evaluate_kind(kind: GameKind, model: BaseAlgorithm, exp: Experiment, r
     if options.attacks or options.fairness:
         raise UsageError("--attack and --fairness are not available for turn-based games; --opponent picks who to "
                          "play against")
-    return _game_evaluation().evaluate_game(model, exp, ref, options)
+    return game_operations().evaluate_game(model, exp, ref, options)
 
 
 def evaluate_groups(
@@ -179,16 +179,18 @@ def evaluate_baseline(ref: EnvRef, policy: str, options: EvaluateOptions | None 
     return _baseline_kind(ref.kind, policy, exp, ref, options)
 
 
-def baseline_experiment(ref: EnvRef, policy: str, env_kwargs: Mapping[str, Any] | None = None) -> Experiment:
-    """The experiment a baseline plays: the plain env ``ref`` (no wrappers, no normalization, the kind's default
-    options) with ``env_kwargs``; its ``algo`` is the policy's name.
+def baseline_experiment(ref: EnvRef, policy: str, env_kwargs: Mapping[str, Any] | None = None,
+                        entry: Mapping[str, Any] | None = None) -> Experiment:
+    """The experiment a baseline plays: the plain env ``ref`` (no wrappers, no normalization, the kind's options of
+    the config entry ``entry``: default none, e.g. ``{"policies": "per_group"}`` for a team) with ``env_kwargs``; its
+    ``algo`` is the policy's name.
 
     :raises UsageError: a policy other than :data:`BASELINES`.
     """
     if policy not in BASELINES:
         raise UsageError(f"--policy {policy!r}: accepted: {', '.join(BASELINES)}")
     return Experiment(algo=policy, env_id=ref.env_id, n_timesteps=0, env_kwargs=dict(env_kwargs or {}),
-                      env_kind=ref.kind, kind_options=ref.kind.options({}, f"--policy {policy}"))
+                      env_kind=ref.kind, kind_options=ref.kind.options(dict(entry or {}), f"--policy {policy}"))
 
 
 def baseline_actor(policy: str, env_id: str, venv: VecEnv, seed: int | None) -> Policy:
@@ -223,11 +225,12 @@ def _team_baseline_kind(kind: TeamKind, policy: str, exp: Experiment, ref: EnvRe
 def _game_baseline_kind(kind: GameKind, policy: str, exp: Experiment, ref: EnvRef, options: EvaluateOptions
                         ) -> dict[str, Any]:
     """A turn-based game: the baseline plays the learner's seats against ``options.opponent`` (default: random)."""
-    return _game_evaluation().evaluate_game_baseline(policy, exp, ref, options)
+    return game_operations().evaluate_game_baseline(policy, exp, ref, options)
 
 
-def _game_evaluation() -> ModuleType:
-    """The turn-based games' evaluation (:mod:`sbagents.games.training`), imported when a game is evaluated."""
+def game_operations() -> ModuleType:
+    """The turn-based games' evaluation and recording (:mod:`sbagents.games.training`, whose ``recording`` is
+    :mod:`sbagents.games.recording`), imported when a game is evaluated or recorded."""
     from sbagents.games import training
 
     return training

@@ -151,7 +151,9 @@ def _plan(spec: TrainSpec, output: OutputOptions, evaluation: EvalOptions, execu
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} in its config; pass -n N")
     groups = model_groups(ref.kind, exp, ref)
     plan = ExtensionPlan(spec.algo, exp, ref, resuming=spec.trained_agent is not None,
-                         n_models=1 if groups is None else len(groups), specs={a.name: a.spec for a in actives},
+                         n_models=1 if groups is None else len(groups),
+                         groups=tuple(groups) if groups is not None and len(groups) > 1 else (),
+                         specs={a.name: a.spec for a in actives},
                          hyperparams=spec.hyperparams)
     actives = prepare_extensions(plan)
     exp = plan.exp

@@ -314,7 +314,9 @@ def render(results: dict[str, Any]) -> str:
         f"{FINAL_EPISODES} greedy episodes (final success and mean episode cost). Flags per variant: "
         + "; ".join(f"{v} ({results.get('envs', {}).get(v, ENV)}): `{flags or '(none)'}`, "
                     f"{results['steps'][v]:,} steps" for v, flags in results["flags"].items())
-        + ". The `*bc` variants take no learning step (`learning_starts` 1000 is above their budget). "
+        + ". The `*bc` variants take no learning step (`learning_starts` 1000 is above their budget). A run that "
+        "stopped (a session's end) went on from its latest checkpoint with `train -i` and its replay buffer; its train "
+        "seconds add its parts'. "
         f"{m['cpu']}, {m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} "
         "after; two runs trained at once where `--jobs 2`.",
         "",
@@ -323,6 +325,8 @@ def render(results: dict[str, Any]) -> str:
     ]
     for r in results["rows"]:
         stored = f" (stored: {r['stored']})" if r.get("stored") else ""
+        if r.get("resumed_from"):  # a run that stopped and went on from a checkpoint (train -i with its buffer)
+            stored += " (continued at " + ", ".join(f"{s:,}" for s in r["resumed_from"]) + ")"
         first = "-" if r["first_eval_at_90"] is None else f"{r['first_eval_at_90']:,}"
         cost = "-" if r.get("final_cost") is None else f"{r['final_cost']:.2f}"
         lines.append(f"| {r['variant']}{stored} | {r.get('env', ENV)} | {r['seed']} | {r['n_timesteps']:,} | "

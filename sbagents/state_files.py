@@ -212,9 +212,17 @@ def _plain_json(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not plain data")
 
 
+def _saved_class(buffer: Any) -> str:
+    """The class name a replay buffer's file records: its ``saved_as`` where it has one, else its own class's."""
+    saved_as = getattr(buffer, "saved_as", None)
+    return saved_as if isinstance(saved_as, str) else type(buffer).__name__
+
+
 def save_replay_buffer(buffer: Any, path: str | Path, num_timesteps: int | None = None) -> Path:
     """Write a replay buffer's arrays and position to ``path`` (``.npz``, atomically): every numpy array attribute
-    (also per key of Dict observations), object arrays (HER's ``infos``) as JSON, and ``pos``/``full``.
+    (also per key of Dict observations), object arrays (HER's ``infos``) as JSON, and ``pos``/``full``. The file
+    names the buffer's class, or the class whose state it holds where the buffer says so (``saved_as``: a subclass
+    that adds no saved state, so that either class reads the file).
 
     :param num_timesteps: the model's step count when the buffer was saved (recorded, so that continuing a model
         saved at another step can tell the buffer is not its own: :func:`replay_buffer_steps`).
@@ -230,7 +238,7 @@ def save_replay_buffer(buffer: Any, path: str | Path, num_timesteps: int | None 
             arrays[f"array/{name}"] = value
         elif isinstance(value, dict) and value and all(isinstance(v, np.ndarray) for v in value.values()):
             arrays |= {f"dict/{name}/{key}": v for key, v in value.items()}
-    settings = {"format": FORMAT, "class": type(buffer).__name__, "pos": int(buffer.pos), "full": bool(buffer.full),
+    settings = {"format": FORMAT, "class": _saved_class(buffer), "pos": int(buffer.pos), "full": bool(buffer.full),
                 "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
     if num_timesteps is not None:
         settings["num_timesteps"] = int(num_timesteps)
@@ -276,8 +284,10 @@ def load_replay_buffer(buffer: Any, path: str | Path, trust: bool = False, model
     expected = sum(v.nbytes for v in vars(buffer).values() if isinstance(v, np.ndarray)) + sum(
         a.nbytes for v in vars(buffer).values() if isinstance(v, dict) for a in v.values() if isinstance(a, np.ndarray))
     arrays, settings = _read_npz(path, "replay buffer", expected + MAX_STATS_BYTES)
-    mine = {"class": type(buffer).__name__, "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
+    mine = {"class": _saved_class(buffer), "buffer_size": int(buffer.buffer_size), "n_envs": int(buffer.n_envs)}
     theirs = {k: settings.get(k) for k in mine}
+    if theirs.get("class") == type(buffer).__name__:  # a file written before the class named its saved state
+        theirs["class"] = mine["class"]
     if theirs != mine:
         raise UsageError(f"{path} holds a {theirs['class']} of buffer_size {theirs['buffer_size']} for "
                          f"{theirs['n_envs']} envs; this model's is a {mine['class']} of buffer_size "

@@ -163,8 +163,9 @@ def test_dqn_with_demonstrations_and_the_margin_loss_solves_the_grid(datasets: P
 def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(datasets: Path, tmp_path: Path,
                                                                          capsys: pytest.CaptureFixture[str]) -> None:
     """SmartHome's expert as demonstrations with the Q-filtered BC loss; the saved buffer holds only the model's own
-    transitions; ``-i`` continues with the demonstrations read again and the Q-filter on (it counts the model's
-    gradient steps, not the continued run's), refuses ``--pretrain``, and ``evaluate`` loads the model."""
+    transitions (its file names SB3's class, so a run continues with it with or without ``--demos``); ``-i``
+    continues with the demonstrations read again and the Q-filter on (it counts the model's gradient steps, not the
+    continued run's), refuses ``--pretrain``, and ``evaluate`` loads the model."""
     collect_expert("SmartHome-v0", "sbagents/home-expert-v0", 3)
     logs = tmp_path / "logs"
     common = ("--algo", "sac", "--env", "SmartHome-v0", "--demos", "sbagents/home-expert-v0", "--demo-bc", "0.5",
@@ -179,14 +180,20 @@ def test_sac_with_demonstrations_continues_with_its_buffer_and_evaluates(dataset
     (run_dir,) = (p.parent for p in logs.rglob("summary.json"))
     with np.load(run_dir / "replay_buffer.npz") as saved:
         settings = json.loads(str(saved["__settings__"]))
-    assert settings["class"] == "DemoReplayBuffer" and settings["pos"] == 300  # the demonstrations are not in it
+    assert settings["class"] == "ReplayBuffer" and settings["pos"] == 300  # the demonstrations are not in it
     model = str(run_dir / "sbagents_SmartHome-v0.zip")
     capsys.readouterr()
     check_error(run_main("train", *common, "-n", "200", "-i", model, "--pretrain", "sbagents/home-expert-v0"),
                 capsys.readouterr().err, "--pretrain clones into a new model; -i continues a trained one")
     assert run_main("train", *common, "-n", "200", "-i", model) == 0
-    resumed = json.loads(sorted(logs.rglob("summary.json"))[-1].read_text())["demos"]
-    assert resumed["loss_steps"] == 100 and 0.0 <= resumed["loss_kept"] < 1.0  # filtered from the first step
+    resumed = json.loads(sorted(logs.rglob("summary.json"))[-1].read_text())
+    assert resumed["demos"]["loss_steps"] == 100 and 0.0 <= resumed["demos"]["loss_kept"] < 1.0  # filtered at once
+    assert resumed["replay_buffer"]["loaded_transitions"] == 300
+    plain = [a for a in common if a not in ("--demos", "sbagents/home-expert-v0", "--demo-bc", "0.5", "--demo-ratio",
+                                            "0.5", "--demo-filter-after", "100")]
+    assert run_main("train", *plain, "-n", "100", "-i", model) == 0  # the same buffer file, without demonstrations
+    dropped = json.loads(sorted(logs.rglob("summary.json"))[-1].read_text())
+    assert "demos" not in dropped and dropped["replay_buffer"]["loaded_transitions"] == 300
     assert run_main("evaluate", "--algo", "sac", "--env", "SmartHome-v0", "-f", str(logs), "-n", "2",
                     "--exp-id", "1") == 0
 

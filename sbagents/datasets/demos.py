@@ -37,6 +37,12 @@ class DemoMixin:
     demos: BaseBuffer | None = None
     demo_ratio: float = 0.0
 
+    @property
+    def saved_as(self) -> str:
+        """The buffer class whose file this buffer writes and reads (:func:`sbagents.state_files.save_replay_buffer`):
+        :attr:`base_class`'s, since the demonstrations are not saved; so ``-i`` may add or drop ``--demos``."""
+        return self.base_class.__name__
+
     def attach_demos(self, demos: BaseBuffer, ratio: float) -> None:
         """Mix ``demos`` (a filled buffer of :attr:`base_class`) into every batch at ``ratio`` (in [0, 1])."""
         if not 0 <= ratio <= 1:

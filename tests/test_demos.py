@@ -212,6 +212,10 @@ def test_bad_demonstrations_are_one_line_and_leave_no_run(datasets: Path, tmp_pa
             (("--algo", "dqn", "--demos", "sbagents/grid-expert-v0", "-params", "n_steps:3"), "n_steps > 1"),
     ):
         check_error(run_main("train", "--env", "GridWorld-v0", *args, *common), capsys.readouterr().err, expected)
+    collect_expert("SmartHome-v0", "sbagents/home-expert-v0", 1)
+    check_error(run_main("train", "--algo", "sac", "--env", "SmartHome-v0", "--demos", "sbagents/home-expert-v0",
+                         "--constraint", "lagrangian", "--cost-limit", "1", *common), capsys.readouterr().err,
+                "nor a flag that sets it, such as --demos, with --constraint")
     check_error(run_main("train", "--algo", "dqn", "--env", "HazardGridWorld-v0", "--demos",
                          "sbagents/grid-expert-v0", *common), capsys.readouterr().err,
                 "--demos sbagents/grid-expert-v0: its observation space Discrete(25) is not the env's Discrete(35)")

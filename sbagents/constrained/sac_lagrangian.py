@@ -123,7 +123,8 @@ class SACLagrangian(EpisodeCostConstraint, SAC):
     ) -> None:
         self._init_constraint(cost_limit, constraint, multiplier_kwargs)
         if kwargs.get("replay_buffer_class") not in (None, CostReplayBuffer):
-            raise ValueError("SACLagrangian uses its own CostReplayBuffer; do not pass replay_buffer_class")
+            raise ValueError("SACLagrangian uses its own CostReplayBuffer; do not pass replay_buffer_class (nor a "
+                             "flag that sets it, such as --demos, with --constraint)")
         if cost_n_critics < 1:
             raise ValueError(f"cost_n_critics must be >= 1, got {cost_n_critics}")
         kwargs["replay_buffer_class"] = CostReplayBuffer

@@ -18,6 +18,7 @@ from sb3_contrib import ARS, QRDQN, TQC, TRPO, CrossQ, MaskablePPO, RecurrentPPO
 from stable_baselines3 import A2C, DDPG, DQN, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from sbagents.algos.pqn import PQN
 from sbagents.algos.tabular import SARSA, QLearning
 from sbagents.capabilities import Capability
 from sbagents.registration import CAPABILITY_SOURCES
@@ -62,6 +63,7 @@ ALGOS: dict[str, AlgoSpec] = {
     "ars": AlgoSpec(ARS, (spaces.Box, spaces.Discrete), (spaces.Box, spaces.Discrete)),
     "dqn": AlgoSpec(DQN, (spaces.Discrete,), off_policy=True),
     "qrdqn": AlgoSpec(QRDQN, (spaces.Discrete,), off_policy=True),
+    "pqn": AlgoSpec(PQN, (spaces.Discrete,), (spaces.Box, spaces.Discrete)),  # parallel Q-learning, no replay buffer
     "ddpg": AlgoSpec(DDPG, (spaces.Box,), off_policy=True),
     "td3": AlgoSpec(TD3, (spaces.Box,), off_policy=True),
     "sac": AlgoSpec(SAC, (spaces.Box,), off_policy=True),

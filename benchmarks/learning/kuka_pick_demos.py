@@ -10,7 +10,8 @@ Per seed: ``python -m sbagents.collect --policy scripted`` records the demonstra
 - ``demos``: ``--pretrain DATASET`` (behaviour cloning first), then ``--demos DATASET --demo-bc W`` (the
   demonstrations in the replay buffer, and the cloning loss, behind a Q-filter after ``--demo-filter-after`` steps);
 - ``bc``: ``--pretrain DATASET`` alone, with no learning step (``learning_starts`` above the budget);
-- ``none``: SAC + HER without demonstrations (the ``kuka-pick-learning`` runs; 500k steps per seed);
+- ``none``: SAC + HER without demonstrations (500k steps per seed; the stored ``kuka-pick-learning`` run of seed 0
+  stands for seed 0 unless ``none:0`` is trained);
 - ``panda-demos``, ``panda-bc``, ``robust-demos``, ``robust-bc``: ``demos`` and ``bc`` on the Panda and on the robust
   env.
 
@@ -253,8 +254,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
         rows = list(pool.map(lambda job: _train(folder, job[0], job[1], datasets.get((VARIANTS[job[0]].env, job[1]),
                                                                                       ""), job[2], args.save_freq,
                                                        env), jobs))
-    if not any(v == "none" for v, _, _ in jobs):
-        rows += _stored_none()
+    trained_none = {s for v, s, _ in jobs if v == "none"}
+    rows += [r for r in _stored_none() if r["seed"] not in trained_none]  # the stored run stands for its seed
     for row in rows:
         print(f"{row['variant']} seed {row['seed']}: final success {row['final_success']:.2f}", file=sys.stderr)
     variants = [v for v in VARIANTS if any(r["variant"] == v for r in rows)]
@@ -296,6 +297,13 @@ def _plot(rows: list[dict[str, Any]], path: Path) -> None:
     save_figure(fig, path, dpi=110)
 
 
+def _jobs_given(command: str) -> str:
+    """``3 at once`` from a command's ``--jobs 3`` (``1 at a time`` without it)."""
+    words = command.split()
+    jobs = words[words.index("--jobs") + 1] if "--jobs" in words[:-1] else "1"
+    return "1 at a time" if jobs == "1" else f"{jobs} at once"
+
+
 def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.0f}%"
 
@@ -318,7 +326,7 @@ def render(results: dict[str, Any]) -> str:
         "stopped (a session's end) went on from its latest checkpoint with `train -i` and its replay buffer; its train "
         "seconds add its parts'. "
         f"{m['cpu']}, {m['cores']} cores, {m['date']}, load {m['load_before'][0]} before / {m['load_after'][0]} "
-        "after; two runs trained at once where `--jobs 2`.",
+        f"after; `--jobs N` trains N runs at once ({_jobs_given(results['command'])} here).",
         "",
         "| variant | env | seed | steps | final success (50) | cost | best eval (20) | first eval >= 90% | train s |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|",

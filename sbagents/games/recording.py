@@ -7,7 +7,6 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
-from stable_baselines3.common.base_class import BaseAlgorithm
 
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -62,9 +61,3 @@ def _one_game(env: SelfPlayEnv, player: Player, recorder: Recorder, seed: int | 
             reporter.update(index + 1)
             return recorder
 
-
-def recording_player(acting: str | BaseAlgorithm, ref: EnvRef, seed: int | None, deterministic: bool) -> Player:
-    """The player whose games are recorded (:func:`sbagents.games.training.game_player`)."""
-    from sbagents.games.training import game_player
-
-    return game_player(acting, ref, seed, deterministic)

@@ -26,13 +26,13 @@ from sbagents.core.experiment import Experiment
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.selfplay_options import SelfPlayOptions
 from sbagents.errors import UsageError
-from sbagents.games import recording  # noqa: F401 (game_operations().recording: collect's recording)
 from sbagents.games.builtin import builtin_for
 from sbagents.games.elo import EloCallback, fixed_opponents
 from sbagents.games.matches import match_summary, play_games
 from sbagents.games.numpy_policy import numpy_actor
 from sbagents.games.players import ModelPlayer, Player, load_player
 from sbagents.games.pool import SNAPSHOT_DIR, IllegalMovesCallback, SnapshotCallback
+from sbagents.games.recording import record_games  # noqa: F401 (collect's, through game_operations())
 from sbagents.games.selfplay import SelfPlayEnv, make_selfplay_env
 
 #: Seed offset of the rating matches (apart from training and evaluation envs).

@@ -142,7 +142,9 @@ class Acting:
 
     def stats_of(self, group: str) -> Path | None:
         """The statistics file of ``group``'s model (None: none)."""
-        return self.stats.get(group, next(iter(self.stats.values()), None) if len(self.models) <= 1 else None)
+        if len(self.models) > 1:  # one model per group: each its own statistics
+            return self.stats.get(group)
+        return next(iter(self.stats.values()), None)
 
 
 @dataclass(frozen=True)
@@ -218,13 +220,13 @@ def _game_collect_kind(kind: GameKind, exp: Experiment, ref: EnvRef, acting: Act
     _no_team_options(ref, options, turns=True)
     if acting.policy is None and len(acting.models) != 1:
         raise UsageError("collect records a run of one model of a turn-based game")
-    recording = game_operations().recording
-    player = recording.recording_player(acting.policy or next(iter(acting.models.values())), ref, options.seed,
-                                        acting.deterministic)
+    turns = game_operations()
+    player = turns.game_player(acting.policy or next(iter(acting.models.values())), ref, options.seed,
+                               acting.deterministic)
     opponent = options.opponent or "random"
     assert options.episodes is not None
-    episodes, obs_space, action_space = recording.record_games(player, exp, ref, options.episodes, options.seed,
-                                                               opponent, EpisodeRecorder, options.progress)
+    episodes, obs_space, action_space = turns.record_games(player, exp, ref, options.episodes, options.seed, opponent,
+                                                           EpisodeRecorder, options.progress)
     seeds: list[int | None] = [options.seed] + [None] * (len(episodes) - 1)
     layout = (f"; turn-based game: one episode per game from the recorded player's seat (seats alternate from game "
               f"to game), {opponent} in the other seats (their moves inside each step); infos: action_mask")

@@ -229,8 +229,8 @@ def _game_baseline_kind(kind: GameKind, policy: str, exp: Experiment, ref: EnvRe
 
 
 def game_operations() -> ModuleType:
-    """The turn-based games' evaluation and recording (:mod:`sbagents.games.training`, whose ``recording`` is
-    :mod:`sbagents.games.recording`), imported when a game is evaluated or recorded."""
+    """The turn-based games' evaluation and recording (:mod:`sbagents.games.training`, which also holds
+    :func:`sbagents.games.recording.record_games`), imported when a game is evaluated or recorded."""
     from sbagents.games import training
 
     return training

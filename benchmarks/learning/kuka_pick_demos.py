@@ -196,8 +196,9 @@ def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, save
     steps_at: list[int] = []
     success: list[float] = []
     train_s = float(summary["train_seconds"])
+    starts = [_resumed_from(d) for d in parts]  # each part's checkpoint step (None: the first run)
     for i, run_dir in enumerate(parts):
-        end = _resumed_from(parts[i + 1]) if i + 1 < len(parts) else None
+        end = starts[i + 1] if i + 1 < len(parts) else None
         if end is not None:  # the time this part took to its checkpoint the next one continued
             train_s += (run_dir / f"{CHECKPOINT_PREFIX}_{end}_steps.zip").stat().st_mtime - \
                 (run_dir / "command.txt").stat().st_mtime
@@ -209,7 +210,7 @@ def _train(folder: Path, variant: str, seed: int, dataset: str, steps: int, save
                         steps_at.append(int(t))
                         success.append(float(s))
     first_90 = next((t for t, s in zip(steps_at, success, strict=True) if s >= 0.9), None)
-    resumed = [r for r in (_resumed_from(d) for d in parts) if r is not None]
+    resumed = [r for r in starts if r is not None]
     return {"variant": variant, "env": spec.env, "seed": seed,
             "n_timesteps": int(summary["n_timesteps"]),  # the model's count: a continued run's total
             "final_success": float(summary["eval"]["success_rate"]), "final_episodes": FINAL_EPISODES,

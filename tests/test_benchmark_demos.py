@@ -58,6 +58,30 @@ def test_kuka_pick_demos_variants_take_their_seeds_and_budget() -> None:
         _jobs(["demos@5e5"], [0], defaults)
 
 
+def test_kuka_pick_demos_keeps_the_published_rows_it_does_not_train(tmp_path: Path) -> None:
+    """Seeds measured by an earlier command (another session) stay in the table beside the new ones; a pair the
+    command trains replaces its published row; the stored ``none`` row is left to :func:`_stored_none`."""
+    import json
+
+    from benchmarks.learning.kuka_pick_demos import _earlier, render, run
+
+    def row(variant: str, seed: int, success: float) -> dict[str, object]:
+        return {"variant": variant, "seed": seed, "final_success": success}
+
+    published = tmp_path / "kuka_pick_demos.json"
+    published.write_text(json.dumps({"command": "B", "earlier_commands": ["A"], "rows": [
+        row("demos", 0, 0.98), row("demos", 1, 1.0), {**row("none", 0, 0.0), "stored": "kuka-pick-learning"}]}))
+    kept, commands = _earlier([("demos", 1, 500_000), ("none", 1, 500_000)], published)
+    assert kept == [row("demos", 0, 0.98)] and commands == ["A", "B"]
+    assert _earlier([("demos", 0, 1), ("demos", 1, 1)], published) == ([], [])
+    assert _earlier([], tmp_path / "missing.json") == ([], [])
+    results = run(["-f", str(tmp_path / "out"), "--quick", "--variants", "bc"])  # a smoke run keeps nothing
+    assert results["earlier_commands"] == [] and {r["variant"] for r in results["rows"]} == {"bc", "none"}
+    assert "after `" not in render(results)
+    section = render({**results, "earlier_commands": ["A", "B"]})
+    assert section.startswith("## ") and "`, after `B`, after `A` (the rows of runs" in section
+
+
 def test_dqn_demos_quick_run() -> None:
     from benchmarks.learning.dqn_demos import render, run
 

@@ -18,10 +18,11 @@ Per seed: ``python -m sbagents.collect --policy scripted`` records the demonstra
 Every run ends with 50 greedy episodes (the success rate in the table); ``demos`` and ``none`` also evaluate 20
 greedy episodes every 10k steps (the curves). Each run has a folder per variant, seed and budget
 (``OUT/demos/seed0-n500000``). Runs that finished are kept (a ``summary.json`` in their folder): run the command again
-to add seeds or variants. A run that learns saves a checkpoint with its replay buffer every 50k steps; the command run
-again continues a run that stopped (a session that ended) from its latest checkpoint with ``train -i`` and that
-buffer, without ``--pretrain``, and the table counts the parts' training time together. ``--jobs 2`` trains two runs
-at once::
+to add seeds or variants. The published results' rows of (variant, seed) pairs a command does not train are kept
+(``--fresh``: not), so seeds measured in one session and the next end up in one table. A run that learns saves a
+checkpoint with its replay buffer every 50k steps; the command run again continues a run that stopped (a session
+that ended) from its latest checkpoint with ``train -i`` and that buffer, without ``--pretrain``, and the table counts
+the parts' training time together. ``--jobs 2`` trains two runs at once::
 
     python -m benchmarks run kuka-pick-demos -f OUT [--seeds 0 1 2] [--variants demos@500000 bc panda-demos:0]
         [--jobs 2]
@@ -94,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--jobs", type=int, default=1, help="runs trained at once")
     parser.add_argument("--save-freq", type=int, default=50_000, help="env steps between checkpoints (with the buffer)")
     parser.add_argument("--plots", type=Path, default=RESULTS_DIR, help="folder of the PNG")
+    parser.add_argument("--fresh", action="store_true",
+                        help="drop the published results' rows of runs this command does not train (default: kept)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: seed 0, 5 episodes, 3000 steps (or --steps), a checkpoint every 1000")
     return parser
@@ -237,6 +240,18 @@ def _stored_none() -> list[dict[str, Any]]:
     return []
 
 
+def _earlier(jobs: Sequence[tuple[str, int, int]], path: Path = RESULTS_DIR / "kuka_pick_demos.json"
+             ) -> tuple[list[dict[str, Any]], list[str]]:
+    """The published results' rows of (variant, seed) pairs that ``jobs`` do not train (not the stored ``none`` row,
+    which :func:`_stored_none` adds), and the commands that measured them."""
+    if not path.exists():
+        return [], []
+    published = json.loads(path.read_text())
+    trained = {(v, s) for v, s, _ in jobs}
+    rows = [r for r in published["rows"] if not r.get("stored") and (r["variant"], r["seed"]) not in trained]
+    return rows, [*published.get("earlier_commands", []), published["command"]] if rows else []
+
+
 def run(argv: Sequence[str]) -> dict[str, Any]:
     """Every (variant, seed) run's row, then each variant's statistics over seeds."""
     args = build_parser().parse_args(list(argv))
@@ -255,16 +270,20 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
         rows = list(pool.map(lambda job: _train(folder, job[0], job[1], datasets.get((VARIANTS[job[0]].env, job[1]),
                                                                                       ""), job[2], args.save_freq,
                                                        env), jobs))
-    trained_none = {s for v, s, _ in jobs if v == "none"}
-    rows += [r for r in _stored_none() if r["seed"] not in trained_none]  # the stored run stands for its seed
+    kept, earlier = ([], []) if args.quick or args.fresh else _earlier(jobs)
+    trained_none = {s for v, s, _ in jobs if v == "none"} | {r["seed"] for r in kept if r["variant"] == "none"}
+    rows += kept + [r for r in _stored_none() if r["seed"] not in trained_none]  # the stored run stands for its seed
+    rows.sort(key=lambda r: (list(VARIANTS).index(r["variant"]), r["seed"]))
     for row in rows:
         print(f"{row['variant']} seed {row['seed']}: final success {row['final_success']:.2f}", file=sys.stderr)
     variants = [v for v in VARIANTS if any(r["variant"] == v for r in rows)]
     stats = {v: seed_stats([r["final_success"] for r in rows if r["variant"] == v]) for v in variants}
+    steps.update({r["variant"]: r["n_timesteps"] for r in kept if r["variant"] not in steps})
     results = {"command": f"python -m benchmarks run {NAME} -f <output dir> --seeds "
                           f"{' '.join(map(str, args.seeds))} --variants {' '.join(args.variants)} --episodes "
                           f"{args.episodes} --jobs {args.jobs}" + (f" --steps {args.steps}" if args.steps else ""),
-               "episodes": args.episodes, "steps": {v: steps.get(v, VARIANTS[v].steps) for v in variants},
+               "earlier_commands": earlier, "episodes": args.episodes,
+               "steps": {v: steps.get(v, VARIANTS[v].steps) for v in variants},
                "envs": {v: VARIANTS[v].env for v in variants},
                "flags": {v: " ".join(VARIANTS[v].flags) for v in variants},
                "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()},
@@ -315,7 +334,11 @@ def render(results: dict[str, Any]) -> str:
     lines = [
         "## Kuka pick-and-place from demonstrations (SAC + HER, 100 scripted episodes)",
         "",
-        f"Command: `{results['command']}`. Per env and seed, {results['episodes']} episodes of the env's scripted "
+        f"Command: `{results['command']}`"
+        + "".join(f", after `{c}`" for c in reversed(results.get("earlier_commands", [])))
+        + (" (the rows of runs a later command did not train are kept from the earlier one)"
+           if results.get("earlier_commands") else "")
+        + f". Per env and seed, {results['episodes']} episodes of the env's scripted "
         "grasp (`python -m sbagents.collect --policy scripted`; for the Panda, `benchmarks/learning/panda_pick.py`, "
         "which succeeds in 100 of 100 episodes) are the demonstrations; every variant trains `sac` with "
         f"`{CONFIG}` (HER, 64-64 networks, batch 256, half a gradient step per env step: the settings of the runs "

@@ -232,6 +232,15 @@ def is_monitor_wrapped(venv: VecEnv) -> bool:
     return is_vecenv_wrapped(venv, VecMonitor) or bool(venv.env_is_wrapped(Monitor)[0])
 
 
+def episode_metrics_of(venv: VecEnv) -> MetricsFn | None:
+    """The env's ``episode_metrics(step_infos) -> dict`` hook (first copy), if it has one."""
+    try:
+        found = venv.get_attr("episode_metrics", [0])[0]
+    except AttributeError:
+        return None
+    return found if callable(found) else None
+
+
 def play_episodes(
     envs: VecEnv | Mapping[str, VecEnv],
     acts: Policy | Mapping[str, Policy],

@@ -115,6 +115,7 @@ class SingleAgentKind(EnvKind):
     """A Gymnasium env."""
 
     name = "single-agent"
+    backends = ("sb3", "rllib")
     image_wrapper = GYM_IMAGE_WRAPPER
 
     def config_entries(self, ref: EnvRef) -> tuple[str, ...]:

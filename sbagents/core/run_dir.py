@@ -456,12 +456,17 @@ def load_run(ref: RunRef) -> LoadedRun:
     model is rebuilt from the run's resolved hyperparameters, its plain data and its weights
     (:mod:`sbagents.safe_load`; ``ref.trust`` loads them as SB3 does)."""
     from sbagents.algos import ALGOS
+    from sbagents.core.backends import DEFAULT_BACKEND, backend_of_run
     from sbagents.safe_load import load_model
 
+    env = ref.env_ref()
+    run_dir = find_run_dir(ref.log_folder, str(ref.algo), env.env_id, ref.exp_id)
+    backend = backend_of_run(run_dir)
+    if backend.name != DEFAULT_BACKEND:  # its policy is not an SB3 model (e.g. RLlib's modules)
+        raise UsageError(f"{run_dir} is a --backend {backend.name} run: python -m sbagents.evaluate plays it; this "
+                         f"command loads SB3 models only")
     if ref.algo not in ALGOS:
         raise UsageError(f"unknown algo {ref.algo!r}; available: {', '.join(ALGOS)}")
-    env = ref.env_ref()
-    run_dir = find_run_dir(ref.log_folder, ref.algo, env.env_id, ref.exp_id)
     trusted = env.trusted_modules()
     exp = with_env_kwargs(load_experiment(run_dir, ref.algo, env.env_id, env.kind, trusted),
                           ref.env_kwargs)

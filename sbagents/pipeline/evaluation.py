@@ -14,7 +14,14 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sbagents.callbacks.episodes import EpisodeRecord, Policy, model_actor, play_episodes, summarize_records
+from sbagents.callbacks.episodes import (
+    EpisodeRecord,
+    Policy,
+    episode_metrics_of,
+    model_actor,
+    play_episodes,
+    summarize_records,
+)
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -25,14 +32,6 @@ from sbagents.env_factory import make_eval_vec, make_team_vecs, normalize_for_ev
 from sbagents.errors import UsageError
 from sbagents.multiagent.team_eval import run_team_episodes, slot_agents, team_summary
 from sbagents.visualize.text_render import ParallelTextStepPrinter, TextStepPrinter, supports_text
-
-
-def _episode_metrics_fn(venv: VecEnv) -> Any:
-    """The env's ``episode_metrics(step_infos) -> dict`` hook, if it has one."""
-    try:
-        return venv.get_attr("episode_metrics", [0])[0]
-    except AttributeError:
-        return None
 
 
 def summarize(
@@ -95,7 +94,7 @@ def _play_one(exp: Experiment, ref: EnvRef, options: EvaluateOptions, actor_for:
                          wrapper=TextStepPrinter if text else None, trust=trust)
     try:
         records = play_episodes(venv, actor_for(venv), options.n_episodes, monitor_episodes=True,
-                                episode_metrics=_episode_metrics_fn(venv))
+                                episode_metrics=episode_metrics_of(venv))
     finally:
         venv.close()
     return {"env": ref.env_id, "algo": exp.algo, **summarize_records(records)}

@@ -1,4 +1,4 @@
-"""Ray RLlib backend for the PettingZoo envs (``python -m sbagents.train --backend rllib``).
+"""Ray RLlib backend for Gymnasium envs and PettingZoo teams (``python -m sbagents.train --backend rllib``).
 
 This module never imports Ray: it holds what the CLIs need to decide whether a run or a command belongs to the
 RLlib backend. Training lives in :mod:`sbagents.rllib.training`, evaluation in :mod:`sbagents.rllib.evaluation`
@@ -13,21 +13,49 @@ An RLlib run dir has the same layout as an SB3 one (``<log>/<algo>/<env>_<k>/`` 
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import socket
 from pathlib import Path
 from typing import Any
 
+from sbagents.core.env_kinds import EnvKind, SingleAgentKind, TeamKind
 from sbagents.errors import UsageError
 
 #: Algorithms the RLlib backend trains (names as in ``--algo``): its declaration
-#: (:attr:`sbagents.rllib.backend.RllibBackend.algos`, the capability table's ``rllib`` column).
-RLLIB_ALGOS: tuple[str, ...] = ("ppo",)
+#: (:attr:`sbagents.rllib.backend.RllibBackend.algos`, the capability table's ``rllib`` column). ``appo`` and
+#: ``impala`` exist only in RLlib; all five train Gymnasium envs.
+RLLIB_ALGOS: tuple[str, ...] = ("ppo", "appo", "impala", "dqn", "sac")
+#: Those that train PettingZoo teams here (one RLModule per module id, on-policy).
+TEAM_ALGOS: tuple[str, ...] = ("ppo", "appo", "impala")
 
 
 def rllib_algos() -> tuple[str, ...]:
     """Algorithms the RLlib backend trains (:data:`RLLIB_ALGOS`)."""
     return RLLIB_ALGOS
+
+
+@functools.singledispatch
+def kind_algos(kind: EnvKind) -> tuple[str, ...]:
+    """The algorithms the RLlib backend trains on envs of ``kind`` (none for a kind it does not train)."""
+    return ()
+
+
+@kind_algos.register
+def _single_agent_algos(kind: SingleAgentKind) -> tuple[str, ...]:
+    return RLLIB_ALGOS
+
+
+@kind_algos.register
+def _team_algos(kind: TeamKind) -> tuple[str, ...]:
+    return TEAM_ALGOS
+
+
+def check_kind_algo(kind: EnvKind, algo: str) -> None:
+    """Raise :class:`UsageError` (one line) when the RLlib backend does not train ``algo`` on envs of ``kind``."""
+    accepted = kind_algos(kind)
+    if algo not in accepted:
+        raise UsageError(f"--backend rllib trains {kind.name} envs with --algo {', '.join(accepted)}; got {algo}")
 
 
 #: The RLlib checkpoint inside a run dir; its presence marks an RLlib run.
@@ -49,7 +77,6 @@ NEEDS_RAY = "--backend rllib needs Ray: pip install 'sbagents[distributed]'"
 #: Options (group, field) the RLlib backend does not implement -> their ``train`` flag.
 UNSUPPORTED_OPTIONS: dict[tuple[str, str], str] = {
     ("spec", "trained_agent"): "-i/--trained-agent",
-    ("spec", "gym_packages"): "--gym-packages",
     ("output", "tensorboard_log"): "-tb/--tensorboard-log",
     ("evaluation", "n_eval_envs"): "--n-eval-envs",
     ("sb3", "vec_env"): "--vec-env",
@@ -126,9 +153,12 @@ __all__ = [
     "NEEDS_RAY",
     "PROGRESS_FILE",
     "RLLIB_ALGOS",
+    "TEAM_ALGOS",
     "rllib_algos",
     "SHARED_MODULE",
     "check_address",
+    "check_kind_algo",
+    "kind_algos",
     "check_options",
     "is_rllib_run",
     "ray_available",

@@ -11,6 +11,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
+from sbagents.capabilities import Capability
 from sbagents.core.backends import Backend
 from sbagents.core.extensions import refused_flags
 from sbagents.core.lifecycle import TrainResult
@@ -25,8 +26,10 @@ from sbagents.core.options import (
 )
 from sbagents.core.run_dir import RunRef
 from sbagents.errors import UsageError
-from sbagents.rllib import RLLIB_ALGOS, check_options, is_rllib_run, require_ray
+from sbagents.rllib import RLLIB_ALGOS, check_kind_algo, check_options, is_rllib_run, require_ray
 
+#: The algorithms only RLlib trains here (no SB3 counterpart in ``train --list``'s rows).
+RLLIB_ONLY = ("appo", "impala")
 #: ``evaluate`` options RLlib runs do not support -> their flag.
 UNSUPPORTED_EVALUATE = {"attacks": "--attack", "fairness": "--fairness", "opponent": "--opponent"}
 
@@ -43,11 +46,18 @@ def rllib_import(what: str) -> Iterator[None]:
 
 
 class RllibBackend(Backend):
-    """Ray RLlib (PettingZoo envs; one machine or a Ray cluster with ``--address``)."""
+    """Ray RLlib (Gymnasium envs and PettingZoo teams; one machine or a Ray cluster with ``--address``)."""
 
     name: ClassVar[str] = "rllib"
-    summary: ClassVar[str] = "Ray RLlib (PettingZoo envs; --address reaches a Ray cluster)"
+    summary: ClassVar[str] = "Ray RLlib (Gymnasium envs and PettingZoo teams; --address reaches a Ray cluster)"
     algos: ClassVar[tuple[str, ...] | None] = RLLIB_ALGOS
+
+    def capabilities(self) -> list[Capability]:
+        """The ``rllib`` column marks the algorithms sbagents' SB3 table has too; ``appo`` and ``impala`` (RLlib's
+        own) are named in its legend."""
+        shared = tuple(a for a in RLLIB_ALGOS if a not in RLLIB_ONLY)
+        return [Capability(self.name, f"--backend {self.name}: {self.summary}; also --algo {', '.join(RLLIB_ONLY)} "
+                           "(RLlib's own)", shared, label=f"--backend {self.name}")]
 
     def train(self, spec: TrainSpec, output: OutputOptions | None, evaluation: EvalOptions | None,
               execution: ExecOptions, callbacks: Sequence[Any], features: Sequence[Any], sb3: Sb3Options,
@@ -59,6 +69,7 @@ class RllibBackend(Backend):
         refused = refused_flags(features, self.name)
         check_options({"spec": spec, "output": output, "evaluation": evaluation, "execution": execution, "sb3": sb3,
                        "rllib": rllib}, refused)
+        check_kind_algo(ref.kind, spec.algo)
         if callbacks:
             raise UsageError("SB3 callbacks do not apply to --backend rllib")
         require_ray()

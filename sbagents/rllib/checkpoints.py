@@ -5,7 +5,9 @@ RLlib's own checkpoint (``Algorithm.save_to_path``) is a tree of pickles (``clas
 elsewhere put there. So next to RLlib's files every checkpoint sbagents writes holds two plain-data files:
 
 - :data:`~sbagents.rllib.MODULES_FILE` (JSON): the algorithm, the RLModule class (by name, from
-  :data:`ALLOWED_MODULES`), the module ids with the agents each acts for, and the run's ``model`` settings;
+  :data:`ALLOWED_MODULES`), the module ids with the agents each acts for, the run's ``model`` settings and how
+  its continuous actions reach the env (``actions``: RLlib's ``normalize_actions`` and ``clip_actions``), and the
+  algorithm settings that shape its module (``module_settings``: e.g. DQN's ``dueling``, SAC's ``twin_q``);
 - :data:`~sbagents.rllib.WEIGHTS_FILE` (``.npz``, read with ``allow_pickle=False``): every module's weights,
   ``<module id>/<parameter name>``.
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import logging
 import shutil
@@ -31,20 +34,31 @@ from typing import Any
 
 import numpy as np
 import torch
+from ray.rllib.algorithms.appo import APPOConfig
+from ray.rllib.algorithms.dqn import DQNConfig
+from ray.rllib.algorithms.impala import IMPALAConfig
 from ray.rllib.algorithms.ppo import PPOConfig
+from ray.rllib.algorithms.sac import SACConfig
+from ray.rllib.core.rl_module.apis import TargetNetworkAPI
 from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 from ray.rllib.core.rl_module.multi_rl_module import MultiRLModule
 from ray.rllib.core.rl_module.rl_module import RLModule
 
 from sbagents.atomic import raise_disk_error, replace_dir, staging_dir, write_json, write_npz
+from sbagents.core.env_kinds import EnvKind, SingleAgentKind, TeamKind
 from sbagents.core.env_names import EnvRef
 from sbagents.errors import UsageError
 from sbagents.plain_data import TRUST_FLAG
 from sbagents.rllib import MODULE_SUBDIR, MODULES_FILE, WEIGHTS_FILE
+from sbagents.rllib.single_agent import SINGLE_MODULE, env_spaces
 
 #: The RLModule classes rebuilt from a checkpoint's plain data, by algorithm: RLlib's own default modules only
-#: (the algorithm's config class, and the module class its default spec builds).
-ALLOWED_MODULES: dict[str, tuple[type[Any], str]] = {"ppo": (PPOConfig, "DefaultPPOTorchRLModule")}
+#: (the algorithm's config class, and the module class its default spec builds; IMPALA's is PPO's).
+ALLOWED_MODULES: dict[str, tuple[type[Any], str]] = {
+    "ppo": (PPOConfig, "DefaultPPOTorchRLModule"), "appo": (APPOConfig, "DefaultAPPOTorchRLModule"),
+    "impala": (IMPALAConfig, "DefaultPPOTorchRLModule"), "dqn": (DQNConfig, "DefaultDQNTorchRLModule"),
+    "sac": (SACConfig, "DefaultSACTorchRLModule"),
+}
 #: Version of :data:`~sbagents.rllib.MODULES_FILE`'s layout.
 FORMAT = 1
 
@@ -77,6 +91,8 @@ def save_checkpoint(algo: Any, path: Path, algo_name: str, model: Mapping[str, A
             "format": FORMAT, "algo": algo_name, "module_class": ALLOWED_MODULES[algo_name][1],
             "modules": {str(m): [str(a) for a in agents] for m, agents in groups.items() if m in weights},
             "model": dict(model),
+            "actions": {"normalize": bool(algo.config.normalize_actions), "clip": bool(algo.config.clip_actions)},
+            "module_settings": json.loads(json.dumps(algo.config._model_config_auto_includes)),  # tuples -> lists
         })
         return replace_dir(staged, path)
     except BaseException as exc:
@@ -140,6 +156,19 @@ def _unpickle(folder: Path) -> dict[str, RLModule]:
 
 
 def _read_spec(path: Path) -> tuple[str, dict[str, list[str]], dict[str, Any]]:
+    """Algorithm, module id -> agents and the module's model config (the ``model`` settings with the algorithm's
+    ``module_settings``) of :data:`~sbagents.rllib.MODULES_FILE`, validated."""
+    algo, groups, model, data = _read_fields(path)
+    settings = data.get("module_settings", {})
+    known = ALLOWED_MODULES[algo][0]()._model_config_auto_includes
+    if not isinstance(settings, dict) or set(settings) - set(known) or not all(
+            isinstance(v, (bool, int, float, str, list)) for v in settings.values()):
+        raise UsageError(f"{path}: module_settings takes {', '.join(known) or 'nothing'} for {algo}, with plain "
+                         "values")
+    return algo, groups, {**settings, **dataclasses.asdict(DefaultModelConfig(**model))}  # as RLlib merges them
+
+
+def _read_fields(path: Path) -> tuple[str, dict[str, list[str]], dict[str, Any], dict[str, Any]]:
     """Algorithm, module id -> agents and model settings of :data:`~sbagents.rllib.MODULES_FILE`, validated."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -164,36 +193,18 @@ def _read_spec(path: Path) -> tuple[str, dict[str, list[str]], dict[str, Any]]:
     if not isinstance(model, dict) or set(model) - fields:
         bad = ", ".join(sorted(set(model) - fields)) if isinstance(model, dict) else repr(model)[:40]
         raise UsageError(f"{path}: model has unknown key(s) {bad}; accepted: {', '.join(sorted(fields))}")
-    return str(algo), {str(m): list(a) for m, a in modules.items()}, model
+    return str(algo), {str(m): list(a) for m, a in modules.items()}, model, data
 
 
 def _rebuild(folder: Path, ref: EnvRef, env_kwargs: dict[str, Any]) -> dict[str, RLModule]:
     """Build the modules of :data:`~sbagents.rllib.MODULES_FILE` and load :data:`~sbagents.rllib.WEIGHTS_FILE`."""
     spec_path, weights_path = folder / MODULES_FILE, folder / WEIGHTS_FILE
     algo, groups, model = _read_spec(spec_path)
-    try:
-        probe = ref.parallel_env(**env_kwargs)
-    except (TypeError, ValueError) as exc:
-        raise UsageError(f"invalid env_kwargs for {ref.env_id}: {exc}") from None
-    try:
-        known = {str(a) for a in probe.possible_agents}
-        spaces = {}
-        for module_id, agents in groups.items():
-            unknown = [a for a in agents if a not in known]
-            if unknown:
-                raise UsageError(f"{spec_path}: module {module_id} acts for {', '.join(unknown)}, not agents of "
-                                 f"{ref.env_id}")
-            obs, act = probe.observation_space(agents[0]), probe.action_space(agents[0])
-            if any(probe.observation_space(a) != obs or probe.action_space(a) != act for a in agents):
-                raise UsageError(f"{spec_path}: the agents of module {module_id} have different spaces in "
-                                 f"{ref.env_id}")
-            spaces[module_id] = (obs, act)
-    finally:
-        probe.close()
+    spaces = _module_spaces(ref.kind, spec_path, groups, ref, env_kwargs)
     config_cls, class_name = ALLOWED_MODULES[algo]
     with _quiet_deprecations():
         try:
-            config = config_cls().rl_module(model_config=DefaultModelConfig(**model)).multi_agent(
+            config = config_cls().rl_module(model_config=model).multi_agent(
                 policies=set(groups))
             multi = config.get_multi_rl_module_spec(spaces=spaces, inference_only=False).build()
         except (TypeError, ValueError, KeyError, AttributeError) as exc:
@@ -218,9 +229,70 @@ def _rebuild(folder: Path, ref: EnvRef, env_kwargs: dict[str, Any]) -> dict[str,
     for module_id, module in modules.items():
         if not isinstance(module, torch.nn.Module):
             raise UsageError(f"{spec_path}: module {module_id} is not a torch module")
+        if isinstance(module, TargetNetworkAPI):  # DQN, SAC, APPO: the learner's copy holds target networks too
+            module.make_target_networks()
         try:
             module.load_state_dict(states[module_id], strict=True)
         except RuntimeError as exc:
             raise UsageError(f"{weights_path}: the weights of module {module_id} do not fit the module the run "
                              f"describes: {exc}".splitlines()[0]) from None
     return modules
+
+
+@functools.singledispatch
+def _module_spaces(kind: EnvKind, spec_path: Path, groups: Mapping[str, list[str]], ref: EnvRef,
+                   env_kwargs: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """Module id -> (observation, action space) of the modules a run on an env of ``kind`` trained."""
+    raise UsageError(f"{spec_path}: --backend rllib does not train {kind.name} envs ({ref.env_id})")
+
+
+@_module_spaces.register
+def _team_spaces(kind: TeamKind, spec_path: Path, groups: Mapping[str, list[str]], ref: EnvRef,
+                 env_kwargs: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """Module id -> (observation, action space) of a PettingZoo team's modules: their agents' spaces."""
+    try:
+        probe = ref.parallel_env(**env_kwargs)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"invalid env_kwargs for {ref.env_id}: {exc}") from None
+    try:
+        known = {str(a) for a in probe.possible_agents}
+        spaces = {}
+        for module_id, agents in groups.items():
+            unknown = [a for a in agents if a not in known]
+            if unknown:
+                raise UsageError(f"{spec_path}: module {module_id} acts for {', '.join(unknown)}, not agents of "
+                                 f"{ref.env_id}")
+            obs, act = probe.observation_space(agents[0]), probe.action_space(agents[0])
+            if any(probe.observation_space(a) != obs or probe.action_space(a) != act for a in agents):
+                raise UsageError(f"{spec_path}: the agents of module {module_id} have different spaces in "
+                                 f"{ref.env_id}")
+            spaces[module_id] = (obs, act)
+    finally:
+        probe.close()
+    return spaces
+
+
+@_module_spaces.register
+def _single_spaces(kind: SingleAgentKind, spec_path: Path, groups: Mapping[str, list[str]], ref: EnvRef,
+                   env_kwargs: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """The one module of a run on a Gymnasium env, with the spaces the env runners gave it."""
+    if list(groups) != [SINGLE_MODULE]:
+        raise UsageError(f"{spec_path}: a run on the Gymnasium env {ref.env_id} has one module, {SINGLE_MODULE}; "
+                         f"got {', '.join(groups)}")
+    return {SINGLE_MODULE: env_spaces(ref, env_kwargs)}
+
+
+def action_settings(checkpoint: str | Path) -> dict[str, bool]:
+    """How the run's continuous actions reach the env (``normalize``, ``clip``: RLlib's ``normalize_actions`` and
+    ``clip_actions``), from :data:`~sbagents.rllib.MODULES_FILE` (RLlib's defaults, True and False, where it says
+    nothing)."""
+    path = Path(checkpoint) / MODULES_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"{path} is not valid JSON: {exc}") from None
+    given = data.get("actions", {}) if isinstance(data, dict) else {}
+    if not isinstance(given, dict) or set(given) - {"normalize", "clip"} or \
+            not all(isinstance(v, bool) for v in given.values()):
+        raise UsageError(f"{path}: actions maps normalize and clip to true or false")
+    return {"normalize": True, "clip": False, **given}

@@ -1,5 +1,6 @@
 """Evaluating an RLlib run: greedy team episodes with the checkpoint's RLModule(s), without starting Ray and without
-unpickling the checkpoint (:mod:`sbagents.rllib.checkpoints`).
+unpickling the checkpoint (:mod:`sbagents.rllib.checkpoints`); a run on a Gymnasium env plays its episodes with
+:func:`sbagents.rllib.single_agent.evaluate_single`.
 
 The episodes are played by the same runner and summarized as the SB3 team evaluation
 (:func:`sbagents.multiagent.team_eval.run_team_episodes`, :func:`~sbagents.multiagent.team_eval.team_summary`):
@@ -9,6 +10,7 @@ returns and the env's declared metrics.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -20,6 +22,7 @@ from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.rl_module import RLModule
 
 from sbagents.callbacks.episodes import stateless
+from sbagents.core.env_kinds import EnvKind, SingleAgentKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.options import EvaluateOptions
 from sbagents.core.run_dir import load_run_config, run_groups
@@ -29,7 +32,8 @@ from sbagents.multiagent.factory import ParallelEnvFactory
 from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.team_eval import run_team_episodes, team_summary
 from sbagents.rllib import CHECKPOINT_DIR, SHARED_MODULE
-from sbagents.rllib.checkpoints import load_modules
+from sbagents.rllib.checkpoints import action_settings, load_modules
+from sbagents.rllib.single_agent import SINGLE_MODULE, evaluate_single
 from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
 
 
@@ -111,7 +115,27 @@ def evaluate_checkpoint(
     The modules are rebuilt from the checkpoint's plain data (:func:`~sbagents.rllib.checkpoints.load_modules`);
     ``trust`` (``--trust-run``) lets an older checkpoint without it be unpickled by RLlib.
     """
-    return evaluate_modules(load_modules(checkpoint, ref, env_kwargs, trust), ref, env_kwargs, algo, groups, options)
+    modules = load_modules(checkpoint, ref, env_kwargs, trust)
+    return _evaluate_kind(ref.kind, modules, Path(checkpoint), ref, env_kwargs, algo, groups,
+                          options or EvaluateOptions())
+
+
+@functools.singledispatch
+def _evaluate_kind(kind: EnvKind, modules: Mapping[str, RLModule], checkpoint: Path, ref: EnvRef,
+                   env_kwargs: Mapping[str, Any], algo: str, groups: Mapping[str, list[str]] | None,
+                   options: EvaluateOptions) -> dict[str, Any]:
+    """A checkpoint's episodes on an env of ``kind``: greedy team episodes (:func:`evaluate_modules`)."""
+    return evaluate_modules(modules, ref, env_kwargs, algo, groups, options)
+
+
+@_evaluate_kind.register
+def _evaluate_single_agent(kind: SingleAgentKind, modules: Mapping[str, RLModule], checkpoint: Path, ref: EnvRef,
+                           env_kwargs: Mapping[str, Any], algo: str, groups: Mapping[str, list[str]] | None,
+                           options: EvaluateOptions) -> dict[str, Any]:
+    if SINGLE_MODULE not in modules:
+        raise UsageError(f"{checkpoint} has no module {SINGLE_MODULE} (modules: {', '.join(modules)})")
+    options.validate()
+    return evaluate_single(modules[SINGLE_MODULE], ref, env_kwargs, algo, options, action_settings(checkpoint))
 
 
 def evaluate_run(run_dir: str | Path, algo: str, ref: EnvRef, options: EvaluateOptions, trust: bool = False

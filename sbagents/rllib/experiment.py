@@ -1,11 +1,14 @@
 """An RLlib experiment: the zoo entry of ``zoo_configs/rllib_<algo>.yml`` split into RLlib's settings, and the
-``PPOConfig`` (new API stack: RLModule / Learner / EnvRunner) built from it.
+algorithm config (``PPOConfig``, ``APPOConfig``, ``IMPALAConfig``, ``DQNConfig``, ``SACConfig``; RLlib's new API
+stack: RLModule / Learner / EnvRunner) built from it, for a PettingZoo team or a Gymnasium env
+(:mod:`sbagents.rllib.single_agent`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -13,30 +16,51 @@ from typing import Any
 import gymnasium as gym
 import torch
 from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
-from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
 from ray.rllib.env.multi_agent_env import MultiAgentEnv
 from ray.tune.registry import register_env
 
+from sbagents.core.env_kinds import EnvKind, SingleAgentKind, TeamKind
 from sbagents.core.env_names import EnvRef, make_parallel_env
 from sbagents.core.options import TrainSpec
 from sbagents.core.team_options import TeamOptions
 from sbagents.core.zoo_config import spec_entry
 from sbagents.errors import UsageError
 from sbagents.multiagent.groups import team_groups
-from sbagents.rllib import SHARED_MODULE, rllib_algos
+from sbagents.rllib import SHARED_MODULE, check_kind_algo, rllib_algos
+from sbagents.rllib.checkpoints import ALLOWED_MODULES
 from sbagents.rllib.env_runner import LeanMultiAgentEnvRunner
+from sbagents.rllib.single_agent import build_single_config
 from sbagents.rllib.truncation import PettingZooEnv, keep_truncation
 
 #: Zoo-entry keys that describe the experiment (the rest go to RLlib).
 EXPERIMENT_KEYS = ("n_timesteps", "env_kwargs", "policies", "groups", "model")
 #: Zoo-entry keys passed to ``AlgorithmConfig.env_runners``.
-ENV_RUNNER_KEYS = ("num_env_runners", "num_envs_per_env_runner", "rollout_fragment_length")
-#: Zoo-entry keys passed to ``PPOConfig.training`` (``lr`` may be ``lin_<x>``: linear decay to 0).
-TRAINING_KEYS = ("lr", "gamma", "lambda_", "train_batch_size_per_learner", "minibatch_size", "num_epochs",
-                 "entropy_coeff", "clip_param", "vf_clip_param", "vf_loss_coeff", "grad_clip", "grad_clip_by",
-                 "use_kl_loss", "kl_coeff", "kl_target", "shuffle_batch_per_epoch")
+ENV_RUNNER_KEYS = ("num_env_runners", "num_envs_per_env_runner", "rollout_fragment_length", "batch_mode",
+                   "gym_env_vectorize_mode")
+#: Zoo-entry keys passed to ``AlgorithmConfig.environment`` (Gymnasium envs).
+ENVIRONMENT_KEYS = ("clip_rewards", "normalize_actions", "clip_actions")
+#: ``training()`` arguments of RLlib's configs that take code (classes, callables, connectors) or are deprecated:
+#: never read from a config file.
+CODE_TRAINING_KEYS = frozenset({"model", "optimizer", "learner_class", "learner_connector",
+                                "add_default_connectors_to_learner_pipeline", "learner_config_dict",
+                                "before_learn_on_batch", "num_sgd_iter", "train_batch_size",
+                                "max_requests_in_flight_per_sampler_worker"})
+#: Replay buffers a ``replay_buffer_config``'s ``type`` may name (RLlib's episode buffers of the new API stack).
+REPLAY_BUFFERS = ("EpisodeReplayBuffer", "PrioritizedEpisodeReplayBuffer", "MultiAgentEpisodeReplayBuffer",
+                  "MultiAgentPrioritizedEpisodeReplayBuffer")
 POLICY_MODES = ("shared", "per_agent", "per_group")
+
+
+def training_keys(algo: str) -> tuple[str, ...]:
+    """Zoo-entry keys passed to the algorithm config's ``training()`` (``lr`` may be ``lin_<x>``: linear decay to
+    0): the arguments of ``training()`` along its class hierarchy, less :data:`CODE_TRAINING_KEYS`."""
+    names: dict[str, None] = {}
+    for cls in ALLOWED_MODULES[algo][0].__mro__:
+        if "training" in vars(cls):
+            names.update(dict.fromkeys(p for p in inspect.signature(vars(cls)["training"]).parameters
+                                       if p not in ("self", "kwargs")))
+    return tuple(k for k in names if k not in CODE_TRAINING_KEYS)
 
 
 @dataclass
@@ -58,6 +82,7 @@ class RllibExperiment:
     model: dict[str, Any]
     hyperparams: dict[str, Any] = field(default_factory=dict)
     groups: dict[str, list[str]] | None = None
+    environment: dict[str, Any] = field(default_factory=dict)
 
     @property
     def num_env_runners(self) -> int:
@@ -70,10 +95,16 @@ def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) 
 
     :param where: file and entry named in errors.
     """
-    accepted = (*EXPERIMENT_KEYS, *ENV_RUNNER_KEYS, *TRAINING_KEYS)
+    train_keys = training_keys(algo)
+    accepted = (*EXPERIMENT_KEYS, *ENV_RUNNER_KEYS, *ENVIRONMENT_KEYS, *train_keys)
     unknown = sorted(set(entry) - set(accepted))
     if unknown:
         raise UsageError(f"{where}: unknown key(s) {', '.join(unknown)}; accepted: {', '.join(accepted)}")
+    buffer = entry.get("replay_buffer_config")
+    if buffer is not None and (not isinstance(buffer, dict) or buffer.get("type", REPLAY_BUFFERS[0])
+                               not in REPLAY_BUFFERS):
+        raise UsageError(f"{where}: replay_buffer_config is a mapping whose type (if given) is one of "
+                         f"{', '.join(REPLAY_BUFFERS)}")
     policies = entry.get("policies", "shared")
     if policies not in POLICY_MODES:
         raise UsageError(f"{where}: policies must be one of {', '.join(POLICY_MODES)}, got {policies!r}")
@@ -83,7 +114,7 @@ def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) 
         bad = ", ".join(sorted(set(model) - model_fields))
         raise UsageError(f"{where}: unknown model key(s) {bad}; accepted: {', '.join(sorted(model_fields))}")
     n_timesteps = int(entry.get("n_timesteps", 0))
-    training = {k: entry[k] for k in TRAINING_KEYS if k in entry}
+    training = {k: entry[k] for k in train_keys if k in entry}
     lr = training.get("lr")
     if isinstance(lr, str):
         if not lr.startswith("lin_"):
@@ -99,8 +130,9 @@ def resolve_entry(algo: str, env_id: str, entry: Mapping[str, Any], where: str) 
     groups = entry.get("groups")
     if groups is not None and (policies != "per_group" or not isinstance(groups, dict)):
         raise UsageError(f"{where}: groups maps group names to agents, with policies: per_group")
+    environment = {k: entry[k] for k in ENVIRONMENT_KEYS if k in entry}
     return RllibExperiment(algo, env_id, n_timesteps, dict(entry.get("env_kwargs") or {}), policies, runners,
-                           training, model, dict(entry), groups)
+                           training, model, dict(entry), groups, environment)
 
 
 def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None = None) -> RllibExperiment:
@@ -111,10 +143,12 @@ def build_experiment(spec: TrainSpec, ref: EnvRef, num_env_runners: int | None =
     if spec.algo not in rllib_algos():
         raise UsageError(f"--backend rllib supports --algo {', '.join(rllib_algos())}; got {spec.algo!r}")
     ref.kind.refuse_backend(ref, "rllib")
+    check_kind_algo(ref.kind, spec.algo)
     entry, where = spec_entry(spec, f"rllib_{spec.algo}", ref)
     if num_env_runners is not None:
         entry["num_env_runners"] = num_env_runners
     exp = resolve_entry(spec.algo, ref.env_id, entry, where)
+    _check_kind_entry(ref.kind, exp, ref, where)
     if exp.n_timesteps < 1:
         raise UsageError(f"no n_timesteps for {spec.algo} on {ref.env_id} ({where}); pass -n N")
     return exp
@@ -149,10 +183,51 @@ def agent_modules(exp: RllibExperiment, agents: list[str]) -> dict[str, list[str
 
 def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int = 1
                  ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
-    """The RLlib ``PPOConfig`` of ``exp`` on ``ref`` (one local learner in the driver, ``num_env_runners``
-    samplers of class :class:`~sbagents.rllib.env_runner.LeanMultiAgentEnvRunner`, one RLModule per module id of
-    :func:`agent_modules`), and that module -> agents mapping. With Discrete actions only, the env runners skip
-    RLlib's action normalization (a copy of the integer actions on every step)."""
+    """The RLlib algorithm config of ``exp`` on ``ref`` and its module -> agents mapping.
+
+    A Gymnasium env: :func:`~sbagents.rllib.single_agent.build_single_config`. A PettingZoo team: one local learner
+    in the driver, ``num_env_runners`` samplers of class :class:`~sbagents.rllib.env_runner.LeanMultiAgentEnvRunner`,
+    one RLModule per module id of :func:`agent_modules`; with Discrete actions only, the env runners skip RLlib's
+    action normalization (a copy of the integer actions on every step)."""
+    try:
+        return _kind_config(ref.kind, exp, ref, seed, num_threads)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"invalid RLlib settings for {exp.algo} on {exp.env_id}: {exc}") from None
+
+
+@functools.singledispatch
+def _check_kind_entry(kind: EnvKind, exp: RllibExperiment, ref: EnvRef, where: str) -> None:
+    """Refuse (one line) entry keys that do not apply to envs of ``kind``."""
+
+
+@_check_kind_entry.register
+def _check_single_entry(kind: SingleAgentKind, exp: RllibExperiment, ref: EnvRef, where: str) -> None:
+    if exp.policies != "shared" or exp.groups:
+        raise UsageError(f"{where}: policies and groups apply to PettingZoo teams; {ref.env_id} has one agent")
+
+
+@_check_kind_entry.register
+def _check_team_entry(kind: TeamKind, exp: RllibExperiment, ref: EnvRef, where: str) -> None:
+    if exp.environment:
+        raise UsageError(f"{where}: {', '.join(exp.environment)} apply to Gymnasium envs here")
+
+
+@functools.singledispatch
+def _kind_config(kind: EnvKind, exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int
+                 ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
+    raise UsageError(f"--backend rllib does not train {kind.name} envs ({ref.env_id})")
+
+
+@_kind_config.register
+def _single_config(kind: SingleAgentKind, exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int
+                   ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
+    return build_single_config(ALLOWED_MODULES[exp.algo][0], exp, ref, seed, num_threads)
+
+
+@_kind_config.register
+def _team_config(kind: TeamKind, exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int
+                 ) -> tuple[AlgorithmConfig, dict[str, list[str]]]:
+    """A PettingZoo team's config (see :func:`build_config`)."""
     try:
         probe = ref.parallel_env(**exp.env_kwargs)
     except (TypeError, ValueError) as exc:
@@ -174,7 +249,7 @@ def build_config(exp: RllibExperiment, ref: EnvRef, seed: int, num_threads: int 
                   "num_threads": num_threads}
     try:
         return (
-            PPOConfig()
+            ALLOWED_MODULES[exp.algo][0]()
             # normalize_actions only copies Discrete actions (a deepcopy per step); the env gets the same ints
             .environment(env_name, env_config=env_config, normalize_actions=not discrete)
             .env_runners(**{"num_env_runners": 2, **exp.env_runners}, env_runner_cls=LeanMultiAgentEnvRunner)

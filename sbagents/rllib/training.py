@@ -1,4 +1,5 @@
-"""Training a PettingZoo env with Ray RLlib PPO: :func:`train_rllib` (``python -m sbagents.train --backend rllib``).
+"""Training a Gymnasium env or a PettingZoo team with Ray RLlib: :func:`train_rllib` (``python -m sbagents.train
+--backend rllib``).
 
 Flow: :class:`TrainSpec` + ``zoo_configs/rllib_<algo>.yml`` -> :class:`~sbagents.rllib.experiment.RllibExperiment`
 -> RLlib ``AlgorithmConfig`` -> Ray (a local instance sized for this machine, or the cluster at ``address``) -> run
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import logging
 import math
 import signal
@@ -25,6 +27,7 @@ from typing import Any
 import ray
 import torch
 
+from sbagents.core.env_kinds import EnvKind, TeamKind
 from sbagents.core.env_names import EnvRef, resolve_env
 from sbagents.core.lifecycle import (
     LearningClock,
@@ -85,7 +88,8 @@ def train_rllib(
     execution: ExecOptions | None = None,
     rllib: RllibOptions | None = None,
 ) -> TrainResult:
-    """Train ``spec.algo`` on the PettingZoo env ``spec.env`` with RLlib and write a run directory.
+    """Train ``spec.algo`` on the Gymnasium env or PettingZoo team ``spec.env`` with RLlib and write a run
+    directory.
 
     ``rllib.num_env_runners`` (default: the config's; 0 samples in the driver) and ``rllib.address``
     (``auto``, ``host:6379`` or ``ray://host:10001``; None starts a local Ray) size the Ray side;
@@ -144,7 +148,31 @@ def train_rllib(
     return TrainResult(run_dir, None, exp, summary, clock.interrupted)
 
 
-_LEARNER_STATS = ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var")
+#: Learner statistics of each module written to ``progress.csv``, by algorithm (the keys RLlib's learners log).
+_LEARNER_STATS: dict[str, tuple[str, ...]] = {
+    "ppo": ("policy_loss", "vf_loss", "entropy", "mean_kl_loss", "vf_explained_var"),
+    "appo": ("policy_loss", "vf_loss", "entropy", "mean_kl_loss"),
+    "impala": ("policy_loss", "vf_loss", "entropy"),
+    "dqn": ("qf_loss", "qf_mean"),
+    "sac": ("qf_loss", "policy_loss", "alpha_loss", "alpha_value"),
+}
+
+
+@functools.singledispatch
+def _declared_metrics(kind: EnvKind, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[str]:
+    """The episode metrics an env of ``kind`` declares for ``progress.csv``'s columns: none (a Gymnasium env's
+    come with each evaluation's summary)."""
+    return []
+
+
+@_declared_metrics.register
+def _team_metrics(kind: TeamKind, ref: EnvRef, env_kwargs: dict[str, Any]) -> list[str]:
+    """A PettingZoo env's (its ``metadata``)."""
+    probe = ref.parallel_env(**env_kwargs)
+    try:
+        return list(declared_metrics(getattr(probe, "metadata", None)))
+    finally:
+        probe.close()
 
 
 def save_module_checkpoint(algo: Any, path: Path, exp: RllibExperiment, groups: dict[str, list[str]]) -> Path:
@@ -170,14 +198,13 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
     current when a KeyboardInterrupt ends the loop.
     """
     exp, ref, groups = run
-    modules = sorted(algo.config.policies)
-    probe = ref.parallel_env(**exp.env_kwargs)
-    metric_keys = list(declared_metrics(getattr(probe, "metadata", None)))
-    probe.close()
+    modules = sorted(groups)
+    metric_keys = _declared_metrics(ref.kind, ref, exp.env_kwargs)
+    stats = _LEARNER_STATS[exp.algo]
     fields = ["iteration", "env_steps", "agent_steps", "episodes", "episode_return_mean", "episode_len_mean",
               "iter_seconds", "time_total_s", "train_seconds", "env_steps_per_s", "checkpoint", "eval_mean_return",
               *(f"eval_{k}" for k in metric_keys)]
-    fields += [f"{m}/{k}" for m in modules for k in _LEARNER_STATS]
+    fields += [f"{m}/{k}" for m in modules for k in stats]
     eval_freq = evaluation.frequency(exp.n_timesteps)
     next_eval = eval_freq if eval_freq > 0 else math.inf
     next_save = save_freq if save_freq > 0 else math.inf
@@ -204,7 +231,7 @@ def _train_loop(algo: Any, run: tuple[RllibExperiment, EnvRef, dict[str, list[st
                                          / max(float(result.get("time_this_iter_s", 0.0)), 1e-9), 1),
             }
             learners = result.get("learners", {})
-            row.update({f"{m}/{k}": learners.get(m, {}).get(k, "") for m in modules for k in _LEARNER_STATS})
+            row.update({f"{m}/{k}": learners.get(m, {}).get(k, "") for m in modules for k in stats})
             if steps >= next_eval and steps < exp.n_timesteps:
                 next_eval = steps - steps % eval_freq + eval_freq
                 ckpt = save_checkpoint(algo, run_dir / CHECKPOINT_DIR, exp.algo, exp.model, groups)

@@ -379,6 +379,20 @@ def test_rebuilt_modules_equal_rllibs_own_loader(trained: Path) -> None:
 
 
 @needs_ray
+def test_record_video_plays_a_team_run_without_unpickling(trained: Path, tmp_path: Path) -> None:
+    """``record_video`` on an RLlib team run: every module acts on one team copy; a poisoned pickle stays shut."""
+    logs, run_dir = copy_run(trained, tmp_path)
+    marker = tmp_path / "unpickled"
+    poison(run_dir, marker)
+    result = cli("record_video", "--algo", "ppo", "--env", RUN, "-f", str(logs), "-n", "12")
+    assert result.returncode == 0, result.stderr
+    video = run_dir / "videos" / f"ppo-{RUN}-step-0-to-step-12.mp4"
+    assert video.stat().st_size > 0 and f"video: {video}" in result.stdout and not marker.exists()
+    best = cli("record_video", "--algo", "ppo", "--env", RUN, "-f", str(logs), "--load-best")
+    assert best.returncode == 2 and "--load-best not supported for RLlib runs" in best.stderr
+
+
+@needs_ray
 def test_evaluate_unpickles_nothing(trained: Path, tmp_path: Path) -> None:
     """Every pickle of the run dir replaced by a hostile one: ``evaluate`` gives the same report as before and no
     pickle ran."""

@@ -50,6 +50,12 @@ def test_ppo_learns_gridworld_with_its_shipped_entry_and_evaluate_plays_the_run(
     report = last_json(cli("evaluate", "--algo", "ppo", "--env", "sbagents/GridWorld-v0", "-f", str(tmp_path), "-n",
                            "5", "--json").stdout)
     assert report["n_episodes"] == 5 and report["mean_return"] == 93.0 and report["success_rate"] == 1.0
+    video = cli("record_video", "--algo", "ppo", "--env", "sbagents/GridWorld-v0", "-f", str(tmp_path), "-n", "20")
+    assert video.returncode == 0, video.stderr
+    mp4 = run_dir / "videos" / "ppo-sbagents_GridWorld-v0-step-0-to-step-20.mp4"
+    rows = mp4.with_suffix(".csv").read_text().splitlines()
+    assert mp4.stat().st_size > 0 and len(rows) == 21  # a header and one row per recorded step
+    assert sum(float(r.split(",")[-5]) for r in rows[1:]) > 0  # the reward column: the goal is reached
     exported = cli("export", "--algo", "ppo", "--env", "sbagents/GridWorld-v0", "-f", str(tmp_path))
     assert exported.returncode == 2 and "is a --backend rllib run: python -m sbagents.evaluate plays it" in \
         exported.stderr and len(exported.stderr.strip().splitlines()) == 1

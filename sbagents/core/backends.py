@@ -74,6 +74,15 @@ class Backend(ABC):
     def evaluate(self, run: RunRef, options: EvaluateOptions) -> dict[str, Any]:
         """The ``evaluate --json`` summary of a run of this backend."""
 
+    def record_video(self, run: RunRef, n_steps: int, output_dir: str | Path | None, seed: int,
+                     deterministic: bool | None, fps: float | None) -> Path:
+        """``record_video`` of a run of this backend (the mp4's path; the SB3 backend's runs are recorded by
+        :func:`sbagents.visualize.video.record_video` itself, which calls this for every other backend's run).
+
+        :raises UsageError: the backend does not record videos (the default).
+        """
+        raise UsageError(f"record_video does not record --backend {self.name} runs")
+
 
 _REGISTERED: dict[str, Backend] = {}
 

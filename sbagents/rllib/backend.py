@@ -81,6 +81,22 @@ class RllibBackend(Backend):
     def owns_run(self, run_dir: Path) -> bool:
         return is_rllib_run(run_dir)
 
+    def record_video(self, run: RunRef, n_steps: int, output_dir: str | Path | None, seed: int,
+                     deterministic: bool | None, fps: float | None) -> Path:
+        """An mp4 of the run's modules acting (greedy unless ``deterministic`` is False), without starting Ray."""
+        given = ["--load-best"] if run.load_best else []
+        given += ["--load-checkpoint"] if run.checkpoint is not None else []
+        given += ["--env-kwargs"] if run.env_kwargs else []
+        if given:
+            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run.run_dir()})")
+        require_ray("recording an RLlib run")
+        with rllib_import("recording an RLlib run"):
+            from sbagents.rllib.evaluation import record_run
+
+        assert run.algo is not None
+        return record_run(run.run_dir(), run.algo, run.env_ref(), n_steps, output_dir, seed,
+                          deterministic is not False, fps, trust=run.trust)
+
     def evaluate(self, run: RunRef, options: EvaluateOptions) -> dict[str, Any]:
         run_dir = run.run_dir()
         given = [flag for name, flag in UNSUPPORTED_EVALUATE.items() if getattr(options, name)]

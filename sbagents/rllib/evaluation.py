@@ -20,8 +20,9 @@ import torch
 from gymnasium import spaces
 from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.rl_module import RLModule
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from sbagents.callbacks.episodes import stateless
+from sbagents.callbacks.episodes import Policy, stateless
 from sbagents.core.env_kinds import EnvKind, SingleAgentKind
 from sbagents.core.env_names import EnvRef
 from sbagents.core.options import EvaluateOptions
@@ -33,8 +34,9 @@ from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.team_eval import run_team_episodes, team_summary
 from sbagents.rllib import CHECKPOINT_DIR, SHARED_MODULE
 from sbagents.rllib.checkpoints import action_settings, load_modules
-from sbagents.rllib.single_agent import SINGLE_MODULE, evaluate_single
+from sbagents.rllib.single_agent import SINGLE_MODULE, build_env, evaluate_single, module_policy
 from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
+from sbagents.visualize.video import record_policies
 
 
 def module_groups(modules: Mapping[str, RLModule], agents: list[str], recorded: Mapping[str, list[str]] | None
@@ -148,3 +150,38 @@ def evaluate_run(run_dir: str | Path, algo: str, ref: EnvRef, options: EvaluateO
     entry = load_run_config(run_dir, ref.env_id)
     return evaluate_checkpoint(run_dir / CHECKPOINT_DIR, ref, algo, entry.get("env_kwargs") or {},
                                run_groups(run_dir, ref.env_id), options, trust)
+
+
+def record_run(run_dir: str | Path, algo: str, ref: EnvRef, n_steps: int, output_dir: str | Path | None, seed: int,
+               deterministic: bool = True, fps: float | None = None, trust: bool = False) -> Path:
+    """``record_video`` of an RLlib run: its modules (rebuilt from the checkpoint's plain data) act in one env copy
+    rendering ``rgb_array`` frames (a Gymnasium env as its env runners built it; a team with every module acting),
+    recorded by :func:`sbagents.visualize.video.record_policies`; the mp4's path."""
+    run_dir = Path(run_dir)
+    kwargs = dict(load_run_config(run_dir, ref.env_id).get("env_kwargs") or {})
+    modules = load_modules(run_dir / CHECKPOINT_DIR, ref, kwargs, trust)
+    venvs, policies = _recording_kind(ref.kind, modules, run_dir, ref, {**kwargs, "render_mode": "rgb_array"},
+                                      deterministic)
+    venvs[next(iter(venvs))].seed(seed)
+    return record_policies(venvs, policies, ref, run_dir, algo, n_steps, output_dir, fps)
+
+
+@functools.singledispatch
+def _recording_kind(kind: EnvKind, modules: Mapping[str, RLModule], run_dir: Path, ref: EnvRef,
+                    kwargs: dict[str, Any], deterministic: bool) -> tuple[dict[str, VecEnv], dict[str, Policy]]:
+    """The VecEnvs (group -> one team copy's VecEnv) and policies of a recording: a team's modules."""
+    factory = ParallelEnvFactory(ref.source, ref.modules, kwargs)
+    mapping = module_groups(modules, [str(a) for a in factory().possible_agents], run_groups(run_dir, ref.env_id))
+    venvs = dict(team_vec_envs(factory, 1, TeamOptions("per_group", mapping)))
+    return venvs, {m: stateless(module_actor(modules[m], deterministic)) for m in venvs}
+
+
+@_recording_kind.register
+def _single_agent_recording(kind: SingleAgentKind, modules: Mapping[str, RLModule], run_dir: Path, ref: EnvRef,
+                            kwargs: dict[str, Any], deterministic: bool
+                            ) -> tuple[dict[str, VecEnv], dict[str, Policy]]:
+    venv = DummyVecEnv([lambda: build_env(ref.env_id, ref.modules, kwargs, ref.is_atari)])
+    settings = action_settings(run_dir / CHECKPOINT_DIR)
+    actor = module_policy(modules[SINGLE_MODULE], venv.action_space, deterministic, settings["normalize"],
+                          settings["clip"])
+    return {SINGLE_MODULE: venv}, {SINGLE_MODULE: stateless(actor)}

@@ -26,9 +26,10 @@ from stable_baselines3.common.vec_env import VecEnv, VecVideoRecorder
 
 from sbagents.atomic import raise_disk_error, run_subfolder, temporary_name, write_text
 from sbagents.callbacks.common import find_vec_normalize
-from sbagents.callbacks.episodes import model_actor
+from sbagents.callbacks.episodes import Policy, model_actor
 from sbagents.callbacks.safety import step_violation
 from sbagents.callbacks.transparency import column_names, csv_cell, csv_quote, flat_observations, observation_layout
+from sbagents.core.backends import DEFAULT_BACKEND, backend_of_run
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.env_names import EnvRef
 from sbagents.core.experiment import Experiment
@@ -173,34 +174,54 @@ def record_video(
         raise UsageError(f"-n/--n-steps must be >= 1, got {n_steps}")
     if fps is not None and not fps > 0:
         raise UsageError(f"--fps must be > 0, got {fps}")
+    backend = backend_of_run(run.run_dir())
+    if backend.name != DEFAULT_BACKEND:  # e.g. an RLlib run: its backend plays its modules (record_policies)
+        return backend.record_video(run, n_steps, output_dir, seed, deterministic, fps)
     loaded = load_run(run)
     ref = loaded.env
     venvs = _render_vecs(loaded, seed)
     if deterministic is None:
         deterministic = loaded.experiment.deterministic_eval
+    stats = {g: loaded.stats_paths.get(g, loaded.stats_path) for g in venvs}
+    first = next(iter(venvs))
+    if venvs[first].render_mode == "rgb_array":  # (else refused by record_policies)
+        venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g], loaded.trust) for g, v in venvs.items()}
+    policies = {g: model_actor(loaded.models[g], deterministic) for g in venvs}
+    return record_policies(venvs, policies, ref, loaded.run_dir, str(run.algo), n_steps, output_dir, fps)
+
+
+def record_policies(venvs: dict[str, VecEnv], policies: dict[str, Policy], ref: EnvRef, run_dir: Path, algo: str,
+                    n_steps: int, output_dir: str | Path | None = None, fps: float | None = None) -> Path:
+    """Record ``n_steps`` steps of ``policies`` acting in ``venvs`` (one env copy rendering ``rgb_array`` frames;
+    group -> VecEnv of one team, the first one recorded) to ``<output_dir or run_dir/videos>/<algo>-<EnvId>-step-0-
+    to-step-<n_steps>.mp4`` (and the decisions sidecar of a one-agent env); ``venvs`` are closed. What every backend's
+    recording shares (:func:`record_video` for SB3 runs)."""
     first = next(iter(venvs))
     if venvs[first].render_mode != "rgb_array":
-        venvs[first].close()
+        for venv in venvs.values():
+            venv.close()
         raise UsageError(f"{ref.env_id} does not render rgb_array frames (render_mode {venvs[first].render_mode!r})")
     frame_rate = fps if fps is not None else _render_fps(venvs[first])
-    stats = {g: loaded.stats_paths.get(g, loaded.stats_path) for g in venvs}
-    venvs = {g: normalize_for_eval(v, loaded.experiment, stats[g], loaded.trust) for g, v in venvs.items()}
     try:
-        out = Path(output_dir) if output_dir is not None else run_subfolder(loaded.run_dir, "videos")
+        out = Path(output_dir) if output_dir is not None else run_subfolder(run_dir, "videos")
         out.mkdir(parents=True, exist_ok=True)
     except (OSError, UsageError):
-        venvs[first].close()
+        for venv in venvs.values():
+            venv.close()
         raise
-    prefix = f"{run.algo}-{env_stem(ref.env_id)}"
+    prefix = f"{algo}-{env_stem(ref.env_id)}"
     recorder = _Recorder(
         venvs[first], str(out), record_video_trigger=lambda step: step == 0, video_length=n_steps, name_prefix=prefix
     )
     recorder.frames_per_sec = frame_rate  # type: ignore[assignment]  # SB3 annotates it too narrowly
     log = _decision_log(ref.kind, recorder)
     try:
-        _play(recorder, venvs, loaded, n_steps, deterministic, log)
+        _play(recorder, venvs, policies, n_steps, log)
     finally:
         recorder.close()
+        for group, venv in venvs.items():
+            if group != first:
+                venv.close()
     path = out / f"{prefix}-step-0-to-step-{n_steps}.mp4"
     if not path.exists():
         raise UsageError(f"no video was written to {path}")
@@ -260,13 +281,12 @@ def _team_decision_log(kind: TeamKind, recorder: VecEnv) -> _DecisionLog | None:
     return None
 
 
-def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], loaded: LoadedRun, n_steps: int,
-          deterministic: bool, log: _DecisionLog | None = None) -> None:
+def _play(recorder: VecVideoRecorder, venvs: dict[str, VecEnv], policies: dict[str, Policy], n_steps: int,
+          log: _DecisionLog | None = None) -> None:
     """Step ``n_steps`` times: the other groups act first, then the recorded (first) group's step moves the team;
     ``log`` gets every step of a single-agent run. Each group's policy carries its state (a recurrent policy's
     memory), reset in the slots whose episode ended."""
     first, *others = list(venvs)
-    policies = {g: model_actor(loaded.models[g], deterministic) for g in venvs}
     obs: dict[str, Any] = {first: recorder.reset()}
     obs.update({g: venvs[g].reset() for g in others})
     states: dict[str, Any] = dict.fromkeys(venvs)

@@ -172,7 +172,7 @@ def _recording_kind(kind: EnvKind, modules: Mapping[str, RLModule], run_dir: Pat
     """The VecEnvs (group -> one team copy's VecEnv) and policies of a recording: a team's modules."""
     factory = ParallelEnvFactory(ref.source, ref.modules, kwargs)
     mapping = module_groups(modules, [str(a) for a in factory().possible_agents], run_groups(run_dir, ref.env_id))
-    venvs = dict(team_vec_envs(factory, 1, TeamOptions("per_group", mapping)))
+    venvs: dict[str, VecEnv] = dict(team_vec_envs(factory, 1, TeamOptions("per_group", mapping)))
     return venvs, {m: stateless(module_actor(modules[m], deterministic)) for m in venvs}
 
 

@@ -1,9 +1,10 @@
-"""Learning benchmarks of the Ray RLlib backend (needs ``pip install 'sbagents[distributed]'``): TreasureHunt and
-``mpe2.simple_spread_v3``, one benchmark each.
+"""Learning benchmarks of the Ray RLlib backend (needs ``pip install 'sbagents[distributed]'``): TreasureHunt,
+``mpe2.simple_spread_v3``, and the Gymnasium envs GridWorld and SmartHome, one benchmark each.
 
 Per seed: :func:`sbagents.rllib.training.train_rllib` with the shipped ``zoo_configs/rllib_ppo.yml`` entry
-(parameter-shared PPO; ``--params`` overrides it), on a local Ray instance with ``--num-env-runners`` samplers, then
-the greedy team on ``--n-eval`` seeded episodes (eval seed ``10000 + seed``, or ``--eval-seed``) from the saved
+(parameter-shared PPO for teams; ``--params`` overrides it), on a local Ray instance with ``--num-env-runners``
+samplers (or sampling in the driver, as the Gymnasium entries do), then the greedy team (or agent) on ``--n-eval``
+seeded episodes (eval seed ``10000 + seed``, or ``--eval-seed``) from the saved
 checkpoint, without Ray. Reports team return, the env's declared metrics (treasures per episode), wall-clock training
 time (Ray start and algorithm build excluded, as ``summary.json``'s ``train_seconds``) and the learning curve of
 ``progress.csv``. For envs with a time target (:data:`CHECKPOINTS`, or ``--save-freq``/``--checkpoint-seconds``) the
@@ -42,6 +43,9 @@ from sbagents.core.run_dir import env_stem
 
 #: Env -> (save every N env steps, evaluate the last checkpoint saved within this many seconds of training).
 CHECKPOINTS: dict[str, tuple[int, float]] = {"mpe2.simple_spread_v3": (16_000, 300.0)}
+#: Env -> (an evaluation metric the table shows, its label); TreasureHunt's treasures have a field of their own.
+METRICS: dict[str, tuple[str, str]] = {"sbagents/SmartHome-v0": ("criterion_share", "comfort criterion share"),
+                                       "sbagents/GridWorld-v0": ("success_rate", "success rate")}
 
 
 def run_seed(
@@ -86,6 +90,9 @@ def run_seed(
             "within_seconds": checkpoints[1], "env_steps": int(last["env_steps"]) if last else None,
             "train_seconds": float(last["train_seconds"]) if last else None,
             "team_return": evaluate(result.run_dir / last["checkpoint"])["mean_return"] if last else None}
+    if env in METRICS:
+        key, label = METRICS[env]
+        extra["metric"] = {"label": label, "value": ev.get(key, ev["metrics"].get(key))}
     return {
         "seed": seed, "env": env, "treasures_per_episode": ev["metrics"].get("treasures_collected"),
         "team_return": ev["mean_return"], "std_return": ev.get("std_return"), "success_rate": ev.get("success_rate"),
@@ -120,8 +127,9 @@ NOTES: dict[str, str] = {
 
 
 def env_name(env: str) -> str:
-    """The env's name in file and section names: ``mpe2.simple_spread_v3`` -> ``simple_spread_v3``."""
-    return env_stem(env.rsplit(".", 1)[-1])
+    """The env's name in file and section names: ``mpe2.simple_spread_v3`` -> ``simple_spread_v3``,
+    ``sbagents/GridWorld-v0`` -> ``GridWorld-v0``."""
+    return env_stem(env.rsplit(".", 1)[-1].rsplit("/", 1)[-1])
 
 
 def build_parser(name: str, n_eval: int) -> argparse.ArgumentParser:
@@ -162,6 +170,8 @@ def run_values(runs: list[dict[str, Any]]) -> dict[str, list[float]]:
               "train_seconds": [float(r["train_seconds"]) for r in runs]}
     if all(r["treasures_per_episode"] is not None for r in runs):
         values["treasures_per_episode"] = [float(r["treasures_per_episode"]) for r in runs]
+    if all((r.get("metric") or {}).get("value") is not None for r in runs):
+        values["metric"] = [float(r["metric"]["value"]) for r in runs]
     checkpoints = [(r.get("checkpoint") or {}).get("team_return") for r in runs]
     if all(c is not None for c in checkpoints):
         values["checkpoint_team_return"] = [float(c) for c in checkpoints if c is not None]
@@ -206,6 +216,8 @@ def _run_cells(r: dict[str, Any], metric: bool, checkpoint: bool) -> list[str]:
     """One seed's table cells."""
     cells = [str(r["seed"]), f"{r['env_steps']:,}", f"{r['train_seconds']:.0f}", f"{r['fps']:,.0f}",
              f"{r['team_return']:.2f}"] + ([f"{r['treasures_per_episode']:.2f}"] if metric else [])
+    if r.get("metric"):
+        cells.append(f"{r['metric']['value']:.3f}")
     if checkpoint:
         c = r["checkpoint"]
         cells += ["-", "-", "-"] if c["env_steps"] is None else [
@@ -218,18 +230,25 @@ def render(result: dict[str, Any]) -> str:
     """The env's section of BENCHMARKS.md from its results."""
     env, runs = result["env"], result["runs"]
     metric = runs[0]["treasures_per_episode"] is not None
+    own = (runs[0].get("metric") or {}).get("label")  # a Gymnasium env's metric (METRICS)
     ck = runs[0].get("checkpoint")
     ck_head = f"checkpoint <= {ck['within_seconds']:.0f} s: env steps | train s | team return | " if ck else ""
+    runners = runs[0]["num_env_runners"]
+    who = "team" if runs[0]["policies"] != "shared" or not own else "agent"
+    where = f"{runners} env runners" if runners else "sampling in the driver"
     lines = [f"## RLlib PPO: {env}", "",
              f"`python -m sbagents.train --backend rllib --algo ppo --env {env}` with the shipped "
-             "`zoo_configs/rllib_ppo.yml` entry (2 env runners, 1 torch thread per process), then the greedy team of "
+             f"`zoo_configs/rllib_ppo.yml` entry ({where}, 1 torch thread per process), then the greedy {who} of "
              f"the final checkpoint on {runs[0]['n_eval_episodes']} episodes. Command: `{result['command']}`. Train "
              "seconds exclude Ray's start and the algorithm build.", "",
-             "| seed | env steps | train s | env steps/s | team return | " + ("treasures/episode | " if metric else "")
-             + ck_head + "load |", "|---:|---:|---:|---:|---:|" + ("---:|" if metric else "")
+             f"| seed | env steps | train s | env steps/s | {'team return' if who == 'team' else 'return'} | "
+             + ("treasures/episode | " if metric else "") + (f"{own} | " if own else "")
+             + ck_head + "load |", "|---:|---:|---:|---:|---:|" + ("---:|" if metric else "") + ("---:|" if own else "")
              + ("---:|" * 3 if ck else "") + "---:|"]
     lines += ["| " + " | ".join(_run_cells(r, metric, bool(ck))) + " |" for r in runs]
-    lines += ["", *stats_table(result["stats"], STAT_ROWS), "", iqm_note(len(runs))]
+    rows = tuple(("return" if key == "team_return" and who == "agent" else label, key, fmt)
+                 for label, key, fmt in STAT_ROWS) + (((own, "metric", ".3f"),) if own else ())
+    lines += ["", *stats_table(result["stats"], rows), "", iqm_note(len(runs))]
     if env in NOTES:
         lines += ["", NOTES[env]]
     return "\n".join(lines)
@@ -245,4 +264,6 @@ BENCHMARKS = (
     _benchmark("mpe2.simple_spread_v3", 300, "RLlib PPO on mpe2 simple_spread (needs Ray), 3 seeds, 300 episodes, "
                "checkpoint within 300 s"),
     _benchmark("treasure_hunt_v0", 100, "RLlib PPO on treasure_hunt_v0 (needs Ray), 3 seeds, treasures/episode"),
+    _benchmark("sbagents/GridWorld-v0", 100, "RLlib PPO on GridWorld (needs Ray), 3 seeds, return and success"),
+    _benchmark("sbagents/SmartHome-v0", 100, "RLlib PPO on SmartHome (needs Ray), 3 seeds, comfort criterion share"),
 )

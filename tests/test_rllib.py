@@ -251,7 +251,8 @@ def test_any_pettingzoo_env_per_group_and_shared(tmp_path: Path, monkeypatch: py
         "agent_0", "agent_1", "agent_2"]
 
 
-@pytest.mark.parametrize("env", ["mpe2.simple_spread_v3", "treasure_hunt_v0", "sbagents/GridWorld-v0", "sbagents/SmartHome-v0"])
+@pytest.mark.parametrize("env", ["mpe2.simple_spread_v3", "treasure_hunt_v0", "sbagents/GridWorld-v0",
+                                 "sbagents/SmartHome-v0"])
 def test_rllib_benchmark_sections_match_their_results(env: str) -> None:
     """BENCHMARKS.md's RLlib sections are what ``python -m benchmarks render rllib-<env>`` makes of the results
     (no Ray needed), and every recorded seed ran to the end."""

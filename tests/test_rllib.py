@@ -391,6 +391,9 @@ def test_record_video_plays_a_team_run_without_unpickling(trained: Path, tmp_pat
     assert video.stat().st_size > 0 and f"video: {video}" in result.stdout and not marker.exists()
     best = cli("record_video", "--algo", "ppo", "--env", RUN, "-f", str(logs), "--load-best")
     assert best.returncode == 2 and "--load-best not supported for RLlib runs" in best.stderr
+    exported = cli("export", "--algo", "ppo", "--env", RUN, "-f", str(logs))
+    assert exported.returncode == 2 and "export takes RLlib runs on Gymnasium envs; treasure_hunt_v0 is a team env" \
+        in exported.stderr and len(exported.stderr.strip().splitlines()) == 1
 
 
 @needs_ray

@@ -56,9 +56,12 @@ def test_ppo_learns_gridworld_with_its_shipped_entry_and_evaluate_plays_the_run(
     rows = mp4.with_suffix(".csv").read_text().splitlines()
     assert mp4.stat().st_size > 0 and len(rows) == 21  # a header and one row per recorded step
     assert sum(float(r.split(",")[-5]) for r in rows[1:]) > 0  # the reward column: the goal is reached
-    exported = cli("export", "--algo", "ppo", "--env", "sbagents/GridWorld-v0", "-f", str(tmp_path))
-    assert exported.returncode == 2 and "is a --backend rllib run: python -m sbagents.evaluate plays it" in \
-        exported.stderr and len(exported.stderr.strip().splitlines()) == 1
+    exported = last_json(cli("export", "--algo", "ppo", "--env", "sbagents/GridWorld-v0", "-f", str(tmp_path),
+                             "--n-observations", "200", "--json").stdout)
+    assert exported["parity_fp32"] == 0.0 and exported["n_parity_observations"] == 200
+    sidecar = json.loads((run_dir / "export" / "policy.json").read_text())
+    assert sidecar["algo"] == "ppo" and sidecar["observation_space"]["shape"] == [25]  # the flattened cell
+    assert sidecar["preprocessing"]["env_wrapper"][0]["class"] == "gymnasium.wrappers.FlattenObservation"
 
 
 @pytest.mark.parametrize(("algo", "env", "steps", "extra"), [
@@ -70,7 +73,8 @@ def test_ppo_learns_gridworld_with_its_shipped_entry_and_evaluate_plays_the_run(
 def test_every_algorithm_trains_and_its_run_evaluates(tmp_path: Path, algo: str, env: str, steps: int,
                                                       extra: tuple[str, ...]) -> None:
     """A module with target networks (DQN, APPO, SAC) or settings from the algorithm (DQN's dueling head) is
-    rebuilt exactly (``strict`` weights); SAC's squashed actions reach the env inside its bounds."""
+    rebuilt exactly (``strict`` weights); SAC's squashed actions reach the env inside its bounds; ``export`` writes
+    a graph that acts as ``evaluate`` plays the module (parity 0 within float rounding)."""
     run_dir = _train(tmp_path, algo, env, steps, *extra)
     assert summary(run_dir)["n_timesteps"] >= steps
     assert (run_dir / CHECKPOINT_DIR / WEIGHTS_FILE).is_file()
@@ -88,6 +92,9 @@ def test_every_algorithm_trains_and_its_run_evaluates(tmp_path: Path, algo: str,
     for greedy in (True, False):
         actions = module_policy(module, probe.action_space, greedy, settings["normalize"], settings["clip"])(obs)
         assert len(actions) == 64 and all(probe.action_space.contains(a) for a in actions)
+    exported = last_json(cli("export", "--algo", algo, "--env", env, "-f", str(tmp_path), "--n-observations", "100",
+                             "--json").stdout)
+    assert exported["parity_fp32"] <= 1e-5 and exported["action_kind"] == ("box" if algo == "sac" else "discrete")
 
 
 def test_a_user_env_through_gym_packages_reaches_the_env_runners(tmp_path: Path) -> None:

@@ -83,6 +83,15 @@ class Backend(ABC):
         """
         raise UsageError(f"record_video does not record --backend {self.name} runs")
 
+    def export(self, run: RunRef, int8: bool, out: str | Path | None, n_observations: int) -> dict[str, Any]:
+        """``export`` of a run of this backend: group -> its :class:`~sbagents.deploy.exporting.ExportReport` (the
+        SB3 backend's runs are exported by :func:`sbagents.deploy.exporting.export_groups` itself, which calls this
+        for every other backend's run).
+
+        :raises UsageError: the backend does not export (the default).
+        """
+        raise UsageError(f"export does not export --backend {self.name} runs")
+
 
 _REGISTERED: dict[str, Backend] = {}
 

@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sbagents.atomic import raise_disk_error, run_subfolder, write_json
 from sbagents.callbacks.common import env_attr
+from sbagents.core.backends import DEFAULT_BACKEND, backend_of_run
 from sbagents.core.env_kinds import EnvKind, GameKind, TeamKind, kind_operation
 from sbagents.core.run_dir import LoadedRun, RunRef, load_run
 from sbagents.deploy.onnx_export import (
@@ -134,6 +135,7 @@ def export_run(
     checks: ExportChecks | None = None,
     observations: Observations | None = None,
     preprocessing: dict[str, Any] | None = None,
+    algo: str | None = None,
 ) -> ExportReport:
     """Export ``model``, quantize it (``int8``), check parity and latency, and write the ``policy.json`` sidecar.
 
@@ -149,6 +151,7 @@ def export_run(
         may be None); e.g. a team's, where one group's env cannot step alone.
     :param preprocessing: the env wrappers and frame stack ``env`` applies, which the exported policy does not
         (recorded in the sidecar and the report: a caller applies them before calling the policy).
+    :param algo: the sidecar's ``algo`` (default: the model's class name, lower case).
     :raises TypeError: the model cannot be exported (:func:`check_exportable`).
     :raises ValueError: ``checks.n_observations < 1``.
     """
@@ -166,7 +169,7 @@ def export_run(
         vec_normalize = rec_env
     try:
         report = _export_into(model, staging, out, env_id, rec_env, vec_normalize, int8, checks, observations,
-                              preprocessing=preprocessing or None)
+                              preprocessing=preprocessing or None, algo=algo)
         for path in staging.iterdir():
             os.replace(path, out / path.name)
     except BaseException as exc:
@@ -184,7 +187,7 @@ def export_run(
 def _export_into(
     model: BaseAlgorithm, staging: Path, out: Path, env_id: str, env: gym.Env[Any, Any] | VecEnv | None,
     vec_normalize: VecNormalize | None, int8: bool, checks: ExportChecks, recorded: Observations | None, *,
-    preprocessing: dict[str, Any] | None = None,
+    preprocessing: dict[str, Any] | None = None, algo: str | None = None,
 ) -> ExportReport:
     """The work of :func:`export_run`: files are written to ``staging``, the report names them in ``out``."""
     norm = vec_normalize if vec_normalize is not None and vec_normalize.norm_obs else None
@@ -234,7 +237,7 @@ def _export_into(
     n_act = int(np.prod(model.action_space.shape)) if model.action_space.shape else 1
     sidecar = {
         "env_id": env_id,
-        "algo": type(model).__name__.lower(),
+        "algo": algo or type(model).__name__.lower(),
         "obs_names": _names_of(env, "obs_names", n_obs, "obs"),
         "action_names": _names_of(env, "action_names", n_act, "action"),
         "observation_space": _space_meta(obs_space),
@@ -288,6 +291,9 @@ def export_groups(
     """
     if n_observations < 1:
         raise UsageError(f"--n-observations must be >= 1, got {n_observations}")
+    backend = backend_of_run(run.run_dir())
+    if backend.name != DEFAULT_BACKEND:  # e.g. an RLlib run: its backend exports its modules (export_run)
+        return backend.export(run, int8, out, n_observations)
     loaded = load_run(run)
     target = Path(out) if out is not None else run_subfolder(loaded.run_dir, default_export_dir(run), create=False)
     return _export_kind(loaded.env.kind, loaded, target, int8, ExportChecks(n_observations=n_observations))

@@ -84,11 +84,7 @@ class RllibBackend(Backend):
     def record_video(self, run: RunRef, n_steps: int, output_dir: str | Path | None, seed: int,
                      deterministic: bool | None, fps: float | None) -> Path:
         """An mp4 of the run's modules acting (greedy unless ``deterministic`` is False), without starting Ray."""
-        given = ["--load-best"] if run.load_best else []
-        given += ["--load-checkpoint"] if run.checkpoint is not None else []
-        given += ["--env-kwargs"] if run.env_kwargs else []
-        if given:
-            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run.run_dir()})")
+        self._refuse_run_options(run)
         require_ray("recording an RLlib run")
         with rllib_import("recording an RLlib run"):
             from sbagents.rllib.evaluation import record_run
@@ -96,6 +92,24 @@ class RllibBackend(Backend):
         assert run.algo is not None
         return record_run(run.run_dir(), run.algo, run.env_ref(), n_steps, output_dir, seed,
                           deterministic is not False, fps, trust=run.trust)
+
+    def export(self, run: RunRef, int8: bool, out: str | Path | None, n_observations: int) -> dict[str, Any]:
+        """ONNX export of the run's module (Gymnasium envs), checked against the module as ``evaluate`` plays it."""
+        self._refuse_run_options(run)
+        require_ray("exporting an RLlib run")
+        with rllib_import("exporting an RLlib run"):
+            from sbagents.rllib.exporting import export_rllib_run
+
+        assert run.algo is not None
+        return export_rllib_run(run.run_dir(), run.algo, run.env_ref(), int8, out, n_observations, trust=run.trust)
+
+    def _refuse_run_options(self, run: RunRef) -> None:
+        """Refuse (one line) run options RLlib runs do not have: a best model, a numbered checkpoint, env kwargs."""
+        given = ["--load-best"] if run.load_best else []
+        given += ["--load-checkpoint"] if run.checkpoint is not None else []
+        given += ["--env-kwargs"] if run.env_kwargs else []
+        if given:
+            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run.run_dir()})")
 
     def evaluate(self, run: RunRef, options: EvaluateOptions) -> dict[str, Any]:
         run_dir = run.run_dir()

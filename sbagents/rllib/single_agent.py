@@ -120,6 +120,17 @@ def build_single_config(config_cls: type[Any], exp: Any, ref: EnvRef, seed: int,
     return config, {SINGLE_MODULE: [SINGLE_AGENT]}
 
 
+def greedy_actions(module: RLModule, obs: torch.Tensor) -> torch.Tensor:
+    """The module's greedy actions for observations ``(batch, *obs_shape)``: its own ``actions`` output (DQN's
+    argmax), else its inference distribution's deterministic action (a Categorical's argmax, a Gaussian's mean), as
+    RLlib's env runner takes them, before the env's action bounds (``(batch,)`` indices or ``(batch, act_dim)``)."""
+    out = module.forward_inference({Columns.OBS: obs})
+    if Columns.ACTIONS in out:
+        return out[Columns.ACTIONS]  # type: ignore[no-any-return]
+    dist = module.get_inference_action_dist_cls().from_logits(out[Columns.ACTION_DIST_INPUTS])
+    return dist.to_deterministic().sample()  # type: ignore[no-any-return]
+
+
 def module_policy(module: RLModule, action_space: spaces.Space[Any], deterministic: bool = True,
                   normalize_actions: bool = True, clip_actions: bool = False) -> Callable[[np.ndarray], np.ndarray]:
     """``obs batch (n_envs, *obs_shape) -> actions (n_envs, *action_shape)`` of an RLModule, as RLlib's env runner
@@ -129,19 +140,17 @@ def module_policy(module: RLModule, action_space: spaces.Space[Any], determinist
     does."""
     if not deterministic and "t" in inspect.signature(module._forward_exploration).parameters:
         deterministic = True  # DQN explores by its training's epsilon schedule (step t): it has nothing to sample
-    dist_cls = module.get_inference_action_dist_cls() if deterministic else module.get_exploration_action_dist_cls()
+    dist_cls = module.get_exploration_action_dist_cls()
 
     def act(obs: np.ndarray) -> np.ndarray:
         batch = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
         with torch.no_grad():
-            out = module.forward_inference({Columns.OBS: batch}) if deterministic else \
-                module.forward_exploration({Columns.OBS: batch})
-            if Columns.ACTIONS in out:
-                actions = out[Columns.ACTIONS]
+            if deterministic:
+                actions = greedy_actions(module, batch)
             else:
-                dist = dist_cls.from_logits(out[Columns.ACTION_DIST_INPUTS])
-                actions = (dist.to_deterministic() if deterministic else dist).sample()
-        found = np.asarray(actions.numpy() if isinstance(actions, torch.Tensor) else actions)
+                out = module.forward_exploration({Columns.OBS: batch})
+                actions = dist_cls.from_logits(out[Columns.ACTION_DIST_INPUTS]).sample()
+        found = np.asarray(actions.numpy())
         if isinstance(action_space, spaces.Box):
             found = np.asarray(unsquash_action(found, action_space) if normalize_actions else
                                clip_action(found, action_space) if clip_actions else found,

@@ -190,6 +190,7 @@ def test_envpool_on_a_non_atari_env_is_one_line(tmp_path: Path) -> None:
     ("dqn", ["buffer_size:1000", "learning_starts:100", "n_envs:2"]),
     ("qrdqn", ["buffer_size:1000", "learning_starts:100"]),
     ("a2c", ["n_envs:4"]),
+    ("pqn", ["n_envs:4", "n_steps:16", "batch_size:32"]),  # parallel Q-learning: CleanRL's pqn_atari_envpool path
 ])
 def test_off_policy_and_a2c_train_on_envpool(algo: str, params: list[str], tmp_path: Path) -> None:
     code = run_main("train", "--algo", algo, "--env", PONG, "-n", "200", "-f", str(tmp_path), "--seed", "0",

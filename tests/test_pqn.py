@@ -77,3 +77,14 @@ def test_train_evaluate_and_export_through_the_cli(tmp_path: Path, capsys: pytes
     (model,) = logs.rglob("CartPole-v1.zip")
     loaded = PQN.load(model)
     assert loaded.q_lambda == 0.65 and loaded.n_epochs == 4 and loaded.num_timesteps == 1024  # pqn.yml's entry
+
+
+def test_pqn_learns_gridworld_on_the_batched_vec_env(tmp_path: Path) -> None:
+    """The ``default`` entry on the book's GridWorld, stepped by the batched (numpy) vec env: the shortest path."""
+    import json
+
+    code = run_main("train", "--algo", "pqn", "--env", "sbagents/GridWorld-v0", "--vec-env", "batched", "-n", "20000",
+                    "-f", str(tmp_path), "--seed", "0", "--eval-freq", "-1", "--verbose", "0")
+    assert code == 0
+    summary = json.loads((tmp_path / "pqn" / "sbagents_GridWorld-v0_1" / "summary.json").read_text())
+    assert summary["eval"]["mean_return"] == 93.0

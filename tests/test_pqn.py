@@ -86,5 +86,6 @@ def test_pqn_learns_gridworld_on_the_batched_vec_env(tmp_path: Path) -> None:
     code = run_main("train", "--algo", "pqn", "--env", "sbagents/GridWorld-v0", "--vec-env", "batched", "-n", "20000",
                     "-f", str(tmp_path), "--seed", "0", "--eval-freq", "-1", "--verbose", "0")
     assert code == 0
-    summary = json.loads((tmp_path / "pqn" / "sbagents_GridWorld-v0_1" / "summary.json").read_text())
-    assert summary["eval"]["mean_return"] == 93.0
+    run_dir = tmp_path / "pqn" / "sbagents_GridWorld-v0_1"
+    assert "vec_env: batched" in (run_dir / "sbagents_GridWorld-v0" / "args.yml").read_text()
+    assert json.loads((run_dir / "summary.json").read_text())["eval"]["mean_return"] == 93.0

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +91,19 @@ def save_results(results: Any, path: str | os.PathLike[str]) -> None:
 def load_results(path: str | os.PathLike[str]) -> Any:
     """Read a JSON results file."""
     return json.loads(Path(path).read_text())
+
+
+def kept_rows(path: str | os.PathLike[str], trained: set[tuple[Any, ...]],
+              key: Callable[[dict[str, Any]], tuple[Any, ...]],
+              skip: Callable[[dict[str, Any]], bool] = lambda row: False) -> tuple[list[dict[str, Any]], list[str]]:
+    """The rows of a published results file (``rows``, ``command``, ``earlier_commands``) whose ``key`` is not in
+    ``trained`` (and not ``skip``-ped), and the commands that measured them (oldest first; none when no row is kept):
+    what a benchmark that measures a few runs per session keeps of the earlier sessions'."""
+    if not Path(path).exists():
+        return [], []
+    published = json.loads(Path(path).read_text())
+    rows = [r for r in published["rows"] if not skip(r) and key(r) not in trained]
+    return rows, [*published.get("earlier_commands", []), published["command"]] if rows else []
 
 
 def recorded_argv(argv: list[str]) -> list[str]:

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR, load_average, machine_info, run_module, save_figure
+from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, run_module, save_figure
 from benchmarks.stats import format_iqm, format_mean_std, seed_stats
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 from sbagents.replay.buffer_files import checkpoint_steps
@@ -244,12 +244,8 @@ def _earlier(jobs: Sequence[tuple[str, int, int]], path: Path = RESULTS_DIR / "k
              ) -> tuple[list[dict[str, Any]], list[str]]:
     """The published results' rows of (variant, seed) pairs that ``jobs`` do not train (not the stored ``none`` row,
     which :func:`_stored_none` adds), and the commands that measured them."""
-    if not path.exists():
-        return [], []
-    published = json.loads(path.read_text())
-    trained = {(v, s) for v, s, _ in jobs}
-    rows = [r for r in published["rows"] if not r.get("stored") and (r["variant"], r["seed"]) not in trained]
-    return rows, [*published.get("earlier_commands", []), published["command"]] if rows else []
+    return kept_rows(path, {(v, s) for v, s, _ in jobs}, lambda r: (r["variant"], r["seed"]),
+                     skip=lambda r: bool(r.get("stored")))
 
 
 def run(argv: Sequence[str]) -> dict[str, Any]:

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR, load_average, machine_info, save_figure
+from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, save_figure
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 
 NAME = "pong-cpu"
@@ -183,14 +183,9 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     load_before = load_average()
     rows = [_run(folder, algo, seed, args, env) for algo in args.algos for seed in args.seeds]
-    trained = {(r["algo"], r["seed"]) for r in rows}
-    earlier: list[str] = []
-    published = RESULTS_DIR / RESULTS
-    if not (args.quick or args.fresh) and published.exists():
-        old = json.loads(published.read_text())
-        kept = [r for r in old["rows"] if (r["algo"], r["seed"]) not in trained]
-        rows += kept
-        earlier = [*old.get("earlier_commands", []), old["command"]] if kept else []
+    kept, earlier = ([], []) if args.quick or args.fresh else \
+        kept_rows(RESULTS_DIR / RESULTS, {(r["algo"], r["seed"]) for r in rows}, lambda r: (r["algo"], r["seed"]))
+    rows += kept
     rows.sort(key=lambda r: (ALGOS.index(r["algo"]), r["seed"]))
     command = (f"python -m benchmarks run {NAME} -f <output dir> --algos {' '.join(args.algos)} --seeds "
                f"{' '.join(map(str, args.seeds))} --budget-s {args.budget_s:g} --games {args.games}"

@@ -68,7 +68,7 @@ def list_benchmarks(benchmarks: dict[str, Benchmark], markdown: Path = MARKDOWN)
     """The ``list`` table: name, kind, results file (and whether it exists), summary."""
     rows = [("name", "kind", "results", "what it measures")]
     for b in benchmarks.values():
-        missing = "" if b.results_path.exists() else " (missing)"
+        missing = "" if b.results_path.exists() else " (not yet run)" if b.pending else " (missing)"
         rows.append((b.name, b.kind, b.results + missing, b.summary))
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     lines = [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}" for r in rows]
@@ -126,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if not args.all and not args.names:
         raise SystemExit("error: render needs benchmark names or --all")
-    chosen = list(benchmarks.values()) if args.all else _pick(benchmarks, args.names)
+    chosen = [b for b in benchmarks.values() if not b.pending] if args.all else _pick(benchmarks, args.names)
     _check_results(chosen)
     output = Path(args.output)
     old = output.read_text() if output.exists() else "# Benchmarks\n"

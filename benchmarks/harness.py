@@ -47,6 +47,8 @@ class Benchmark:
     :param command: how to run it, shown by ``list`` (default ``python -m benchmarks run NAME``).
     :param smoke_flags: the benchmark's options that make a smoke run (default :data:`SMOKE_FLAGS`): ``run``
         then writes its results to a scratch file and leaves ``BENCHMARKS.md`` alone unless told other files.
+    :param pending: its measurement (hours long) has not been made yet: it has no results file and no section until
+        its first run, after which the flag goes (``tests/test_benchmarks_harness.py`` holds both to that).
     """
 
     name: str
@@ -59,6 +61,7 @@ class Benchmark:
     save: Callable[[Any, Path], None] | None = None
     command: str = ""
     smoke_flags: tuple[str, ...] = SMOKE_FLAGS
+    pending: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:

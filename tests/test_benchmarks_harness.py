@@ -19,10 +19,13 @@ TEXT = MARKDOWN.read_text()
 
 
 def test_every_section_has_one_benchmark_and_every_benchmark_a_section() -> None:
-    benchmarks = registry()
+    """... except a pending benchmark (a long measurement not made yet), which has neither results nor section."""
+    benchmarks = {name: b for name, b in registry().items() if not b.pending}
     sections = section_names(TEXT)
     assert len(sections) == len(set(sections)), "a section marker is repeated"
     assert sorted(sections) == sorted(benchmarks)
+    for pending in (b for b in registry().values() if b.pending):
+        assert not pending.results_path.exists(), f"{pending.name} has results: drop its pending flag"
     for bench in benchmarks.values():
         assert bench.kind in KINDS
         assert bench.results_path.is_file(), f"{bench.name}: results file {bench.results} missing"
@@ -30,7 +33,7 @@ def test_every_section_has_one_benchmark_and_every_benchmark_a_section() -> None
 
 
 def test_render_all_leaves_benchmarks_md_byte_identical() -> None:
-    rendered = harness_cli.render_into(TEXT, list(registry().values()))
+    rendered = harness_cli.render_into(TEXT, [b for b in registry().values() if not b.pending])
     if rendered != TEXT:
         stale = [name for name in section_names(TEXT) if read_section(MARKDOWN, name)
                  != registry()[name].render_file()]
@@ -40,7 +43,8 @@ def test_render_all_leaves_benchmarks_md_byte_identical() -> None:
 
 def test_render_is_deterministic() -> None:
     for bench in registry().values():
-        assert bench.render_file() == bench.render_file(), bench.name
+        if not bench.pending:
+            assert bench.render_file() == bench.render_file(), bench.name
 
 
 def test_headline_pointers_name_real_sections() -> None:
@@ -100,7 +104,7 @@ def test_unknown_benchmark_is_one_line(capsys: pytest.CaptureFixture[str]) -> No
 
 def test_learning_sections_show_iqm_with_intervals() -> None:
     """Every learning benchmark over several seeds reports the IQM with its 95% interval beside mean +- std."""
-    learning = [b for b in registry().values() if b.kind == "learning"]
+    learning = [b for b in registry().values() if b.kind == "learning" and not b.pending]
     assert learning
     for bench in learning:
         section = bench.render_file()

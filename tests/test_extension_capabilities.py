@@ -39,7 +39,7 @@ BEFORE = {
     "demos": ("sac", "tqc", "td3", "ddpg", "dqn", "qrdqn"),  # added with --demos
     "federated": ("a2c", "ppo", "ddpg", "td3", "sac"),
     "centralized_critic": ("a2c", "ppo"),
-    "rllib": ("ppo",),
+    "rllib": ("ppo", "dqn", "sac"),  # RLlib trains Gymnasium envs too (appo and impala have no SB3 row)
 }
 
 

@@ -34,6 +34,7 @@ from typing import Any
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, save_figure
+from benchmarks.stats import format_iqm, format_mean_std, seed_stats
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 
 NAME = "pong-cpu"
@@ -190,7 +191,9 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     command = (f"python -m benchmarks run {NAME} -f <output dir> --algos {' '.join(args.algos)} --seeds "
                f"{' '.join(map(str, args.seeds))} --budget-s {args.budget_s:g} --games {args.games}"
                + (f" --params {' '.join(args.params)}" if args.params and not args.quick else ""))
-    results = {"command": command, "earlier_commands": earlier, "env": ENV, "rows": rows,
+    stats = {a: seed_stats([r["final"]["score"] for r in rows if r["algo"] == a and r["final"]])
+             for a in ALGOS if any(r["algo"] == a and r["final"] for r in rows)}
+    results = {"command": command, "earlier_commands": earlier, "env": ENV, "rows": rows, "stats": stats,
                "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()}}
     _plot(rows, args.plots / PLOT)
     return results
@@ -240,12 +243,17 @@ def render(results: dict[str, Any]) -> str:
         lines.append(f"| {r['algo']} | {r['seed']} | {r['budget_s']:.0f} | {final['steps']:,} | {final['train_s']:.0f}"
                      f" | {r['steps_per_s']:,.0f} | {final['score']:+.1f} +- {final['score_std']:.1f} "
                      f"({r['games']} games) | {best['steps']:,}, {best['score']:+.1f} | {r['parts']} |")
-    lines += ["", f"![Pong score against training time](benchmarks/results/{PLOT})"]
+    lines.append("")
+    for algo, st in results["stats"].items():
+        interval = f", IQM {format_iqm(st, '.1f')}" if st["n"] > 1 else ""
+        lines.append(f"- {algo}: final score {format_mean_std(st, '.1f')} over {st['n']} seed(s){interval}.")
+    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable).", "",
+              f"![Pong score against training time](benchmarks/results/{PLOT})"]
     return "\n".join(lines)
 
 
 BENCHMARKS = (
     Benchmark(name=NAME, kind="learning", results=RESULTS,
               summary="Pong on this machine's CPU cores: PQN vs SB3 DQN and PPO, greedy score against training time",
-              run=run, render=render),
+              run=run, render=render, pending=True),
 )

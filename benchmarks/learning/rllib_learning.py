@@ -233,8 +233,8 @@ def render(result: dict[str, Any]) -> str:
     own = (runs[0].get("metric") or {}).get("label")  # a Gymnasium env's metric (METRICS)
     ck = runs[0].get("checkpoint")
     ck_head = f"checkpoint <= {ck['within_seconds']:.0f} s: env steps | train s | team return | " if ck else ""
-    runners = runs[0]["num_env_runners"]
-    who = "team" if runs[0]["policies"] != "shared" or not own else "agent"
+    runners = runs[0].get("num_env_runners", 2)
+    who = "team" if runs[0].get("policies", "shared") != "shared" or not own else "agent"
     where = f"{runners} env runners" if runners else "sampling in the driver"
     lines = [f"## RLlib PPO: {env}", "",
              f"`python -m sbagents.train --backend rllib --algo ppo --env {env}` with the shipped "

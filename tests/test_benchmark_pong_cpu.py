@@ -23,7 +23,9 @@ def test_pong_cpu_quick_run_scores_checkpoints_and_continues_a_stopped_run(tmp_p
     assert "| pqn | 0 | 40 |" in render(results)
     logs = tmp_path / "pqn" / "seed0"
     (first,) = logs.glob("pqn/PongNoFrameskip-v4_*")
-    (first / "summary.json").unlink()  # as if the session had ended mid-run
+    (first / "summary.json").unlink()  # as if the session had ended mid-run, after its first checkpoint
+    for later in sorted(first.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[2]))[1:]:
+        later.unlink()
     again = run(["-f", str(tmp_path), "--algos", "pqn", "--quick"])["rows"][0]
     assert again["parts"] == 2
     words = sorted(logs.rglob("command.txt"))[-1].read_text().split()

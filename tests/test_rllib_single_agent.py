@@ -170,3 +170,16 @@ def test_entries_for_gymnasium_envs_are_checked(entry: dict[str, object], messag
     with pytest.raises(UsageError, match=message.replace("(", r"\(").replace(")", r"\)")):
         spec = TrainSpec(algo=algo, env="CartPole-v1", hyperparams=conf)
         build_experiment(spec, resolve_env("CartPole-v1"))
+
+
+def test_pong_reaches_a_local_multi_node_test_cluster() -> None:
+    """``rllib-pong --quick``: Atari PPO on local Ray and, through ``--address``, on ``ray.cluster_utils.Cluster``
+    (a head and a worker node); both sample their steps and report their rates."""
+    pytest.importorskip("ale_py", reason="Atari needs ale-py: pip install -e '.[atari]'")
+    from benchmarks.speed.rllib_pong import render, run
+
+    results = run(["--quick"])
+    local, cluster = results["rows"]
+    assert local["where"] == "local Ray" and cluster["where"] == "test cluster, 2 nodes"
+    assert all(r["env_steps"] >= 400 and r["fps"] > 0 for r in (local, cluster))
+    assert "| test cluster, 2 nodes | 1 | " in render(results)

@@ -82,9 +82,9 @@ def _checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
 
 
 def _timeline(parts: Sequence[Path]) -> tuple[list[dict[str, Any]], float]:
-    """Every checkpoint of a run's parts with the training seconds before it was saved (each part from its start,
-    ``command.txt``, to the checkpoint's save; the earlier parts' seconds added), and the training seconds of all
-    parts (a finished part's ``train_seconds``; an unfinished one's up to its last checkpoint)."""
+    """Every checkpoint of a run's parts (and a stopped part's final model) with the training seconds before it was
+    saved: from the part's start (its run dir's ``command.txt``, so model and env setup count too) to the file's
+    save, the earlier parts' seconds added; and the seconds of all parts (each up to its last saved model)."""
     points: list[dict[str, Any]] = []
     before = 0.0
     for part in parts:
@@ -92,12 +92,12 @@ def _timeline(parts: Sequence[Path]) -> tuple[list[dict[str, Any]], float]:
         saved = _checkpoints(part)
         points += [{"part": part.name, "steps": steps, "path": str(path),
                     "train_s": round(before + path.stat().st_mtime - start, 1)} for steps, path in saved]
-        summary = part / "summary.json"
-        if summary.exists():  # the model it saved when it stopped is the part's last point
+        summary, model = part / "summary.json", part / f"{ENV}.zip"
+        if summary.exists() and model.exists():  # the model it saved when it stopped is the part's last point
             done = json.loads(summary.read_text())
-            points.append({"part": part.name, "steps": int(done["n_timesteps"]), "path": str(part / f"{ENV}.zip"),
-                           "train_s": round(before + float(done["train_seconds"]), 1), "final": True})
-            before += float(done["train_seconds"])
+            points.append({"part": part.name, "steps": int(done["n_timesteps"]), "path": str(model),
+                           "train_s": round(before + model.stat().st_mtime - start, 1), "final": True})
+            before += model.stat().st_mtime - start
         else:
             before += saved[-1][1].stat().st_mtime - start if saved else 0.0
     return points, before

@@ -75,6 +75,20 @@ def format_mean_std(stats: dict[str, Any], fmt: str = ".2f") -> str:
     return f"{stats['mean']:{fmt}} +- {stats['std']:{fmt}}"
 
 
+#: The sentence under a table of :func:`format_iqm` figures.
+IQM_NOTE = "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable)."
+
+
+def stats_bullets(stats: dict[str, dict[str, Any]], what: str, fmt: str = ".2f") -> list[str]:
+    """One line per row of ``stats`` (name -> :func:`seed_stats`' figures): ``- name: <what> mean +- std over n
+    seed(s), IQM [low, high].`` (no IQM for 1 seed), then a blank line and :data:`IQM_NOTE`."""
+    lines = []
+    for name, st in stats.items():
+        interval = f", IQM {format_iqm(st, fmt)}" if st["n"] > 1 else ""
+        lines.append(f"- {name}: {what} {format_mean_std(st, fmt)} over {st['n']} seed(s){interval}.")
+    return [*lines, "", IQM_NOTE]
+
+
 def stats_columns(stats: dict[str, Any], fmt: str = ".2f") -> list[str]:
     """The three cells learning tables show for a metric over seeds: per-seed values, mean +- std, IQM [95% CI]."""
     return [" / ".join(f"{v:{fmt}}" for v in stats["values"]), format_mean_std(stats, fmt), format_iqm(stats, fmt)]

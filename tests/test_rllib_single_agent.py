@@ -90,7 +90,7 @@ def test_every_algorithm_trains_and_its_run_evaluates(tmp_path: Path, algo: str,
     obs = np.stack([probe.observation_space.sample() for _ in range(64)])
     settings = action_settings(run_dir / CHECKPOINT_DIR)
     for greedy in (True, False):
-        actions = module_policy(module, probe.action_space, greedy, settings["normalize"], settings["clip"])(obs)
+        actions = module_policy(module, probe.action_space, greedy, settings)(obs)
         assert len(actions) == 64 and all(probe.action_space.contains(a) for a in actions)
     exported = last_json(cli("export", "--algo", algo, "--env", env, "-f", str(tmp_path), "--n-observations", "100",
                              "--json").stdout)

@@ -24,7 +24,7 @@ from typing import Any
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import load_average, machine_info, run_module
-from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+from benchmarks.stats import IQM_NOTE, format_iqm, format_mean_std, seed_stats
 
 NAME = "bc-references"
 #: (env, algorithm that clones it with no learning step)
@@ -114,7 +114,7 @@ def render(results: dict[str, Any]) -> str:
     for env_id, st in results["stats"].items():
         lines.append(f"- {env_id}: normalized score {format_mean_std(st, '.3f')} (mean +- std over {st['n']} seeds), "
                      f"IQM {format_iqm(st, '.3f')}; target >= 0.95.")
-    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable)."]
+    lines += ["", IQM_NOTE]
     return "\n".join(lines)
 
 

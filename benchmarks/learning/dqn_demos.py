@@ -23,7 +23,7 @@ from typing import Any
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import load_average, machine_info, run_module
-from benchmarks.stats import format_iqm, seed_stats
+from benchmarks.stats import IQM_NOTE, format_iqm, seed_stats
 
 NAME = "dqn-demos"
 ENVS = ("sbagents/GridWorld-v0", "sbagents/HazardGridWorld-v0")
@@ -102,7 +102,7 @@ def render(results: dict[str, Any]) -> str:
         per_seed = ", ".join(f"{r['return']:.1f}" for r in cell)
         success = ", ".join("-" if r["success"] is None else f"{r['success']:.2f}" for r in cell)
         lines.append(f"| {env_id} | {int(steps):,} | {variant} | {per_seed} | {format_iqm(st, '.1f')} | {success} |")
-    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable)."]
+    lines += ["", IQM_NOTE]
     return "\n".join(lines)
 
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, run_module, save_figure
-from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+from benchmarks.stats import seed_stats, stats_bullets
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 from sbagents.replay.buffer_files import checkpoint_steps
 from sbagents.state_files import REPLAY_BUFFER_FILE, replay_buffer_steps
@@ -360,11 +360,7 @@ def render(results: dict[str, Any]) -> str:
         lines.append(f"| {r['variant']}{stored} | {r.get('env', ENV)} | {r['seed']} | {r['n_timesteps']:,} | "
                      f"{_pct(r['final_success'])} | {cost} | {_pct(r['best_eval_success'])} | {first} | "
                      f"{r['train_s']:.0f} |")
-    lines.append("")
-    for variant, st in results["stats"].items():
-        interval = f", IQM {format_iqm(st, '.2f')}" if st["n"] > 1 else ""
-        lines.append(f"- {variant}: final success {format_mean_std(st, '.2f')} over {st['n']} seed(s){interval}.")
-    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable).", "",
+    lines += ["", *stats_bullets(results["stats"], "final success", ".2f"), "",
               f"![success vs steps](benchmarks/results/{PLOT})"]
     return "\n".join(lines)
 

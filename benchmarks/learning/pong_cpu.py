@@ -34,7 +34,7 @@ from typing import Any
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, save_figure
-from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+from benchmarks.stats import seed_stats, stats_bullets
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 
 NAME = "pong-cpu"
@@ -138,8 +138,7 @@ def _train(logs: Path, algo: str, seed: int, budget_s: float, save_every: int, p
 
 def _score(logs: Path, algo: str, point: dict[str, Any], games: int, env: dict[str, str]) -> dict[str, float]:
     """Greedy games of one checkpoint on the plain ALE env: mean and std of the game scores."""
-    parts = _parts(logs)
-    exp_id = next(int(p.name.rsplit("_", 1)[1]) for p in parts if p.name == point["part"])
+    exp_id = int(point["part"].rsplit("_", 1)[1])  # the part's run dir, <EnvId>_<k>
     out = subprocess.run([sys.executable, "-m", "sbagents.evaluate", "--algo", algo, "--env", ENV, "-f", str(logs),
                           "--exp-id", str(exp_id),
                           *([] if point.get("final") else ["--load-checkpoint", str(point["steps"])]), "-n", str(games),
@@ -243,11 +242,7 @@ def render(results: dict[str, Any]) -> str:
         lines.append(f"| {r['algo']} | {r['seed']} | {r['budget_s']:.0f} | {final['steps']:,} | {final['train_s']:.0f}"
                      f" | {r['steps_per_s']:,.0f} | {final['score']:+.1f} +- {final['score_std']:.1f} "
                      f"({r['games']} games) | {best['steps']:,}, {best['score']:+.1f} | {r['parts']} |")
-    lines.append("")
-    for algo, st in results["stats"].items():
-        interval = f", IQM {format_iqm(st, '.1f')}" if st["n"] > 1 else ""
-        lines.append(f"- {algo}: final score {format_mean_std(st, '.1f')} over {st['n']} seed(s){interval}.")
-    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable).", "",
+    lines += ["", *stats_bullets(results["stats"], "final score", ".1f"), "",
               f"![Pong score against training time](benchmarks/results/{PLOT})"]
     return "\n".join(lines)
 

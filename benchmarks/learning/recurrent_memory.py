@@ -24,7 +24,7 @@ from typing import Any
 
 from benchmarks.harness import Benchmark
 from benchmarks.report import load_average, machine_info
-from benchmarks.stats import format_iqm, format_mean_std, seed_stats
+from benchmarks.stats import IQM_NOTE, format_iqm, format_mean_std, seed_stats
 
 NAME = "recurrent-memory"
 #: (env id, the level RL Zoo's ppo_lstm reaches there, what the observation hides)
@@ -158,7 +158,7 @@ def render(results: dict[str, Any]) -> str:
             line += (f"; at RL Zoo's level (>= {level:.0f}): final model {reached}/{st['n']} seeds, best model "
                      f"{reached_best}/{st['n']}")
         lines.append(line + ".")
-    lines += ["", "IQM: the interquartile mean; brackets: its 95% stratified bootstrap interval (rliable)."]
+    lines += ["", IQM_NOTE]
     return "\n".join(lines)
 
 

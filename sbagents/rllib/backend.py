@@ -103,25 +103,20 @@ class RllibBackend(Backend):
         assert run.algo is not None
         return export_rllib_run(run.run_dir(), run.algo, run.env_ref(), int8, out, n_observations, trust=run.trust)
 
-    def _refuse_run_options(self, run: RunRef) -> None:
-        """Refuse (one line) run options RLlib runs do not have: a best model, a numbered checkpoint, env kwargs."""
-        given = ["--load-best"] if run.load_best else []
+    def _refuse_run_options(self, run: RunRef, given: Sequence[str] = ()) -> None:
+        """Refuse (one line) run options RLlib runs do not have: a best model, a numbered checkpoint, env kwargs
+        (after the command's own ``given`` flags)."""
+        given = [*given, *(["--load-best"] if run.load_best else [])]
         given += ["--load-checkpoint"] if run.checkpoint is not None else []
         given += ["--env-kwargs"] if run.env_kwargs else []
         if given:
             raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run.run_dir()})")
 
     def evaluate(self, run: RunRef, options: EvaluateOptions) -> dict[str, Any]:
-        run_dir = run.run_dir()
-        given = [flag for name, flag in UNSUPPORTED_EVALUATE.items() if getattr(options, name)]
-        given += ["--load-best"] if run.load_best else []
-        given += ["--load-checkpoint"] if run.checkpoint is not None else []
-        given += ["--env-kwargs"] if run.env_kwargs else []
-        if given:
-            raise UsageError(f"{', '.join(given)} not supported for RLlib runs ({run_dir})")
+        self._refuse_run_options(run, [flag for name, flag in UNSUPPORTED_EVALUATE.items() if getattr(options, name)])
         require_ray("evaluating an RLlib run")
         with rllib_import("evaluating an RLlib run"):
             from sbagents.rllib.evaluation import evaluate_run
 
         assert run.algo is not None
-        return evaluate_run(run_dir, run.algo, run.env_ref(), options, trust=run.trust)
+        return evaluate_run(run.run_dir(), run.algo, run.env_ref(), options, trust=run.trust)

@@ -50,7 +50,7 @@ from sbagents.core.env_names import EnvRef
 from sbagents.errors import UsageError
 from sbagents.plain_data import TRUST_FLAG
 from sbagents.rllib import MODULE_SUBDIR, MODULES_FILE, WEIGHTS_FILE
-from sbagents.rllib.single_agent import SINGLE_MODULE, env_spaces
+from sbagents.rllib.single_agent import DEFAULT_ACTIONS, SINGLE_MODULE, env_spaces
 
 #: The RLModule classes rebuilt from a checkpoint's plain data, by algorithm: RLlib's own default modules only
 #: (the algorithm's config class, and the module class its default spec builds; IMPALA's is PPO's).
@@ -170,10 +170,7 @@ def _read_spec(path: Path) -> tuple[str, dict[str, list[str]], dict[str, Any]]:
 
 def _read_fields(path: Path) -> tuple[str, dict[str, list[str]], dict[str, Any], dict[str, Any]]:
     """Algorithm, module id -> agents and model settings of :data:`~sbagents.rllib.MODULES_FILE`, validated."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{path} is not valid JSON: {exc}") from None
+    data = _read_json(path)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise UsageError(f"{path}: expected a JSON object with format {FORMAT}")
     algo = data.get("algo")
@@ -284,15 +281,20 @@ def _single_spaces(kind: SingleAgentKind, spec_path: Path, groups: Mapping[str, 
 
 def action_settings(checkpoint: str | Path) -> dict[str, bool]:
     """How the run's continuous actions reach the env (``normalize``, ``clip``: RLlib's ``normalize_actions`` and
-    ``clip_actions``), from :data:`~sbagents.rllib.MODULES_FILE` (RLlib's defaults, True and False, where it says
-    nothing)."""
+    ``clip_actions``), from :data:`~sbagents.rllib.MODULES_FILE` (RLlib's defaults,
+    :data:`~sbagents.rllib.single_agent.DEFAULT_ACTIONS`, where it says nothing)."""
     path = Path(checkpoint) / MODULES_FILE
-    try:
-        data = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{path} is not valid JSON: {exc}") from None
+    data = _read_json(path) if path.is_file() else {}
     given = data.get("actions", {}) if isinstance(data, dict) else {}
     if not isinstance(given, dict) or set(given) - {"normalize", "clip"} or \
             not all(isinstance(v, bool) for v in given.values()):
         raise UsageError(f"{path}: actions maps normalize and clip to true or false")
-    return {"normalize": True, "clip": False, **given}
+    return {**DEFAULT_ACTIONS, **given}
+
+
+def _read_json(path: Path) -> Any:
+    """The JSON of ``path`` (one line for a file that is not valid JSON)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"{path} is not valid JSON: {exc}") from None

@@ -20,7 +20,7 @@ import torch
 from gymnasium import spaces
 from ray.rllib.core import Columns
 from ray.rllib.core.rl_module.rl_module import RLModule
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.common.vec_env import VecEnv
 
 from sbagents.callbacks.episodes import Policy, stateless
 from sbagents.core.env_kinds import EnvKind, SingleAgentKind
@@ -34,7 +34,7 @@ from sbagents.multiagent.groups import team_vec_envs
 from sbagents.multiagent.team_eval import run_team_episodes, team_summary
 from sbagents.rllib import CHECKPOINT_DIR, SHARED_MODULE
 from sbagents.rllib.checkpoints import action_settings, load_modules
-from sbagents.rllib.single_agent import SINGLE_MODULE, build_env, evaluate_single, module_policy
+from sbagents.rllib.single_agent import SINGLE_MODULE, evaluate_single, module_policy, single_vec_env
 from sbagents.visualize.text_render import ParallelTextStepPrinter, supports_text
 from sbagents.visualize.video import record_policies
 
@@ -180,8 +180,7 @@ def _recording_kind(kind: EnvKind, modules: Mapping[str, RLModule], run_dir: Pat
 def _single_agent_recording(kind: SingleAgentKind, modules: Mapping[str, RLModule], run_dir: Path, ref: EnvRef,
                             kwargs: dict[str, Any], deterministic: bool
                             ) -> tuple[dict[str, VecEnv], dict[str, Policy]]:
-    venv = DummyVecEnv([lambda: build_env(ref.env_id, ref.modules, kwargs, ref.is_atari)])
-    settings = action_settings(run_dir / CHECKPOINT_DIR)
-    actor = module_policy(modules[SINGLE_MODULE], venv.action_space, deterministic, settings["normalize"],
-                          settings["clip"])
+    venv = single_vec_env(ref, kwargs)
+    actor = module_policy(modules[SINGLE_MODULE], venv.action_space, deterministic,
+                          action_settings(run_dir / CHECKPOINT_DIR))
     return {SINGLE_MODULE: venv}, {SINGLE_MODULE: stateless(actor)}

@@ -30,7 +30,14 @@ from sbagents.deploy.exporting import ExportChecks, ExportReport, export_run
 from sbagents.errors import UsageError
 from sbagents.rllib import CHECKPOINT_DIR
 from sbagents.rllib.checkpoints import action_settings, load_modules
-from sbagents.rllib.single_agent import ATARI_DIM, ATARI_STACK, SINGLE_MODULE, build_env, greedy_actions, module_policy
+from sbagents.rllib.single_agent import (
+    ATARI_DIM,
+    ATARI_STACK,
+    SINGLE_MODULE,
+    greedy_actions,
+    module_policy,
+    single_vec_env,
+)
 
 
 class RllibActor(torch.nn.Module):
@@ -84,7 +91,7 @@ class RllibModel:
                  actions: dict[str, bool]) -> None:
         self.policy = RllibActor(module, observation_space, action_space, actions["normalize"])
         self.observation_space, self.action_space = observation_space, action_space
-        self._act = {greedy: module_policy(module, action_space, greedy, actions["normalize"], actions["clip"])
+        self._act = {greedy: module_policy(module, action_space, greedy, actions)
                      for greedy in (True, False)}
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None,
@@ -122,7 +129,7 @@ def _export_kind(kind: EnvKind, modules: dict[str, RLModule], run_dir: Path, ref
 def _export_single_agent(kind: SingleAgentKind, modules: dict[str, RLModule], run_dir: Path, ref: EnvRef,
                          kwargs: dict[str, Any], algo: str, target: Path, int8: bool,
                          checks: ExportChecks) -> dict[str, ExportReport]:
-    venv = DummyVecEnv([lambda: build_env(ref.env_id, ref.modules, kwargs, ref.is_atari)])
+    venv = single_vec_env(ref, kwargs)
     try:
         model = RllibModel(modules[SINGLE_MODULE], venv.observation_space, venv.action_space,
                            action_settings(run_dir / CHECKPOINT_DIR))

@@ -44,6 +44,9 @@ from sbagents.errors import UsageError
 #: Module id and agent id of a single-agent run (RLlib's own).
 SINGLE_MODULE: str = DEFAULT_MODULE_ID
 SINGLE_AGENT: str = str(DEFAULT_AGENT_ID)
+#: How a run's Box actions reach the env unless its checkpoint says otherwise: RLlib's defaults of
+#: ``normalize_actions`` (unsquash from [-1, 1] to the bounds) and ``clip_actions``.
+DEFAULT_ACTIONS: dict[str, bool] = {"normalize": True, "clip": False}
 #: Atari preprocessing: frame size and stack (RLlib's own defaults for its tuned Atari examples).
 ATARI_DIM, ATARI_STACK = 64, 4
 #: Observation spaces RLlib's default encoders build on without flattening.
@@ -83,6 +86,11 @@ def make_env(config: Mapping[str, Any]) -> gym.Env:
         torch.set_num_threads(threads)
     return build_env(config["env_id"], tuple(config.get("modules", ())), config.get("env_kwargs") or {},
                      bool(config.get("atari")))
+
+
+def single_vec_env(ref: EnvRef, env_kwargs: Mapping[str, Any], monitor: bool = False) -> DummyVecEnv:
+    """One copy of :func:`build_env` of ``ref`` as a VecEnv (evaluation, recording, export parity)."""
+    return DummyVecEnv([lambda: build_env(ref.env_id, ref.modules, env_kwargs, ref.is_atari, monitor)])
 
 
 def env_spaces(ref: EnvRef, env_kwargs: Mapping[str, Any]) -> tuple[spaces.Space[Any], spaces.Space[Any]]:
@@ -132,12 +140,15 @@ def greedy_actions(module: RLModule, obs: torch.Tensor) -> torch.Tensor:
 
 
 def module_policy(module: RLModule, action_space: spaces.Space[Any], deterministic: bool = True,
-                  normalize_actions: bool = True, clip_actions: bool = False) -> Callable[[np.ndarray], np.ndarray]:
+                  actions: Mapping[str, bool] | None = None) -> Callable[[np.ndarray], np.ndarray]:
     """``obs batch (n_envs, *obs_shape) -> actions (n_envs, *action_shape)`` of an RLModule, as RLlib's env runner
     acts: greedy (the distribution's deterministic action, or the module's own ``actions`` output, e.g. DQN's
     argmax) or sampled (DQN's modules act greedily either way); Box actions unsquashed from [-1, 1] to the
-    space's bounds (``normalize_actions``) or clipped to them (``clip_actions``), as RLlib's module-to-env pipeline
-    does."""
+    space's bounds (``actions["normalize"]``) or clipped to them (``actions["clip"]``), as RLlib's module-to-env
+    pipeline does (the run's settings: :func:`~sbagents.rllib.checkpoints.action_settings`; default
+    :data:`DEFAULT_ACTIONS`)."""
+    settings = {**DEFAULT_ACTIONS, **(actions or {})}
+    normalize_actions, clip_actions = settings["normalize"], settings["clip"]
     if not deterministic and "t" in inspect.signature(module._forward_exploration).parameters:
         deterministic = True  # DQN explores by its training's epsilon schedule (step t): it has nothing to sample
     dist_cls = module.get_exploration_action_dist_cls()
@@ -166,17 +177,16 @@ def evaluate_single(module: RLModule, ref: EnvRef, env_kwargs: Mapping[str, Any]
     and summarize them as every sbagents evaluation (``evaluate --json``'s keys).
 
     :param actions: the run's ``normalize`` / ``clip`` action settings (RLlib's ``normalize_actions`` and
-        ``clip_actions``; default: RLlib's, True and False).
+        ``clip_actions``; default: :data:`DEFAULT_ACTIONS`).
     """
     kwargs = dict(env_kwargs)
     if options.render:
         kwargs["render_mode"] = "human"
-    settings = {"normalize": True, "clip": False, **(actions or {})}
-    venv = DummyVecEnv([lambda: build_env(ref.env_id, ref.modules, kwargs, ref.is_atari, monitor=True)])
+    venv = single_vec_env(ref, kwargs, monitor=True)
     try:
         if options.seed is not None:
             torch.manual_seed(options.seed)  # sampled actions (not greedy) repeat for a seed
-        actor = module_policy(module, venv.action_space, options.greedy(), settings["normalize"], settings["clip"])
+        actor = module_policy(module, venv.action_space, options.greedy(), actions)
         records = play_episodes(venv, stateless(actor), options.n_episodes, options.seed, monitor_episodes=True,
                                 episode_metrics=episode_metrics_of(venv))
     finally:

@@ -11,16 +11,20 @@ import shlex
 import sys
 from typing import Any
 
-from sbagents.algos import ALGOS, capability_legend, capability_table
-from sbagents.cli_common import ArgumentParser, run
-from sbagents.core.backends import DEFAULT_BACKEND, backend_names
-from sbagents.core.env_names import import_packages, sbagents_env_ids
-from sbagents.core.extensions import registered_extensions, specs_from_args
-from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, RllibOptions, Sb3Options, TrainSpec
-from sbagents.core.zoo_config import parse_overrides
-from sbagents.pipeline.backends import train
-from sbagents.pipeline.console import train_summary_lines
-from sbagents.visualize.showcase import describe_policy
+from sbagents.openmp import passive_wait_policy
+
+passive_wait_policy()  # before torch is imported (below): see sbagents.openmp
+
+from sbagents.algos import ALGOS, capability_legend, capability_table  # noqa: E402
+from sbagents.cli_common import ArgumentParser, run  # noqa: E402
+from sbagents.core.backends import DEFAULT_BACKEND, backend_names  # noqa: E402
+from sbagents.core.env_names import import_packages, sbagents_env_ids  # noqa: E402
+from sbagents.core.extensions import registered_extensions, specs_from_args  # noqa: E402
+from sbagents.core.options import EvalOptions, ExecOptions, OutputOptions, RllibOptions, Sb3Options, TrainSpec  # noqa: E402
+from sbagents.core.zoo_config import parse_overrides  # noqa: E402
+from sbagents.pipeline.backends import train  # noqa: E402
+from sbagents.pipeline.console import train_summary_lines  # noqa: E402
+from sbagents.visualize.showcase import describe_policy  # noqa: E402
 
 
 def build_parser() -> ArgumentParser:

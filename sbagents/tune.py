@@ -8,9 +8,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from sbagents.cli_common import ArgumentParser, run
-from sbagents.core.options import StudyOptions, TrainSpec
-from sbagents.pipeline.tuning import PRUNERS, SAMPLERS, tune
+from sbagents.openmp import passive_wait_policy
+
+passive_wait_policy()  # before torch is imported (below): see sbagents.openmp
+
+from sbagents.cli_common import ArgumentParser, run  # noqa: E402
+from sbagents.core.options import StudyOptions, TrainSpec  # noqa: E402
+from sbagents.pipeline.tuning import PRUNERS, SAMPLERS, tune  # noqa: E402
 
 
 def build_parser() -> ArgumentParser:

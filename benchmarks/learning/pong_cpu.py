@@ -5,15 +5,16 @@ Per (algo, seed): ``python -m sbagents.train --algo ALGO --env PongNoFrameskip-v
 ``zoo_configs/pqn.yml``'s ``atari`` entry, CleanRL's ``pqn_atari_envpool`` settings; DQN: RL Zoo's ``atari`` entry;
 PPO: RL Zoo's Pong entry; EnvPool stepping the envs when installed), saving a checkpoint every ``--save-every`` env
 steps, and stopped (Ctrl-C: it saves its model) once its training has had ``--budget-s`` seconds of wall time
-(counted from its run dir's creation: imports excluded). Then every checkpoint, and the model the run saved when it
-stopped, plays ``--games`` greedy games (``python -m sbagents.evaluate``; Pong's score is a game's return, -21 to
-+21), which makes the curve of score against training seconds.
+(counted from its run dir's creation: imports excluded). Each run trains with ``--num-threads`` torch threads (2: both
+cores of the project's machines; idle OpenMP threads sleep, see ``sbagents.openmp``). Then the model the run ends
+with plays ``--games`` greedy games and every earlier checkpoint ``--curve-games`` (``python -m sbagents.evaluate``;
+Pong's score is a game's return, -21 to +21), which makes the curve of score against training seconds.
 
 Runs live in ``OUT/<algo>/seed<S>``. A run stopped before its budget (a session that ended) goes on from its latest
-checkpoint with ``train -i`` (DQN without its replay buffer, which refills from ``learning_starts``); its parts'
-training seconds add up. Evaluations are kept per checkpoint (``scores.json`` in the run's folder). The published
-results' rows of (algo, seed) pairs a command does not train are kept (``--fresh``: not), so each algorithm can have
-the machine to itself in a session of its own::
+save (a stopped part's final model, else its last checkpoint) with ``train -i`` (DQN without its replay buffer,
+which refills from ``learning_starts``); its parts' training seconds add up. Evaluations are kept per checkpoint
+(``scores.json`` in the run's folder). The published results' rows of (algo, seed) pairs a command does not train
+are kept (``--fresh``: not), so each algorithm can have the machine to itself in a session of its own::
 
     python -m benchmarks run pong-cpu -f OUT --algos pqn --seeds 0 [--budget-s 7200] [--games 10]
 """
@@ -41,8 +42,8 @@ NAME = "pong-cpu"
 ENV = "PongNoFrameskip-v4"
 PLOT = "pong_cpu.png"
 RESULTS = "pong_cpu.json"
-#: Env steps between checkpoints, by algorithm (about every 5-10 minutes of training here).
-SAVE_EVERY = {"pqn": 250_000, "ppo": 100_000, "dqn": 50_000}
+#: Env steps between checkpoints, by algorithm (about every 10 minutes of training here).
+SAVE_EVERY = {"pqn": 500_000, "ppo": 100_000, "dqn": 50_000}
 ALGOS = tuple(SAVE_EVERY)
 
 
@@ -53,7 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--budget-s", type=float, default=7200.0, help="training seconds per run (default 2 h)")
-    parser.add_argument("--games", type=int, default=10, help="greedy games per checkpoint")
+    parser.add_argument("--games", type=int, default=10, help="greedy games of the model a run ends with")
+    parser.add_argument("--curve-games", type=int, default=3, help="greedy games of each earlier checkpoint")
+    parser.add_argument("--num-threads", type=int, default=2, help="torch threads of each run (train's flag)")
     parser.add_argument("--save-every", type=int, default=None,
                         help="env steps between checkpoints (default: per algorithm, "
                              + ", ".join(f"{a} {n:,}" for a, n in SAVE_EVERY.items()) + ")")
@@ -104,20 +107,19 @@ def _timeline(parts: Sequence[Path]) -> tuple[list[dict[str, Any]], float]:
 
 
 def _train(logs: Path, algo: str, seed: int, budget_s: float, save_every: int, params: Sequence[str],
-           env: dict[str, str]) -> None:
+           threads: int, env: dict[str, str]) -> None:
     """Train until the run's parts have had ``budget_s`` seconds: a new run, or the latest checkpoint continued."""
     points, spent = _timeline(_parts(logs))
     left = budget_s - spent
     if left <= 1.0:
         return
     resume: list[str] = []
-    points = [p for p in points if not p.get("final")] or points  # a part that stopped early left its model too
-    if points:
+    if points:  # the latest save: a stopped part's final model, else its last checkpoint
         resume = ["-i", points[-1]["path"]]
         print(f"{algo} seed {seed}: continuing from step {points[-1]['steps']:,} ({left:.0f} s left)", file=sys.stderr)
     command = [sys.executable, "-m", "sbagents.train", "--algo", algo, "--env", ENV, "-f", str(logs), "--seed",
                str(seed), "--save-freq", str(save_every), "--eval-freq", "-1", "--final-eval-episodes", "0",
-               "--verbose", "0", *resume, *(["-params", *params] if params else [])]
+               "--verbose", "0", "--num-threads", str(threads), *resume, *(["-params", *params] if params else [])]
     before = set(_parts(logs))
     process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
@@ -153,21 +155,24 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
     """One (algo, seed): trained to its budget, every checkpoint scored (scores kept in ``scores.json``)."""
     logs = folder / algo / f"seed{seed}"
     save_every = args.save_every or SAVE_EVERY[algo]
-    _train(logs, algo, seed, args.budget_s, save_every, args.params, env)
+    _train(logs, algo, seed, args.budget_s, save_every, args.params, args.num_threads, env)
     cache_path = logs / "scores.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     curve = []
-    for point in _timeline(_parts(logs))[0]:
-        key = f"{point['part']}:{point['steps']}" + (":final" if point.get("final") else "")
+    points = _timeline(_parts(logs))[0]
+    for i, point in enumerate(points):
+        games = args.games if i == len(points) - 1 else args.curve_games  # the model the run ends with: --games
+        key = f"{point['part']}:{point['steps']}" + (":final" if point.get("final") else "") + f":{games}"
         if key not in cache:
-            cache[key] = _score(logs, algo, point, args.games, env)
+            cache[key] = {**_score(logs, algo, point, games, env), "games": games}
             tmp = cache_path.with_suffix(".tmp")
             tmp.write_text(json.dumps(cache))
             os.replace(tmp, cache_path)
         curve.append({"steps": point["steps"], "train_s": point["train_s"], **cache[key]})
     within = [c for c in curve if c["train_s"] <= args.budget_s + 60]  # the last save may land just past the budget
     best = max(within, key=lambda c: c["score"]) if within else None
-    return {"algo": algo, "seed": seed, "budget_s": args.budget_s, "games": args.games, "save_every": save_every,
+    return {"algo": algo, "seed": seed, "budget_s": args.budget_s, "games": args.games,
+            "curve_games": args.curve_games, "num_threads": args.num_threads, "save_every": save_every,
             "parts": len(_parts(logs)), "curve": curve, "final": within[-1] if within else None, "best": best,
             "steps_per_s": round(within[-1]["steps"] / within[-1]["train_s"], 1) if within else None}
 
@@ -176,7 +181,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     """Every (algo, seed) run's curve and final score."""
     args = build_parser().parse_args(list(argv))
     if args.quick:
-        args.budget_s, args.save_every, args.games, args.seeds = 40.0, 2000, 1, args.seeds[:1]
+        args.budget_s, args.save_every, args.games, args.curve_games = 40.0, 2000, 1, 1
+        args.seeds = args.seeds[:1]
         args.params = [*args.params, "n_envs:4"]
         args.plots = Path(tempfile.mkdtemp(prefix=f"{NAME}-"))
     folder = args.folder.resolve()
@@ -188,7 +194,8 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     rows += kept
     rows.sort(key=lambda r: (ALGOS.index(r["algo"]), r["seed"]))
     command = (f"python -m benchmarks run {NAME} -f <output dir> --algos {' '.join(args.algos)} --seeds "
-               f"{' '.join(map(str, args.seeds))} --budget-s {args.budget_s:g} --games {args.games}"
+               f"{' '.join(map(str, args.seeds))} --budget-s {args.budget_s:g} --games {args.games} "
+               f"--curve-games {args.curve_games} --num-threads {args.num_threads}"
                + (f" --params {' '.join(args.params)}" if args.params and not args.quick else ""))
     stats = {a: seed_stats([r["final"]["score"] for r in rows if r["algo"] == a and r["final"]])
              for a in ALGOS if any(r["algo"] == a and r["final"] for r in rows)}
@@ -241,7 +248,7 @@ def render(results: dict[str, Any]) -> str:
             continue
         lines.append(f"| {r['algo']} | {r['seed']} | {r['budget_s']:.0f} | {final['steps']:,} | {final['train_s']:.0f}"
                      f" | {r['steps_per_s']:,.0f} | {final['score']:+.1f} +- {final['score_std']:.1f} "
-                     f"({r['games']} games) | {best['steps']:,}, {best['score']:+.1f} | {r['parts']} |")
+                     f"({final['games']} games) | {best['steps']:,}, {best['score']:+.1f} | {r['parts']} |")
     lines += ["", *stats_bullets(results["stats"], "final score", ".1f"), "",
               f"![Pong score against training time](benchmarks/results/{PLOT})"]
     return "\n".join(lines)

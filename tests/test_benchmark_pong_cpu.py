@@ -19,6 +19,7 @@ def test_pong_cpu_quick_run_scores_checkpoints_and_continues_a_stopped_run(tmp_p
     results = run(["-f", str(tmp_path), "--algos", "pqn", "--quick"])
     (row,) = results["rows"]
     assert row["algo"] == "pqn" and row["parts"] == 1 and row["curve"][-1]["steps"] >= 2000
+    assert row["n_envs"] == 4 and row["gradient_passes"] == 2  # --quick's 4 envs, the atari entry's 2 epochs
     assert all(-21 <= c["score"] <= 21 for c in row["curve"]) and 0 < row["final"]["train_s"] <= 40 + 60
     assert "| pqn | 0 | 40 |" in render(results)
     logs = tmp_path / "pqn" / "seed0"
@@ -34,3 +35,31 @@ def test_pong_cpu_quick_run_scores_checkpoints_and_continues_a_stopped_run(tmp_p
     assert {c["score"] for c in again["curve"]} <= {v["score"] for v in scores.values()}  # scored once, kept
     seconds = [c["train_s"] for c in again["curve"]]
     assert seconds == sorted(seconds) and again["curve"][-1]["steps"] > 2000  # the parts' seconds add up
+
+
+def test_gradient_passes_per_env_step_follow_each_algorithms_config() -> None:
+    """DQN's Atari recipe samples 32 transitions every 4 env steps: 8 passes per env step; PQN and PPO pass every
+    transition once per epoch."""
+    from benchmarks.learning.pong_cpu import gradient_passes
+
+    assert gradient_passes("dqn", {"batch_size": 32, "train_freq": 4, "gradient_steps": 1}) == 8
+    assert gradient_passes("dqn", {"batch_size": 64, "train_freq": [2, "step"], "gradient_steps": 2, "n_envs": 4}) == 16
+    assert gradient_passes("ppo", {"n_epochs": 4}) == 4 and gradient_passes("pqn", {"n_epochs": 2}) == 2
+
+
+def test_the_gpu_setting_renders_each_parts_gpu_figures() -> None:
+    """``pong-gpu`` shares pong-cpu's runs and section; a run's GPU utilisation per part becomes a column."""
+    from benchmarks.learning.pong_cpu import GPU, build_parser, render
+
+    args = build_parser(GPU).parse_args(["-f", "OUT"])
+    assert (args.device, args.budget_s, args.num_threads) == ("cuda", 600.0, 1)
+    point = {"steps": 2_000_000, "train_s": 590.0, "score": 19.5, "score_std": 1.0, "games": 10}
+    row = {"algo": "pqn", "seed": 0, "budget_s": 600.0, "n_envs": 128, "gradient_passes": 2.0, "parts": 1,
+           "steps_per_s": 3389.8, "final": point, "best": point, "curve": [point], "num_threads": 1,
+           "gpu": {"PongNoFrameskip-v4_1": {"util_mean": 41.0, "util_max": 77.0, "memory_max_mib": 2100.0,
+                                            "samples": 1180}}}
+    machine = {"cores": 16, "cpu": "x", "date": "d", "load_before": [0.1], "load_after": [9.0], "gpu": "H100"}
+    text = render({"command": "c", "earlier_commands": [], "rows": [row], "stats": {}, "machine": machine,
+                   "where": GPU.where, "plot": GPU.plot})
+    assert "## Pong on one GPU (H100) and 16 cores" in text and "GPU busy % (mean, max) |" in text
+    assert "| 1 | 41, 77 |" in text and "pong_gpu.png" in text

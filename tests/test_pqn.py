@@ -1,11 +1,12 @@
 """PQN (``--algo pqn``, :mod:`sbagents.algos.pqn`): its Q(lambda) returns against a hand computation, its networks
 (LayerNorm after every hidden layer; the Nature CNN's shapes), learning CartPole, and the CLI's train, evaluate
-(rebuilt from plain data) and ONNX export on a tiny budget."""
+(rebuilt from plain data) and ONNX export on a tiny budget; the channels-last CNN."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -89,3 +90,39 @@ def test_pqn_learns_gridworld_on_the_batched_vec_env(tmp_path: Path) -> None:
     run_dir = tmp_path / "pqn" / "sbagents_GridWorld-v0_1"
     assert "vec_env: batched" in (run_dir / "sbagents_GridWorld-v0" / "args.yml").read_text()
     assert json.loads((run_dir / "summary.json").read_text())["eval"]["mean_return"] == 93.0
+
+
+def test_channels_last_cnn_gives_the_same_q_values_and_rebuilds_from_plain_data(tmp_path: Path) -> None:
+    """``features_extractor_kwargs: {channels_last: true}`` changes the memory layout, not the function, and a saved
+    model keeps it when rebuilt by the safe loader."""
+    from sbagents.atomic import save_model
+    from sbagents.safe_load import load_model
+
+    images = spaces.Box(0, 255, (4, 84, 84), np.uint8)
+    plain = PQNCnnPolicy(images, spaces.Discrete(6), lambda _: 2.5e-4)
+    fast = PQNCnnPolicy(images, spaces.Discrete(6), lambda _: 2.5e-4,
+                        features_extractor_kwargs={"channels_last": True})
+    fast.load_state_dict(plain.state_dict())
+    conv = fast.features_extractor.cnn[0]
+    assert conv.weight.is_contiguous(memory_format=torch.channels_last) and not conv.weight.is_contiguous()
+    obs = torch.as_tensor(np.stack([images.sample() for _ in range(5)]))
+    with torch.no_grad():
+        assert torch.allclose(fast.q_values(obs), plain.q_values(obs), atol=1e-5)
+
+    class Frames(gym.Env):  # type: ignore[type-arg]
+        observation_space, action_space = images, spaces.Discrete(6)
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:  # type: ignore[type-arg]
+            super().reset(seed=seed)
+            return images.sample(), {}
+
+        def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict]:  # type: ignore[type-arg]
+            return images.sample(), 0.0, False, False, {}
+
+    model = PQN("CnnPolicy", make_vec_env(Frames, n_envs=2), n_steps=4, batch_size=8, seed=0,
+                policy_kwargs={"features_extractor_kwargs": {"channels_last": True}})
+    model.learn(16)
+    loaded = load_model(PQN, save_model(model, tmp_path / "pqn.zip"), env=make_vec_env(Frames, n_envs=1))
+    assert loaded.policy.features_extractor.channels_last
+    with torch.no_grad():
+        assert torch.equal(loaded.policy.q_values(obs), model.policy.q_values(obs))

@@ -62,8 +62,18 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "epochs-1": ("passive-2 + 1 epoch (algorithm setting)", {"threads": 2, "wait": "PASSIVE",
                                                              "params": {"n_epochs": 1}}),
 }
-#: The zoo entry's values the table reports per row (overridden by a row's params).
-ENTRY = {"n_envs": 128, "n_steps": 32, "batch_size": 128, "n_epochs": 2}
+#: The zoo entry's settings the table reports per row (a row's params override them).
+SHOWN = ("n_envs", "n_steps", "batch_size", "n_epochs")
+
+
+def entry() -> dict[str, int]:
+    """The shipped ``atari`` entry's :data:`SHOWN` settings for Pong (``zoo_configs/pqn.yml``)."""
+    from sbagents.core.env_names import resolve_env
+    from sbagents.core.experiment import build_experiment
+    from sbagents.core.options import TrainSpec
+
+    exp = build_experiment(TrainSpec("pqn", ENV), resolve_env(ENV))
+    return {"n_envs": int(exp.n_envs), **{k: int(exp.algo_kwargs[k]) for k in SHOWN[1:]}}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -100,7 +110,8 @@ def measure_one(settings: dict[str, Any], steps: int, warmup: int) -> dict[str, 
             return True
 
     params = {**settings.get("params", {})}
-    rollout = int(params.get("n_envs", ENTRY["n_envs"])) * ENTRY["n_steps"]
+    shipped = entry()
+    rollout = int(params.get("n_envs", shipped["n_envs"])) * int(params.get("n_steps", shipped["n_steps"]))
     warmup = -(-warmup // rollout) * rollout
     timed = -(-steps // rollout) * rollout
     clock = StepClock(warmup)
@@ -179,18 +190,18 @@ def run(argv: Sequence[str]) -> dict[str, Any]:
     for _ in range(args.rounds):
         for name in args.variants:
             samples[name].append(_row(name, args.steps, args.warmup, n_envs))
-    rows = []
+    rows, shipped = [], entry()
     for name in args.variants:
         what, settings = VARIANTS[name]
-        entry = {**ENTRY, **{k: v for k, v in settings.get("params", {}).items() if k in ENTRY}}
-        entry["n_envs"] = n_envs or entry["n_envs"]
-        rows.append({"variant": name, "what": what, **entry,
+        row = {**shipped, **{k: v for k, v in settings.get("params", {}).items() if k in SHOWN}}
+        row["n_envs"] = n_envs or row["n_envs"]
+        rows.append({"variant": name, "what": what, **row,
                      "fps": round(statistics.median(s["fps"] for s in samples[name]), 1),
                      "fps_rounds": [round(s["fps"], 1) for s in samples[name]],
                      "rollout_share": round(statistics.median(s["rollout_share"] for s in samples[name]), 3),
-                     "gradient_passes_per_step": entry["n_epochs"],
-                     "gradient_steps_per_1000": round(1000 * entry["n_epochs"] / entry["batch_size"], 2)})
-    env_envs = n_envs or ENTRY["n_envs"]
+                     "gradient_passes_per_step": row["n_epochs"],
+                     "gradient_steps_per_1000": round(1000 * row["n_epochs"] / row["batch_size"], 2)})
+    env_envs = n_envs or shipped["n_envs"]
     return {"command": " ".join(["python -m benchmarks run", NAME, *recorded_argv(list(argv))]), "env": ENV,
             "rows": rows, "env_only": {"n_envs": env_envs, **env_only(env_envs, args.env_steps)},
             "machine": {**machine_info(), "load_before": load_before, "load_after": load_average()}}

@@ -56,10 +56,11 @@ def test_the_gpu_setting_renders_each_parts_gpu_figures() -> None:
     point = {"steps": 2_000_000, "train_s": 590.0, "score": 19.5, "score_std": 1.0, "games": 10}
     row = {"algo": "pqn", "seed": 0, "budget_s": 600.0, "n_envs": 128, "gradient_passes": 2.0, "parts": 1,
            "steps_per_s": 3389.8, "final": point, "best": point, "curve": [point], "num_threads": 1,
+           "first_target": {**point, "train_s": 600.0},
            "gpu": {"PongNoFrameskip-v4_1": {"util_mean": 41.0, "util_max": 77.0, "memory_max_mib": 2100.0,
                                             "samples": 1180}}}
     machine = {"cores": 16, "cpu": "x", "date": "d", "load_before": [0.1], "load_after": [9.0], "gpu": "H100"}
     text = render({"command": "c", "earlier_commands": [], "rows": [row], "stats": {}, "machine": machine,
                    "where": GPU.where, "plot": GPU.plot})
     assert "## Pong on one GPU (H100) and 16 cores" in text and "GPU busy % (mean, max) |" in text
-    assert "| 1 | 41, 77 |" in text and "pong_gpu.png" in text
+    assert "| 10, 2,000,000 | 1 | 41, 77 |" in text and "pong_gpu.png" in text

@@ -360,7 +360,9 @@ def render(results: dict[str, Any]) -> str:
                      f"({final['games']} games) | {best['steps']:,}, {best['score']:+.1f} | {_reached(r)} | "
                      f"{r['parts']} |"
                      + (f" {_gpu_cell(r.get('gpu'))} |" if gpu else ""))
-    lines += ["", *stats_bullets(results["stats"], "final score", ".1f"), "",
+    missing = [a for a in ALGOS if not any(r["algo"] == a for r in results["rows"])]
+    lines += ["", *stats_bullets(results["stats"], "final score", ".1f"),
+              *([f"- Not run yet: {', '.join(missing)}."] if missing else []), "",
               f"![Pong score against training time](benchmarks/results/{results.get('plot', CPU.plot)})"]
     return "\n".join(lines)
 
@@ -380,7 +382,7 @@ def _gpu_cell(parts: dict[str, dict[str, float] | None] | None) -> str:
 BENCHMARKS = (
     Benchmark(name=CPU.name, kind="learning", results=CPU.results,
               summary="Pong on this machine's CPU cores: PQN vs SB3 DQN and PPO, greedy score against training time",
-              run=run, render=render, pending=True),
+              run=run, render=render),
     Benchmark(name=GPU.name, kind="learning", results=GPU.results,
               summary="Pong on one GPU (CUDA) for 10 minutes: pong-cpu's runs with --device cuda, GPU busy sampled",
               run=run_gpu, render=render, pending=True),

@@ -44,7 +44,7 @@ from typing import Any
 import yaml
 
 from benchmarks.harness import Benchmark
-from benchmarks.report import RESULTS_DIR, kept_rows, load_average, machine_info, save_figure
+from benchmarks.report import RESULTS_DIR, atomic_write_text, kept_rows, load_average, machine_info, save_figure
 from benchmarks.stats import seed_stats, stats_bullets
 from sbagents.core.run_dir import CHECKPOINT_PREFIX
 
@@ -236,9 +236,7 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
     parts_gpu = json.loads(gpu_path.read_text()) if gpu_path.exists() else {}
     if gpu is not None:
         parts_gpu[_parts(logs)[-1].name] = gpu
-        tmp = gpu_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(parts_gpu))
-        os.replace(tmp, gpu_path)
+        atomic_write_text(gpu_path, json.dumps(parts_gpu))
     cache_path = logs / "scores.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     curve = []
@@ -248,9 +246,7 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
         key = f"{point['part']}:{point['steps']}" + (":final" if point.get("final") else "") + f":{games}"
         if key not in cache:
             cache[key] = {**_score(logs, algo, point, games, env), "games": games}
-            tmp = cache_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(cache))
-            os.replace(tmp, cache_path)
+            atomic_write_text(cache_path, json.dumps(cache))
         curve.append({"steps": point["steps"], "train_s": point["train_s"], **cache[key]})
     within = [c for c in curve if c["train_s"] <= args.budget_s + 60]  # the last save may land just past the budget
     configs = sorted(logs.rglob("config.yml"))

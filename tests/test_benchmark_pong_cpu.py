@@ -22,13 +22,17 @@ def test_pong_cpu_quick_run_scores_checkpoints_and_continues_a_stopped_run(tmp_p
     assert row["n_envs"] == 4 and row["gradient_passes"] == 2  # --quick's 4 envs, the atari entry's 2 epochs
     assert all(-21 <= c["score"] <= 21 for c in row["curve"]) and 0 < row["final"]["train_s"] <= 40 + 60
     assert "| pqn | 0 | 40 |" in render(results)
+    (span,) = row["trained"]  # when the part trained, and the machine's load as it stopped
+    assert span["part"].startswith("PongNoFrameskip-v4_") and span["load_15min"] >= 0
+    assert f"- pqn seed 0 trained {span['start']}-{span['end']} (15-minute load" in render(results)
     logs = tmp_path / "pqn" / "seed0"
     (first,) = logs.glob("pqn/PongNoFrameskip-v4_*")
     (first / "summary.json").unlink()  # as if the session had ended mid-run, after its first checkpoint
     for later in sorted(first.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[2]))[1:]:
         later.unlink()
     again = run(["-f", str(tmp_path), "--algos", "pqn", "--quick"])["rows"][0]
-    assert again["parts"] == 2
+    assert again["parts"] == 2 and [t["part"] for t in again["trained"]] == [first.name, sorted(
+        (p.parent.name for p in logs.rglob("command.txt")), key=lambda n: int(n.rsplit("_", 1)[1]))[-1]]
     words = sorted(logs.rglob("command.txt"))[-1].read_text().split()
     assert words[words.index("-i") + 1].endswith("_steps.zip")
     scores = json.loads((logs / "scores.json").read_text())

@@ -236,3 +236,11 @@ def test_envpool_model_evaluates_and_records_on_the_ale_env(ppo_run: Path, tmp_p
     assert result.returncode == 0, result.stderr
     assert "parity fp32: max abs action difference 0.00e+00 over 100 observations" in result.stdout
     assert "works inside AtariWrapper + 4-frame stack" in result.stdout
+
+
+def test_envpool_threads_default_to_one_per_env_up_to_the_cpus_this_process_may_use() -> None:
+    """EnvPool would count the host's CPUs; a container or ``taskset`` allows fewer."""
+    from sbagents.atari.envpool_vec_env import default_threads
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert default_threads(1) == 1 and default_threads(0) == 1 and default_threads(10_000) == cpus

@@ -54,6 +54,8 @@ SAVE_EVERY = {"pqn": 500_000, "ppo": 100_000, "dqn": 50_000}
 ALGOS = tuple(SAVE_EVERY)
 #: The chapter's aim: a greedy score of +18 or more.
 TARGET = 18.0
+#: A run folder's file of each part's 15-minute load average as it stopped.
+LOADS = "loads.json"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,7 +197,28 @@ def _train(logs: Path, algo: str, seed: int, save_every: int, args: argparse.Nam
             sampler.close()
     if process.returncode not in (0, 130, -signal.SIGINT):
         raise RuntimeError(f"{algo} seed {seed}: train failed: {err.strip()[-600:]}")
+    new = sorted(set(_parts(logs)) - before)
+    if new:  # how busy the machine was while this part trained: the 15-minute load average as it stopped
+        loads_path = logs / LOADS
+        loads = json.loads(loads_path.read_text()) if loads_path.exists() else {}
+        loads[new[-1].name] = load_average()[2]
+        atomic_write_text(loads_path, json.dumps(loads))
     return sampler.window(t0, t1) if sampler is not None else None
+
+
+def _trained(logs: Path) -> list[dict[str, Any]]:
+    """When each part of a run trained (its run dir's start to its last save, local time) and the 15-minute load
+    average as it stopped (None: not recorded)."""
+    loads_path = logs / LOADS
+    loads = json.loads(loads_path.read_text()) if loads_path.exists() else {}
+    spans = []
+    for part in _parts(logs):
+        start = (part / "command.txt").stat().st_mtime
+        saves = [path for _, path in _checkpoints(part)] + [p for p in [part / f"{ENV}.zip"] if p.exists()]
+        end = max((p.stat().st_mtime for p in saves), default=start)
+        spans.append({"part": part.name, "start": time.strftime("%Y-%m-%d %H:%M", time.localtime(start)),
+                      "end": time.strftime("%H:%M", time.localtime(end)), "load_15min": loads.get(part.name)})
+    return spans
 
 
 def _gpu_name() -> str:
@@ -257,8 +280,8 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
             "curve_games": args.curve_games, "num_threads": args.num_threads, "save_every": save_every,
             "n_envs": int(config.get("n_envs", 1)), "gradient_passes": gradient_passes(algo, config),
             "device": args.device, "gpu": parts_gpu or None,
-            "parts": len(_parts(logs)), "curve": curve, "final": within[-1] if within else None, "best": best,
-            "first_target": reached,
+            "parts": len(_parts(logs)), "trained": _trained(logs), "curve": curve,
+            "final": within[-1] if within else None, "best": best, "first_target": reached,
             "steps_per_s": round(within[-1]["steps"] / within[-1]["train_s"], 1) if within else None}
 
 
@@ -336,9 +359,9 @@ def render(results: dict[str, Any]) -> str:
         "training has had the budget, saving a checkpoint every N env steps; then the model it ends with plays "
         "the final score's games and every earlier checkpoint fewer (the curve), greedy, on the plain ALE env. "
         "Gradient passes per env step: how often a transition goes forward and backward through the network "
-        f"(PQN and PPO: epochs; DQN: batch size / train frequency). {m['cpu']}, {m['date']}, load "
-        f"{m['load_before'][0]} before / "
-        f"{m['load_after'][0]} after the last command.", "",
+        f"(PQN and PPO: epochs; DQN: batch size / train frequency). {m['cpu']}; the last command ran {m['date']}, "
+        f"load {m['load_before'][0]} before / {m['load_after'][0]} after it; when each run trained is below "
+        "the table.", "",
         "| algo | seed | budget s | envs | gradient passes per env step | env steps at the end | train s | env steps/s "
         f"| final score | best checkpoint (steps, score) | first save >= +{TARGET:.0f} (train min, steps) | parts |"
         + (" GPU busy % (mean, max) |" if gpu else ""),
@@ -358,6 +381,8 @@ def render(results: dict[str, Any]) -> str:
                      + (f" {_gpu_cell(r.get('gpu'))} |" if gpu else ""))
     missing = [a for a in ALGOS if not any(r["algo"] == a for r in results["rows"])]
     lines += ["", *stats_bullets(results["stats"], "final score", ".1f"),
+              *[f"- {r['algo']} seed {r['seed']} trained " + "; ".join(_span(t) for t in r["trained"]) + "."
+                for r in results["rows"] if r.get("trained")],
               *([f"- Not run yet: {', '.join(missing)}."] if missing else []), "",
               f"![Pong score against training time](benchmarks/results/{results.get('plot', CPU.plot)})"]
     return "\n".join(lines)
@@ -367,6 +392,12 @@ def _reached(row: dict[str, Any]) -> str:
     """When a run's saves first scored the target: training minutes and env steps (``not within the budget``)."""
     point = row.get("first_target")
     return "not within the budget" if point is None else f"{point['train_s'] / 60:.0f}, {point['steps']:,}"
+
+
+def _span(part: dict[str, Any]) -> str:
+    """One part's training time and load: ``2026-12-07 20:21-22:21 (15-min load 2.1 at its end)``."""
+    load = part.get("load_15min")
+    return f"{part['start']}-{part['end']}" + (f" (15-minute load {load:g} as it stopped)" if load is not None else "")
 
 
 def _gpu_cell(parts: dict[str, dict[str, float] | None] | None) -> str:

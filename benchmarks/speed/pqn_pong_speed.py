@@ -11,7 +11,10 @@ other row changes one thing (two for the 2-thread rows: threads and the wait pol
 - on top of 2 threads + PASSIVE: channels-last convolutions (``features_extractor_kwargs: {channels_last: true}``),
   ``torch.compile`` of the Q-network's forward (compile time excluded), and three changes of the algorithm's
   settings (not speed-only: they change what is learned per env step): 32 envs, minibatches of 512 (a quarter of
-  the gradient steps), 1 epoch (half the gradient passes).
+  the gradient steps), 1 epoch (half the gradient passes);
+- the wait policy with few envs: 8 envs with 1 thread, 2 spinning threads and 2 PASSIVE threads (with few envs the
+  gradient work is short and the env threads and torch's threads take turns on the cores, so spinning threads can
+  take the cores from the env threads).
 
 Each row trains in a fresh process (the wait policy is read when torch loads OpenMP) through ``train_sb3`` (the CLI's
 code path, no evaluation): ``--warmup`` env steps, then at least ``--steps`` timed env steps, whole rollouts. Reported:
@@ -61,6 +64,11 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
                   {"threads": 2, "wait": "PASSIVE", "params": {"batch_size": 512}}),
     "epochs-1": ("passive-2 + 1 epoch (algorithm setting)", {"threads": 2, "wait": "PASSIVE",
                                                              "params": {"n_epochs": 1}}),
+    "envs-8": ("baseline with 8 envs (algorithm setting)", {"threads": 1, "wait": None, "params": {"n_envs": 8}}),
+    "spin-2-envs-8": ("spin-2 with 8 envs (algorithm setting)", {"threads": 2, "wait": None,
+                                                                 "params": {"n_envs": 8}}),
+    "passive-2-envs-8": ("passive-2 with 8 envs (algorithm setting)", {"threads": 2, "wait": "PASSIVE",
+                                                                       "params": {"n_envs": 8}}),
 }
 #: The zoo entry's settings the table reports per row (a row's params override them).
 SHOWN = ("n_envs", "n_steps", "batch_size", "n_epochs")
@@ -154,7 +162,7 @@ def env_only(n_envs: int, vector_steps: int, seed: int = 0) -> dict[str, float]:
     """Env steps/s with random actions of training's envs (sbagents' EnvPool VecEnv, one frame per step, with SB3's
     ``VecFrameStack``), of that VecEnv without the stack, and of EnvPool's own pool with ``stack_num`` 1 and 4."""
     from sbagents.atari.envpool_support import atari_settings
-    from sbagents.atari.envpool_vec_env import envpool_task_id, import_envpool
+    from sbagents.atari.envpool_vec_env import default_threads, envpool_task_id, import_envpool
     from sbagents.core.env_names import resolve_env
     from sbagents.core.experiment import build_experiment
     from sbagents.core.options import TrainSpec
@@ -171,7 +179,7 @@ def env_only(n_envs: int, vector_steps: int, seed: int = 0) -> dict[str, float]:
     envpool, settings = import_envpool(), atari_settings(exp, ref)
     for stack in (1, 4):
         pool = envpool.make(envpool_task_id(settings.game), env_type="gymnasium", num_envs=n_envs, seed=seed,
-                            num_threads=min(n_envs, os.cpu_count() or 1),
+                            num_threads=default_threads(n_envs),
                             **{**settings.envpool_kwargs(), "stack_num": stack})
         pool.reset()
         rates[f"envpool_stack{stack}_fps"] = _fps(pool.step, n_envs, vector_steps, seed)

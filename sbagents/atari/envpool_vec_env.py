@@ -105,6 +105,13 @@ def import_envpool() -> ModuleType:
     return envpool
 
 
+def default_threads(n_envs: int) -> int:
+    """EnvPool worker threads for ``n_envs`` envs: one per env, at most one per CPU this process may use (EnvPool
+    itself would count the host's CPUs, more than a container or ``taskset`` allows)."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(min(n_envs, cpus), 1)
+
+
 def envpool_task_id(game: str) -> str:
     """EnvPool's id of an ALE game (``space_invaders`` -> ``SpaceInvaders-v5``)."""
     return "".join(part.capitalize() for part in game.split("_")) + "-v5"
@@ -167,10 +174,7 @@ class EnvPoolAtariVecEnv(VecEnv):
         return int(seed) % _SEED_MODULUS
 
     def _make_pool(self, seed: int) -> Any:
-        threads = self.num_threads
-        if threads <= 0:  # one per env, at most one per CPU this process may use (EnvPool would count the host's)
-            cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-            threads = max(min(self._n, cpus), 1)
+        threads = self.num_threads if self.num_threads > 0 else default_threads(self._n)
         return self._envpool.make(
             envpool_task_id(self.settings.game), env_type="gymnasium", num_envs=self._n, batch_size=self._n,
             seed=seed, num_threads=threads, **self.settings.envpool_kwargs())

@@ -25,6 +25,8 @@ def test_pong_cpu_quick_run_scores_checkpoints_and_continues_a_stopped_run(tmp_p
     (span,) = row["trained"]  # when the part trained, and the machine's load as it stopped
     assert span["part"].startswith("PongNoFrameskip-v4_") and span["load_15min"] >= 0
     assert f"- pqn seed 0 trained {span['start']}-{span['end']} (15-minute load" in render(results)
+    assert row["n_timesteps"] == 10_000_000 and "of its entry's n_timesteps (10,000,000)" in render(results)
+    assert 0.9 < row["exploration_end"] <= 1.0  # PQN's epsilon, a few thousand steps into its 1M-step decay
     logs = tmp_path / "pqn" / "seed0"
     (first,) = logs.glob("pqn/PongNoFrameskip-v4_*")
     (first / "summary.json").unlink()  # as if the session had ended mid-run, after its first checkpoint
@@ -49,6 +51,15 @@ def test_gradient_passes_per_env_step_follow_each_algorithms_config() -> None:
     assert gradient_passes("dqn", {"batch_size": 32, "train_freq": 4, "gradient_steps": 1}) == 8
     assert gradient_passes("dqn", {"batch_size": 64, "train_freq": [2, "step"], "gradient_steps": 2, "n_envs": 4}) == 16
     assert gradient_passes("ppo", {"n_epochs": 4}) == 4 and gradient_passes("pqn", {"n_epochs": 2}) == 2
+
+
+def test_exploration_at_follows_sb3s_linear_schedule() -> None:
+    """DQN's Atari recipe: epsilon 1 -> 0.01 over the first 10% of 10M steps; PPO has none."""
+    from benchmarks.learning.pong_cpu import exploration_at
+
+    dqn = {"n_timesteps": 1e7, "exploration_fraction": 0.1, "exploration_final_eps": 0.01}
+    assert exploration_at(dqn, 0) == 1.0 and exploration_at(dqn, 500_000) == pytest.approx(0.505)
+    assert exploration_at(dqn, 2_000_000) == 0.01 and exploration_at({"n_timesteps": 1e7, "n_epochs": 4}, 10) is None
 
 
 def test_the_gpu_setting_renders_each_parts_gpu_figures() -> None:

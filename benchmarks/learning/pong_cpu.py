@@ -221,6 +221,17 @@ def _trained(logs: Path) -> list[dict[str, Any]]:
     return spans
 
 
+def exploration_at(config: dict[str, Any], steps: int) -> float | None:
+    """The epsilon of a run's epsilon-greedy exploration after ``steps`` env steps (SB3's linear schedule over the
+    first ``exploration_fraction`` of ``n_timesteps``; None for an algorithm without one, such as PPO)."""
+    if "exploration_fraction" not in config and "exploration_final_eps" not in config:
+        return None
+    start = float(config.get("exploration_initial_eps", 1.0))
+    end = float(config.get("exploration_final_eps", 0.05))
+    progress = steps / (float(config.get("n_timesteps", steps or 1)) * float(config.get("exploration_fraction", 0.1)))
+    return round(start + (end - start) * min(progress, 1.0), 3)
+
+
 def _gpu_name() -> str:
     """The CUDA device's name (``none`` without one)."""
     import torch
@@ -279,6 +290,8 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
     return {"algo": algo, "seed": seed, "budget_s": args.budget_s, "games": args.games,
             "curve_games": args.curve_games, "num_threads": args.num_threads, "save_every": save_every,
             "n_envs": int(config.get("n_envs", 1)), "gradient_passes": gradient_passes(algo, config),
+            "n_timesteps": int(float(config["n_timesteps"])) if "n_timesteps" in config else None,
+            "exploration_end": exploration_at(config, within[-1]["steps"]) if within else None,
             "device": args.device, "gpu": parts_gpu or None,
             "parts": len(_parts(logs)), "trained": _trained(logs), "curve": curve,
             "final": within[-1] if within else None, "best": best, "first_target": reached,
@@ -383,6 +396,12 @@ def render(results: dict[str, Any]) -> str:
     lines += ["", *stats_bullets(results["stats"], "final score", ".1f"),
               *[f"- {r['algo']} seed {r['seed']} trained " + "; ".join(_span(t) for t in r["trained"]) + "."
                 for r in results["rows"] if r.get("trained")],
+              *[f"- {r['algo']} seed {r['seed']} ended at {r['final']['steps'] / r['n_timesteps']:.0%} of its entry's "
+                f"n_timesteps ({r['n_timesteps']:,}): its schedules (exploration, learning-rate decay) are set for "
+                "those steps, not for the budget, and got that far"
+                + (f" (exploration rate at the end: {r['exploration_end']:g})."
+                   if r.get("exploration_end") is not None else ".")
+                for r in results["rows"] if r.get("n_timesteps") and r["final"]],
               *([f"- Not run yet: {', '.join(missing)}."] if missing else []), "",
               f"![Pong score against training time](benchmarks/results/{results.get('plot', CPU.plot)})"]
     return "\n".join(lines)

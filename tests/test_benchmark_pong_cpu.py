@@ -54,12 +54,15 @@ def test_gradient_passes_per_env_step_follow_each_algorithms_config() -> None:
 
 
 def test_exploration_at_follows_sb3s_linear_schedule() -> None:
-    """DQN's Atari recipe: epsilon 1 -> 0.01 over the first 10% of 10M steps; PPO has none."""
+    """DQN's Atari recipe: epsilon 1 -> 0.01 over the first 10% of 10M steps; PPO has none; defaults per class."""
     from benchmarks.learning.pong_cpu import exploration_at
 
     dqn = {"n_timesteps": 1e7, "exploration_fraction": 0.1, "exploration_final_eps": 0.01}
-    assert exploration_at(dqn, 0) == 1.0 and exploration_at(dqn, 500_000) == pytest.approx(0.505)
-    assert exploration_at(dqn, 2_000_000) == 0.01 and exploration_at({"n_timesteps": 1e7, "n_epochs": 4}, 10) is None
+    assert exploration_at("dqn", dqn, 0) == 1.0 and exploration_at("dqn", dqn, 500_000) == pytest.approx(0.505)
+    assert exploration_at("dqn", dqn, 2_000_000) == 0.01
+    assert exploration_at("ppo", {"n_timesteps": 1e7, "n_epochs": 4}, 10) is None
+    # a setting the config leaves out is the algorithm class's default (PQN's final epsilon: 0.001)
+    assert exploration_at("pqn", {"n_timesteps": 1e7}, 2_000_000) == 0.001
 
 
 def test_the_gpu_setting_renders_each_parts_gpu_figures() -> None:

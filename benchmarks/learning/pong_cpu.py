@@ -199,18 +199,26 @@ def _train(logs: Path, algo: str, seed: int, save_every: int, args: argparse.Nam
         raise RuntimeError(f"{algo} seed {seed}: train failed: {err.strip()[-600:]}")
     new = sorted(set(_parts(logs)) - before)
     if new:  # how busy the machine was while this part trained: the 15-minute load average as it stopped
-        loads_path = logs / LOADS
-        loads = json.loads(loads_path.read_text()) if loads_path.exists() else {}
-        loads[new[-1].name] = load_average()[2]
-        atomic_write_text(loads_path, json.dumps(loads))
+        _record_part(logs / LOADS, new[-1].name, load_average()[2])
     return sampler.window(t0, t1) if sampler is not None else None
+
+
+def _part_records(path: Path) -> dict[str, Any]:
+    """A run folder's per-part figures (``gpu.json``, ``loads.json``): part name -> value (empty before any)."""
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def _record_part(path: Path, part: str, value: Any) -> dict[str, Any]:
+    """Add one part's figures to a per-part file (written atomically); all of its parts' figures."""
+    records = {**_part_records(path), part: value}
+    atomic_write_text(path, json.dumps(records))
+    return records
 
 
 def _trained(logs: Path) -> list[dict[str, Any]]:
     """When each part of a run trained (its run dir's start to its last save, local time) and the 15-minute load
     average as it stopped (None: not recorded)."""
-    loads_path = logs / LOADS
-    loads = json.loads(loads_path.read_text()) if loads_path.exists() else {}
+    loads = _part_records(logs / LOADS)
     spans = []
     for part in _parts(logs):
         start = (part / "command.txt").stat().st_mtime
@@ -221,14 +229,20 @@ def _trained(logs: Path) -> list[dict[str, Any]]:
     return spans
 
 
-def exploration_at(config: dict[str, Any], steps: int) -> float | None:
-    """The epsilon of a run's epsilon-greedy exploration after ``steps`` env steps (SB3's linear schedule over the
-    first ``exploration_fraction`` of ``n_timesteps``; None for an algorithm without one, such as PPO)."""
-    if "exploration_fraction" not in config and "exploration_final_eps" not in config:
+def exploration_at(algo: str, config: dict[str, Any], steps: int) -> float | None:
+    """The epsilon of a run's epsilon-greedy exploration after ``steps`` env steps: SB3's linear schedule over the
+    first ``exploration_fraction`` of ``n_timesteps``, with the algorithm class's defaults for the settings the
+    config leaves out (None for an algorithm without one, such as PPO, or a config without ``n_timesteps``)."""
+    import inspect
+
+    from sbagents.algos import ALGOS as CLASSES
+
+    defaults = inspect.signature(CLASSES[algo].cls).parameters
+    if "exploration_fraction" not in defaults or "n_timesteps" not in config:
         return None
-    start = float(config.get("exploration_initial_eps", 1.0))
-    end = float(config.get("exploration_final_eps", 0.05))
-    progress = steps / (float(config.get("n_timesteps", steps or 1)) * float(config.get("exploration_fraction", 0.1)))
+    start, end, fraction = (float(config.get(k, defaults[k].default)) for k in (
+        "exploration_initial_eps", "exploration_final_eps", "exploration_fraction"))
+    progress = steps / (float(config["n_timesteps"]) * fraction)
     return round(start + (end - start) * min(progress, 1.0), 3)
 
 
@@ -267,10 +281,7 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
     save_every = args.save_every or args.setting.save_every[algo]
     gpu = _train(logs, algo, seed, save_every, args, env)
     gpu_path = logs / "gpu.json"  # each part's GPU figures (a continued run adds its part's)
-    parts_gpu = json.loads(gpu_path.read_text()) if gpu_path.exists() else {}
-    if gpu is not None:
-        parts_gpu[_parts(logs)[-1].name] = gpu
-        atomic_write_text(gpu_path, json.dumps(parts_gpu))
+    parts_gpu = _part_records(gpu_path) if gpu is None else _record_part(gpu_path, _parts(logs)[-1].name, gpu)
     cache_path = logs / "scores.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     curve = []
@@ -291,7 +302,7 @@ def _run(folder: Path, algo: str, seed: int, args: argparse.Namespace, env: dict
             "curve_games": args.curve_games, "num_threads": args.num_threads, "save_every": save_every,
             "n_envs": int(config.get("n_envs", 1)), "gradient_passes": gradient_passes(algo, config),
             "n_timesteps": int(float(config["n_timesteps"])) if "n_timesteps" in config else None,
-            "exploration_end": exploration_at(config, within[-1]["steps"]) if within else None,
+            "exploration_end": exploration_at(algo, config, within[-1]["steps"]) if within else None,
             "device": args.device, "gpu": parts_gpu or None,
             "parts": len(_parts(logs)), "trained": _trained(logs), "curve": curve,
             "final": within[-1] if within else None, "best": best, "first_target": reached,
